@@ -1,0 +1,32 @@
+//! Core types shared by every Handheld stage.
+//!
+//! The notation follows Pollefeys et al., *Visual Modeling with a Hand-Held Camera* (IJCV 2004), §1.1:
+//! a projective camera is a 3×4 matrix `P` with `m ~ P M` (eq. 1); in a metric frame
+//! `P = K Rᵀ [I | −t]` (eq. 2) and radial distortion is applied to normalised coordinates (eq. 3).
+//!
+//! The crate is split by concept: [`ids`] (newtype identifiers), [`camera`] (intrinsics, distortion and
+//! the metric camera), [`pose`] (rigid and similarity transforms named by their frames), [`projective`]
+//! (the projective world of §3.1–3.3), [`reconstruction`] (tracks and the metric reconstruction),
+//! [`maps`] (dense float maps such as depth), [`geometry3d`] (point clouds and triangle meshes).
+//! Nothing here touches a file: input and output live in `handheld-io`.
+
+pub mod camera;
+pub mod geometry3d;
+pub mod ids;
+pub mod maps;
+pub mod pose;
+pub mod projective;
+pub mod reconstruction;
+
+pub use camera::{Camera, Intrinsics};
+pub use geometry3d::{PointCloud, TriMesh};
+pub use ids::{CameraId, ImageId, PointId};
+pub use maps::FloatMap;
+pub use pose::{Rigid3, Sim3};
+pub use projective::{ProjectiveCamera, ProjectivePoint, ProjectiveReconstruction};
+pub use reconstruction::{FrameInfo, MetricReconstruction, Observation, Point3D, Track, TrackElement, View};
+
+/// Pixel convention used everywhere inside Handheld: the centre of the top-left pixel is `(0, 0)`,
+/// `x` grows to the right and `y` downwards (Hartley & Zisserman, OpenCV). COLMAP puts that centre at
+/// `(0.5, 0.5)`; `handheld-io` converts at the boundary.
+pub const PIXEL_CENTER_OFFSET_COLMAP: f64 = 0.5;
