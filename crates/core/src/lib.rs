@@ -15,6 +15,7 @@ pub mod geometry3d;
 pub mod ids;
 pub mod maps;
 pub mod pose;
+pub mod progress;
 pub mod projective;
 pub mod reconstruction;
 
@@ -23,6 +24,7 @@ pub use geometry3d::{PointCloud, TriMesh};
 pub use ids::{CameraId, ImageId, PointId};
 pub use maps::FloatMap;
 pub use pose::{Rigid3, Sim3};
+pub use progress::{NoProgress, Progress};
 pub use projective::{ProjectiveCamera, ProjectivePoint, ProjectiveReconstruction};
 pub use reconstruction::{FrameInfo, MetricReconstruction, Observation, Point3D, Track, TrackElement, View};
 

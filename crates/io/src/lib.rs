@@ -1,1 +1,19 @@
-//! placeholder
+//! Handheld's edge with the file system and other tools. Nothing else in the workspace reads or writes
+//! files (apart from the CLI's workspace bookkeeping).
+//!
+//! Split by concept: [`error`] (one error enum naming the path), [`atomic`] (write-then-rename),
+//! [`images`] (photo folders, EXIF), [`video`] (ffmpeg subprocess), [`colmap`] (sparse model text and
+//! binary), [`ply`] (point clouds and meshes), [`pfm`] (float maps),
+//! [`ingest`] (the ingest stage), [`workspace`] (stage folders, manifests, resumption).
+
+pub mod atomic;
+pub mod colmap;
+pub mod error;
+pub mod images;
+pub mod ingest;
+pub mod pfm;
+pub mod ply;
+pub mod video;
+pub mod workspace;
+
+pub use error::{IoError, Result};
