@@ -1,1 +1,70 @@
-fn main() {}
+//! `handheld`: the thin command-line front end. It parses arguments, calls the library stages and
+//! writes results; all the work lives in the stage crates.
+
+mod args;
+mod demo;
+mod pipeline;
+mod ui;
+
+use std::process::ExitCode;
+
+use clap::Parser;
+
+use args::{Cli, Command, GlobalArgs};
+
+fn main() -> ExitCode {
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) => {
+            use clap::error::ErrorKind;
+            if matches!(e.kind(), ErrorKind::DisplayHelp | ErrorKind::DisplayVersion | ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand) {
+                let _ = e.print();
+                return ExitCode::SUCCESS;
+            }
+            // One clear line naming the option, not a page of usage.
+            let text = e.to_string();
+            let line = text.lines().find(|l| !l.trim().is_empty()).unwrap_or("invalid arguments");
+            eprintln!("{line}");
+            eprintln!("(run `handheld --help` for usage)");
+            return ExitCode::from(2);
+        }
+    };
+    ui::init_logging(&cli.global);
+    match run(&cli.command, &cli.global) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            let msg = format!("{e:#}");
+            if cli.global.json {
+                println!("{}", serde_json::json!({ "error": msg }));
+            }
+            eprintln!("error: {msg}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(cmd: &Command, g: &GlobalArgs) -> anyhow::Result<()> {
+    let bars = ui::Bars::new(g);
+    match cmd {
+        Command::Demo(a) => demo::run(a, g, &bars),
+        Command::Reconstruct(a) => {
+            let reports = pipeline::run(&a.input, a.until, &bars)?;
+            report_stages(g, &a.input.output, &reports);
+            Ok(())
+        }
+        Command::Ingest(a) => {
+            let reports = pipeline::run(&a.input, pipeline::Stage::Ingest, &bars)?;
+            report_stages(g, &a.input.output, &reports);
+            Ok(())
+        }
+    }
+}
+
+fn report_stages(g: &GlobalArgs, workspace: &std::path::Path, reports: &[pipeline::StageReport]) {
+    let value = serde_json::json!({ "workspace": workspace, "stages": reports });
+    let mut human = format!("workspace: {}", workspace.display());
+    for r in reports {
+        human.push_str(&format!("\n  {:<10} {:<11} {:>7.2} s  {}", r.stage.dir_name(), r.status, r.seconds, r.summary));
+    }
+    ui::print_result(g, &value, &human);
+}

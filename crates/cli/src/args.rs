@@ -1,0 +1,118 @@
+//! Command-line arguments (clap). Parsing only: every option maps onto a library `*Options` struct.
+
+use std::path::PathBuf;
+
+use clap::{Args, Parser, Subcommand, ValueEnum};
+
+/// Handheld: 3D models from an uncalibrated hand-held camera (photos or video).
+#[derive(Debug, Parser)]
+#[command(name = "handheld", version, about, propagate_version = true)]
+pub struct Cli {
+    #[command(flatten)]
+    pub global: GlobalArgs,
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// Flags every command takes.
+#[derive(Debug, Args, Clone, Copy)]
+pub struct GlobalArgs {
+    /// Print nothing but errors (no progress bars, no logs).
+    #[arg(long, short, global = true)]
+    pub quiet: bool,
+    /// Print the result as one JSON object on stdout (logs stay on stderr).
+    #[arg(long, global = true)]
+    pub json: bool,
+    /// More logging (-v debug, -vv trace).
+    #[arg(long, short, global = true, action = clap::ArgAction::Count)]
+    pub verbose: u8,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Render a synthetic hand-held sequence with exact ground truth, reconstruct it, print the accuracy.
+    Demo(DemoArgs),
+    /// Run the whole pipeline on a folder of photos or a video file, resuming finished stages.
+    Reconstruct(ReconstructArgs),
+    /// Run only the ingest stage: validate the images (or decode the video) into the workspace.
+    Ingest(IngestArgs),
+}
+
+/// Camera path of the synthetic sequence.
+#[derive(Debug, Clone, Copy, ValueEnum, PartialEq, Eq)]
+pub enum PathKind {
+    /// Walk around the object.
+    Orbit,
+    /// Walk sideways past the scene.
+    Walk,
+    /// Move forwards into the scene.
+    Forward,
+}
+
+#[derive(Debug, Args)]
+pub struct DemoArgs {
+    /// Output folder: input images, ground truth and the workspace go inside.
+    #[arg(long, short, default_value = "handheld-demo")]
+    pub output: PathBuf,
+    /// Number of frames to render.
+    #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u32).range(2..=1000))]
+    pub frames: u32,
+    /// Image width in pixels.
+    #[arg(long, default_value_t = 640, value_parser = clap::value_parser!(u32).range(64..=8192))]
+    pub width: u32,
+    /// Image height in pixels.
+    #[arg(long, default_value_t = 480, value_parser = clap::value_parser!(u32).range(48..=8192))]
+    pub height: u32,
+    /// Seed of the scene, the path and the noise.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Camera path.
+    #[arg(long, value_enum, default_value_t = PathKind::Orbit)]
+    pub path: PathKind,
+    /// Redo every stage even when its outputs are up to date.
+    #[arg(long)]
+    pub force: bool,
+}
+
+/// Options shared by the commands that ingest input.
+#[derive(Debug, Args, Clone)]
+pub struct InputArgs {
+    /// A folder of photos (JPEG, PNG, TIFF) or a video file (mp4, mov, avi, mkv).
+    pub input: PathBuf,
+    /// The workspace folder (one sub-folder per stage).
+    #[arg(long, short)]
+    pub output: PathBuf,
+    /// Video: keep every N-th frame.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..))]
+    pub stride: u32,
+    /// Video: start time in seconds.
+    #[arg(long, default_value_t = 0.0)]
+    pub start: f64,
+    /// Video: end time in seconds.
+    #[arg(long)]
+    pub end: Option<f64>,
+    /// Video: keep at most this many frames.
+    #[arg(long)]
+    pub max_frames: Option<usize>,
+    /// Photos: skip unreadable or corrupt images with a warning instead of stopping.
+    #[arg(long)]
+    pub skip_bad_images: bool,
+    /// Redo the stages even when their outputs are up to date.
+    #[arg(long)]
+    pub force: bool,
+}
+
+#[derive(Debug, Args)]
+pub struct ReconstructArgs {
+    #[command(flatten)]
+    pub input: InputArgs,
+    /// Stop after this stage.
+    #[arg(long, value_enum, default_value_t = crate::pipeline::Stage::LAST)]
+    pub until: crate::pipeline::Stage,
+}
+
+#[derive(Debug, Args)]
+pub struct IngestArgs {
+    #[command(flatten)]
+    pub input: InputArgs,
+}

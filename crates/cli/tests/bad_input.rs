@@ -1,0 +1,131 @@
+//! Each bad input of the Foundation issue gets one clear error line naming the path (or option), a
+//! non-zero exit, no panic, and nothing half-written in the workspace.
+
+mod common;
+use common::*;
+
+fn assert_clean_failure(o: &std::process::Output, must_contain: &[&str], ws: &std::path::Path) {
+    let err = stderr(o);
+    assert!(!o.status.success(), "should fail: {err}");
+    assert!(!err.contains("panicked"), "panic: {err}");
+    let first = err.lines().find(|l| l.starts_with("error")).unwrap_or_default();
+    for s in must_contain {
+        assert!(first.contains(s), "error line {first:?} should contain {s:?}\nfull stderr:\n{err}");
+    }
+    assert!(!ws.join("ingest").join("manifest.json").exists(), "a failed stage must not look finished");
+    assert!(no_temp_files(ws), "temporary files left behind");
+}
+
+#[test]
+fn missing_path() {
+    let dir = tempfile::tempdir().unwrap();
+    let ws = dir.path().join("ws");
+    let o = handheld(&["reconstruct", dir.path().join("no_such_folder").to_str().unwrap(), "-o", ws.to_str().unwrap()]);
+    assert_clean_failure(&o, &["no_such_folder", "does not exist"], &ws);
+}
+
+#[test]
+fn empty_folder() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("empty");
+    std::fs::create_dir(&input).unwrap();
+    let ws = dir.path().join("ws");
+    let o = handheld(&["reconstruct", input.to_str().unwrap(), "-o", ws.to_str().unwrap()]);
+    assert_clean_failure(&o, &["empty", "no images"], &ws);
+}
+
+#[test]
+fn non_image_file_is_skipped_with_a_warning() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("photos");
+    std::fs::create_dir(&input).unwrap();
+    write_image(&input.join("a.png"), 1);
+    write_image(&input.join("b.png"), 2);
+    std::fs::write(input.join("notes.txt"), "not an image").unwrap();
+    let ws = dir.path().join("ws");
+    let o = handheld(&["ingest", input.to_str().unwrap(), "-o", ws.to_str().unwrap(), "--json"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains("notes.txt"), "warning names the file: {}", stderr(&o));
+    let v: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
+    assert_eq!(v["stages"][0]["summary"]["images"], 2);
+    assert_eq!(v["stages"][0]["summary"]["skipped"], 1);
+
+    // With only one image left, the same folder is refused.
+    std::fs::remove_file(input.join("b.png")).unwrap();
+    let o = handheld(&["ingest", input.to_str().unwrap(), "-o", ws.to_str().unwrap()]);
+    assert_clean_failure(&o, &["photos", "need at least 2"], &ws);
+}
+
+#[test]
+fn truncated_jpeg() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("photos");
+    std::fs::create_dir(&input).unwrap();
+    write_image(&input.join("a.png"), 1);
+    write_image(&input.join("b.png"), 2);
+    write_image(&input.join("c.jpg"), 3);
+    let bytes = std::fs::read(input.join("c.jpg")).unwrap();
+    std::fs::write(input.join("c.jpg"), &bytes[..bytes.len() / 2]).unwrap();
+    let ws = dir.path().join("ws");
+    let o = handheld(&["reconstruct", input.to_str().unwrap(), "-o", ws.to_str().unwrap()]);
+    assert_clean_failure(&o, &["c.jpg", "truncated"], &ws);
+    // The user can choose to skip it.
+    let o = handheld(&["reconstruct", input.to_str().unwrap(), "-o", ws.to_str().unwrap(), "--skip-bad-images"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains("c.jpg"));
+}
+
+#[test]
+fn one_pixel_image() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("photos");
+    std::fs::create_dir(&input).unwrap();
+    write_image(&input.join("a.png"), 1);
+    write_image(&input.join("b.png"), 2);
+    image::RgbImage::new(1, 1).save(input.join("tiny.png")).unwrap();
+    let ws = dir.path().join("ws");
+    let o = handheld(&["reconstruct", input.to_str().unwrap(), "-o", ws.to_str().unwrap()]);
+    assert_clean_failure(&o, &["tiny.png", "1×1"], &ws);
+}
+
+#[test]
+fn video_that_is_not_one() {
+    if !have_ffmpeg() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("holiday.mp4");
+    std::fs::write(&input, b"this is a text file pretending to be a movie").unwrap();
+    let ws = dir.path().join("ws");
+    let o = handheld(&["reconstruct", input.to_str().unwrap(), "-o", ws.to_str().unwrap()]);
+    assert_clean_failure(&o, &["holiday.mp4", "cannot read this video"], &ws);
+}
+
+#[test]
+fn option_out_of_range() {
+    let dir = tempfile::tempdir().unwrap();
+    let ws = dir.path().join("ws");
+    let o = handheld(&["reconstruct", dir.path().to_str().unwrap(), "-o", ws.to_str().unwrap(), "--stride", "0"]);
+    assert_eq!(o.status.code(), Some(2));
+    let err = stderr(&o);
+    assert!(err.lines().next().unwrap_or_default().contains("--stride"), "{err}");
+    assert!(!err.contains("panicked"));
+
+    let o = handheld(&["reconstruct", dir.path().to_str().unwrap(), "-o", ws.to_str().unwrap(), "--start", "5", "--end", "2"]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("--end"), "{}", stderr(&o));
+
+    let o = handheld(&["demo", "-o", ws.to_str().unwrap(), "--frames", "1"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(stderr(&o).contains("--frames"), "{}", stderr(&o));
+}
+
+#[test]
+fn missing_ffmpeg_says_how_to_install_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("clip.mp4");
+    std::fs::write(&input, b"whatever").unwrap();
+    let ws = dir.path().join("ws");
+    let o = handheld_env(&["reconstruct", input.to_str().unwrap(), "-o", ws.to_str().unwrap()], &[("HANDHELD_FFMPEG", "/nonexistent/bin/ffmpeg")]);
+    assert_clean_failure(&o, &["ffmpeg was not found", "apt-get install ffmpeg"], &ws);
+}

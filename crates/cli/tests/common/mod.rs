@@ -1,0 +1,63 @@
+//! Helpers for the CLI tests: run the built binary and write small input files.
+
+#![allow(dead_code)]
+
+use std::path::Path;
+use std::process::{Command, Output, Stdio};
+
+pub fn handheld(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_handheld"))
+        .args(args)
+        .stdin(Stdio::null())
+        .output()
+        .expect("the handheld binary runs")
+}
+
+/// Runs the binary with extra environment variables.
+pub fn handheld_env(args: &[&str], env: &[(&str, &str)]) -> Output {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_handheld"));
+    cmd.args(args).stdin(Stdio::null());
+    for (k, v) in env {
+        cmd.env(k, v);
+    }
+    cmd.output().expect("the handheld binary runs")
+}
+
+pub fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+pub fn stdout(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+/// A textured test image (big enough for ingest).
+pub fn write_image(path: &Path, seed: u32) {
+    let img = image::RgbImage::from_fn(64, 48, |x, y| image::Rgb([((x * 7 + seed) % 256) as u8, ((y * 5) % 256) as u8, ((x ^ y) % 256) as u8]));
+    img.save(path).expect("write test image");
+}
+
+/// No file under `dir` looks half-written (`*.tmp`).
+pub fn no_temp_files(dir: &Path) -> bool {
+    fn walk(d: &Path) -> bool {
+        let Ok(rd) = std::fs::read_dir(d) else { return true };
+        rd.flatten().all(|e| {
+            let p = e.path();
+            if p.is_dir() {
+                walk(&p)
+            } else {
+                !p.to_string_lossy().ends_with(".tmp")
+            }
+        })
+    }
+    walk(dir)
+}
+
+pub fn have_ffmpeg() -> bool {
+    let ok = Command::new("ffmpeg").arg("-version").stdout(Stdio::null()).stderr(Stdio::null()).status().is_ok();
+    if !ok {
+        assert!(std::env::var_os("CI").is_none(), "ffmpeg must be installed on CI");
+        eprintln!("ffmpeg not installed: skipping");
+    }
+    ok
+}
