@@ -57,6 +57,9 @@ impl Progress for Bars {
             bar.set_style(style.progress_chars("=> "));
         }
         bar.set_message(label.to_string());
+        if len == 0 {
+            bar.enable_steady_tick(std::time::Duration::from_millis(120));
+        }
         if let Ok(mut slot) = self.bar.lock() {
             *slot = Some(bar);
         }

@@ -37,10 +37,7 @@ fn empty_folder() {
 #[test]
 fn non_image_file_is_skipped_with_a_warning() {
     let dir = tempfile::tempdir().unwrap();
-    let input = dir.path().join("photos");
-    std::fs::create_dir(&input).unwrap();
-    write_image(&input.join("a.png"), 1);
-    write_image(&input.join("b.png"), 2);
+    let input = photo_folder(dir.path(), 2);
     std::fs::write(input.join("notes.txt"), "not an image").unwrap();
     let ws = dir.path().join("ws");
     let o = handheld(&["ingest", input.to_str().unwrap(), "-o", ws.to_str().unwrap(), "--json"]);
@@ -51,7 +48,7 @@ fn non_image_file_is_skipped_with_a_warning() {
     assert_eq!(v["stages"][0]["summary"]["skipped"], 1);
 
     // With only one image left, the same folder is refused.
-    std::fs::remove_file(input.join("b.png")).unwrap();
+    std::fs::remove_file(input.join("1.png")).unwrap();
     let o = handheld(&["ingest", input.to_str().unwrap(), "-o", ws.to_str().unwrap()]);
     assert_clean_failure(&o, &["photos", "need at least 2"], &ws);
 }
@@ -59,10 +56,7 @@ fn non_image_file_is_skipped_with_a_warning() {
 #[test]
 fn truncated_jpeg() {
     let dir = tempfile::tempdir().unwrap();
-    let input = dir.path().join("photos");
-    std::fs::create_dir(&input).unwrap();
-    write_image(&input.join("a.png"), 1);
-    write_image(&input.join("b.png"), 2);
+    let input = photo_folder(dir.path(), 2);
     write_image(&input.join("c.jpg"), 3);
     let bytes = std::fs::read(input.join("c.jpg")).unwrap();
     std::fs::write(input.join("c.jpg"), &bytes[..bytes.len() / 2]).unwrap();
@@ -78,10 +72,7 @@ fn truncated_jpeg() {
 #[test]
 fn one_pixel_image() {
     let dir = tempfile::tempdir().unwrap();
-    let input = dir.path().join("photos");
-    std::fs::create_dir(&input).unwrap();
-    write_image(&input.join("a.png"), 1);
-    write_image(&input.join("b.png"), 2);
+    let input = photo_folder(dir.path(), 2);
     image::RgbImage::new(1, 1).save(input.join("tiny.png")).unwrap();
     let ws = dir.path().join("ws");
     let o = handheld(&["reconstruct", input.to_str().unwrap(), "-o", ws.to_str().unwrap()]);

@@ -12,10 +12,7 @@ fn ingest_status(o: &std::process::Output) -> String {
 #[test]
 fn stages_resume_and_rerun_on_change() {
     let dir = tempfile::tempdir().unwrap();
-    let input = dir.path().join("photos");
-    std::fs::create_dir(&input).unwrap();
-    write_image(&input.join("a.png"), 1);
-    write_image(&input.join("b.png"), 2);
+    let input = photo_folder(dir.path(), 2);
     let ws = dir.path().join("ws");
     let run = |extra: &[&str]| {
         let mut args = vec!["reconstruct", input.to_str().unwrap(), "-o", ws.to_str().unwrap(), "--json"];
@@ -30,7 +27,7 @@ fn stages_resume_and_rerun_on_change() {
     assert!(ws.join("timings.json").exists());
     assert_eq!(ingest_status(&run(&[])), "up_to_date");
     assert_eq!(ingest_status(&run(&["--force"])), "ran");
-    write_image(&input.join("c.png"), 3);
+    write_image(&input.join("2.png"), 3);
     assert_eq!(ingest_status(&run(&[])), "ran", "a new photo invalidates ingest");
     assert_eq!(ingest_status(&run(&["--skip-bad-images"])), "ran", "changed options invalidate ingest");
     // A manifest removed by an interrupted rerun means the stage runs again.
@@ -41,10 +38,7 @@ fn stages_resume_and_rerun_on_change() {
 #[test]
 fn quiet_prints_nothing_and_json_is_one_object() {
     let dir = tempfile::tempdir().unwrap();
-    let input = dir.path().join("photos");
-    std::fs::create_dir(&input).unwrap();
-    write_image(&input.join("a.png"), 1);
-    write_image(&input.join("b.png"), 2);
+    let input = photo_folder(dir.path(), 2);
     let ws = dir.path().join("ws");
     let o = handheld(&["reconstruct", input.to_str().unwrap(), "-o", ws.to_str().unwrap(), "--quiet"]);
     assert!(o.status.success());

@@ -1,4 +1,41 @@
-//! Multi-view geometry solvers (F, H, triangulation, resection, rectification maps) of paper §1.1–§3.
+//! Multi-view geometry solvers of paper §1.1–§3: plain functions, each citing the equation of
+//! Pollefeys et al. (IJCV 2004) or the algorithm of Hartley & Zisserman (*Multiple View Geometry*,
+//! 2nd ed., "H&Z") that it implements. Nothing here is robust to outliers: `handheld-robust` wraps
+//! these solvers in RANSAC (§2.2, Table 1).
 //!
-//! Planned in issue #3; this crate currently only reserves its place in the dependency order
-//! documented in ARCHITECTURE.md.
+//! Split by concept, one file per estimated object:
+//! - [`normalize`]: Hartley's isotropic normalisation, used by every linear solver;
+//! - [`fundamental`]: the 7- and 8-point F, Sampson and symmetric epipolar distances, epipoles,
+//!   F from two cameras (§2.2, eqs. 11–13);
+//! - [`homography`]: the normalised DLT for H and its transfer errors (§3.1, eq. 15);
+//! - [`triangulation`]: linear n-view DLT and the Hartley–Sturm optimal two-view method (eqs. 17–18);
+//! - [`skew`](mod@skew): the cross-product matrix `[e]×` and the canonical camera pair of eq. 16;
+//! - [`poly`]: small real polynomial root finders (the cubic of the 7-point method, the sextic of
+//!   Hartley–Sturm).
+//!
+//! Conventions: image points are pixels (top-left pixel centre at `(0, 0)`, see
+//! [`handheld_core::PIXEL_CENTER_OFFSET_COLMAP`]); a correspondence `x1 ↔ x2` satisfies
+//! `x2ᵀ F x1 = 0` and `x2 ~ H x1`. Degenerate or too-small inputs return a [`GeometryError`],
+//! never panic.
+
+pub mod error;
+pub mod fundamental;
+pub mod homography;
+mod linalg;
+pub mod normalize;
+pub mod poly;
+pub mod skew;
+pub mod triangulation;
+
+#[cfg(test)]
+pub(crate) mod test_util;
+
+pub use error::{GeometryError, Result};
+pub use fundamental::{
+    enforce_rank2, epipoles, fundamental_7point, fundamental_8point, fundamental_from_cameras, sampson_distance,
+    sampson_distance_sq, symmetric_epipolar_distance_sq,
+};
+pub use homography::{homography_dlt, symmetric_transfer_error_sq, transfer_error_sq};
+pub use normalize::{hartley_normalization, Normalization};
+pub use skew::{canonical_cameras, skew};
+pub use triangulation::{optimal_correction, triangulate_linear, triangulate_optimal};

@@ -127,12 +127,7 @@ fn ingest_video(path: &Path, frames_dir: &Path, opts: &IngestOptions, progress: 
         let frame = frame?;
         let name = format!("frame_{:06}.png", frame.index);
         let out = frames_dir.join(&name);
-        let mut png = Vec::new();
-        frame
-            .image
-            .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
-            .map_err(|e| IoError::format(&out, e.to_string()))?;
-        write_bytes_atomic(&out, &png)?;
+        write_png(&out, &frame.image)?;
         let (width, height) = frame.image.dimensions();
         if width < opts.images.min_dimension || height < opts.images.min_dimension {
             return Err(IoError::Input { path: path.to_path_buf(), reason: format!("video frames are only {width}×{height} pixels") });

@@ -1,4 +1,29 @@
-//! Generic RANSAC (Estimator/Sampler/Consensus), LO-RANSAC and the T(d,d) test of paper §2.2.
+//! Robust estimation of §2.2 (Table 1): one generic RANSAC loop, [`run`], parametrised by three small
+//! traits, plus the estimators that wrap `handheld-geometry`'s minimal solvers.
 //!
-//! Planned in issue #3; this crate currently only reserves its place in the dependency order
-//! documented in ARCHITECTURE.md.
+//! Split by concept:
+//! - [`estimator`]: the [`Estimator`] trait (minimal fit, residual, non-minimal refit);
+//! - [`sampler`]: the [`Sampler`] trait and [`UniformSampler`], which owns a seeded `ChaCha8Rng`
+//!   (no hidden thread-local generator anywhere, so every run is reproducible from its seed);
+//! - [`consensus`]: the [`Consensus`] trait, [`InlierCount`] (plain RANSAC) and [`Msac`]
+//!   (truncated quadratic, Torr & Zisserman 2000);
+//! - [`options`]: [`RansacOptions`] with documented defaults and `validate()`;
+//! - [`ransac`]: the loop itself with adaptive stopping (paper: `Γ = 1 − (1 − γᵖ)ᵐ`), LO-RANSAC
+//!   (Chum, Matas & Kittler 2003) and the preemptive T(d,d) test (Chum & Matas 2002), returning a
+//!   [`RansacReport`]: finding no model is a normal outcome, not an error;
+//! - [`two_view`]: [`Match2d2d`], [`FundamentalEstimator`] (7-point minimal, 8-point refit, Sampson
+//!   residual) and [`HomographyEstimator`] (4-point DLT, symmetric transfer residual).
+
+pub mod consensus;
+pub mod estimator;
+pub mod options;
+pub mod ransac;
+pub mod sampler;
+pub mod two_view;
+
+pub use consensus::{Consensus, InlierCount, Msac};
+pub use estimator::Estimator;
+pub use options::{RansacError, RansacOptions};
+pub use ransac::{required_iterations, run, RansacReport};
+pub use sampler::{Sampler, UniformSampler};
+pub use two_view::{FundamentalEstimator, HomographyEstimator, Match2d2d};

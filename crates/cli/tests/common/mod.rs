@@ -37,6 +37,16 @@ pub fn write_image(path: &Path, seed: u32) {
     img.save(path).expect("write test image");
 }
 
+/// A folder `photos` under `dir` holding `n` distinct test images `0.png`, `1.png`, …
+pub fn photo_folder(dir: &Path, n: u32) -> std::path::PathBuf {
+    let input = dir.join("photos");
+    std::fs::create_dir_all(&input).expect("create photo folder");
+    for k in 0..n {
+        write_image(&input.join(format!("{k}.png")), k + 1);
+    }
+    input
+}
+
 /// No file under `dir` looks half-written (`*.tmp`).
 pub fn no_temp_files(dir: &Path) -> bool {
     fn walk(d: &Path) -> bool {
