@@ -36,6 +36,22 @@ pub enum Command {
     Reconstruct(ReconstructArgs),
     /// Run only the ingest stage: validate the images (or decode the video) into the workspace.
     Ingest(IngestArgs),
+    /// Benchmarks; each prints one JSON object (use with --json).
+    Bench(BenchArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct BenchArgs {
+    #[command(subcommand)]
+    pub which: BenchCommand,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum BenchCommand {
+    /// Bundle adjustment on a BAL problem (compare with Ceres' bundle_adjuster).
+    Bundle(crate::bench_bundle::BenchBundleArgs),
+    /// Feature extraction and matching on a folder of images (compare with COLMAP).
+    Matching(crate::bench_matching::BenchMatchingArgs),
 }
 
 /// Camera path of the synthetic sequence.

@@ -2,6 +2,8 @@
 //! writes results; all the work lives in the stage crates.
 
 mod args;
+mod bench_bundle;
+mod bench_matching;
 mod demo;
 mod pipeline;
 mod ui;
@@ -10,7 +12,7 @@ use std::process::ExitCode;
 
 use clap::Parser;
 
-use args::{Cli, Command, GlobalArgs};
+use args::{BenchCommand, Cli, Command, GlobalArgs};
 
 fn main() -> ExitCode {
     let cli = match Cli::try_parse() {
@@ -52,6 +54,10 @@ fn run(cmd: &Command, g: &GlobalArgs) -> anyhow::Result<()> {
             report_stages(g, &a.input.output, &reports);
             Ok(())
         }
+        Command::Bench(b) => match &b.which {
+            BenchCommand::Bundle(a) => bench_bundle::run(a, g, &bars),
+            BenchCommand::Matching(a) => bench_matching::run(a, g, &bars),
+        },
         Command::Ingest(a) => {
             let reports = pipeline::run(&a.input, pipeline::Stage::Ingest, &bars)?;
             report_stages(g, &a.input.output, &reports);

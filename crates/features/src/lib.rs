@@ -1,4 +1,18 @@
-//! Feature detection, KLT tracking, descriptor matching and two-view verification of paper §2.
+//! Correspondences (paper §2): interest points, descriptors, matching and tracking.
 //!
-//! Planned in issue #3; this crate currently only reserves its place in the dependency order
-//! documented in ARCHITECTURE.md.
+//! Split by concept: [`gray`] (the float grey image, blur, pyramid, sampling), [`detector`] (the
+//! swappable detector trait and feature types), [`harris`] (Harris corners, §2.1), [`zncc`] (normalised
+//! patches whose dot product is the ZNCC of eq. 9), [`klt`] (pyramidal Lucas–Kanade tracking, eq. 8),
+//! [`sift`] (SIFT-class wide-baseline features, RootSIFT), [`matching`] (brute-force descriptor matching
+//! by matrix product, ratio and mutual tests).
+
+pub mod detector;
+pub mod gray;
+pub mod harris;
+pub mod klt;
+pub mod matching;
+pub mod sift;
+pub mod zncc;
+
+pub use detector::{Descriptors, FeatureDetector, Features, Keypoint};
+pub use gray::GrayImage;
