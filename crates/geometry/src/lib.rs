@@ -10,6 +10,9 @@
 //! - [`homography`]: the normalised DLT for H and its transfer errors (§3.1, eq. 15);
 //! - [`triangulation`]: linear n-view DLT and the Hartley–Sturm optimal two-view method (eqs. 17–18);
 //! - [`skew`](mod@skew): the cross-product matrix `[e]×` and the canonical camera pair of eq. 16;
+//! - [`refine_f`]: LM on eq. 12 over the orthonormal representation of F;
+//! - [`gold_standard`]: the sparse ML estimate of eq. 13 (points eliminated by Schur complement);
+//! - [`view_distance`]: the image-based view distance of eqs. 14–15;
 //! - [`poly`]: small real polynomial root finders (the cubic of the 7-point method, the sextic of
 //!   Hartley–Sturm).
 //!
@@ -20,12 +23,15 @@
 
 pub mod error;
 pub mod fundamental;
+pub mod gold_standard;
 pub mod homography;
 mod linalg;
 pub mod normalize;
 pub mod poly;
+pub mod refine_f;
 pub mod skew;
 pub mod triangulation;
+pub mod view_distance;
 
 #[cfg(test)]
 pub(crate) mod test_util;
@@ -39,3 +45,6 @@ pub use homography::{homography_dlt, symmetric_transfer_error_sq, transfer_error
 pub use normalize::{hartley_normalization, Normalization};
 pub use skew::{canonical_cameras, skew};
 pub use triangulation::{optimal_correction, triangulate_linear, triangulate_optimal};
+pub use gold_standard::{gold_standard_fundamental, GoldStandardOptions, GoldStandardReport};
+pub use refine_f::{epipolar_residuals, refine_fundamental, RefineFOptions, RefineFReport};
+pub use view_distance::{view_distance, ViewDistance};
