@@ -12,14 +12,19 @@
 //!   (Chum, Matas & Kittler 2003) and the preemptive T(d,d) test (Chum & Matas 2002), returning a
 //!   [`RansacReport`]: finding no model is a normal outcome, not an error;
 //! - [`two_view`]: [`Match2d2d`], [`FundamentalEstimator`] (7-point minimal, 8-point refit, Sampson
-//!   residual) and [`HomographyEstimator`] (4-point DLT, symmetric transfer residual).
+//!   residual) and [`HomographyEstimator`] (4-point DLT, symmetric transfer residual);
+//! - [`gric`]: Torr's GRIC for choosing between F and H;
+//! - [`verify`]: the Table 1 facade [`estimate_two_view_geometry`] (RANSAC, eq. 12/13 refinement,
+//!   GRIC, configuration: general, planar, pure rotation, too few inliers).
 
 pub mod consensus;
 pub mod estimator;
+pub mod gric;
 pub mod options;
 pub mod ransac;
 pub mod sampler;
 pub mod two_view;
+pub mod verify;
 
 pub use consensus::{Consensus, InlierCount, Msac};
 pub use estimator::Estimator;
@@ -27,3 +32,4 @@ pub use options::{RansacError, RansacOptions};
 pub use ransac::{required_iterations, run, RansacReport};
 pub use sampler::{Sampler, UniformSampler};
 pub use two_view::{FundamentalEstimator, HomographyEstimator, Match2d2d};
+pub use verify::{estimate_two_view_geometry, refine_two_view, TwoViewConfiguration, TwoViewGeometry, TwoViewOptions};
