@@ -7,7 +7,9 @@
 //! [`ingest`] (the ingest stage), [`workspace`] (stage folders, manifests, resumption).
 
 pub mod atomic;
+pub mod bal;
 pub mod colmap;
+pub mod database;
 pub mod error;
 pub mod images;
 pub mod ingest;
