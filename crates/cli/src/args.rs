@@ -116,6 +116,36 @@ pub struct InputArgs {
     /// Redo the stages even when their outputs are up to date.
     #[arg(long)]
     pub force: bool,
+    /// Features: keep at most this many per image (strongest first).
+    #[arg(long, default_value_t = 8192, value_parser = clap::builder::TypedValueParser::map(clap::value_parser!(u64).range(16..=1_000_000), |v| v as usize))]
+    pub max_features: usize,
+    /// Features: downscale images whose longer side is larger than this (pixels).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(64..))]
+    pub max_image_size: Option<u32>,
+    /// Matching: which pairs to match.
+    #[arg(long, value_enum, default_value_t = PairMode::Auto)]
+    pub pairs: PairMode,
+    /// Matching: neighbours on each side for sequential matching.
+    #[arg(long, default_value_t = 8, value_parser = clap::builder::TypedValueParser::map(clap::value_parser!(u64).range(1..=1000), |v| v as usize))]
+    pub window: usize,
+    /// Matching: Lowe's ratio test threshold, in (0, 1].
+    #[arg(long, default_value_t = 0.8)]
+    pub ratio: f32,
+    /// Matching: skip guided matching along epipolar lines (Table 1 step 4).
+    #[arg(long)]
+    pub no_guided: bool,
+}
+
+/// Which image pairs the matches stage matches.
+#[derive(Debug, Clone, Copy, ValueEnum, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PairMode {
+    /// Exhaustive up to 40 photos; a sequential window for video and longer photo sets.
+    Auto,
+    /// Every pair.
+    Exhaustive,
+    /// Each image with its `--window` successors.
+    Sequential,
 }
 
 #[derive(Debug, Args)]

@@ -84,6 +84,12 @@ pub fn run(a: &DemoArgs, g: &GlobalArgs, bars: &Bars) -> Result<()> {
         max_frames: None,
         skip_bad_images: false,
         force: a.force,
+        max_features: 8192,
+        max_image_size: None,
+        pairs: crate::args::PairMode::Auto,
+        window: 8,
+        ratio: 0.8,
+        no_guided: false,
     };
     let reports = pipeline::run(&input, pipeline::Stage::LAST, bars)?;
     let summary = json!({

@@ -6,6 +6,7 @@ mod bench_bundle;
 mod bench_matching;
 mod demo;
 mod pipeline;
+mod stages;
 mod ui;
 
 use std::process::ExitCode;

@@ -1,38 +1,45 @@
 //! The stage sequence of `handheld reconstruct`: each stage is fingerprinted (inputs, options,
 //! upstream manifests), skipped when its manifest is up to date, and otherwise run through its library
-//! call, with its outputs written atomically and its manifest last.
+//! call by [`run_stage`], which times it and writes its manifest last.
 
 use std::path::Path;
 use std::time::Instant;
 
 use anyhow::{Context, Result};
 use clap::ValueEnum;
-use handheld_io::images::{list_image_folder, ImageIngestOptions};
-use handheld_io::ingest::{ingest, IngestOptions, IngestResult};
+use handheld_io::images::ImageIngestOptions;
+use handheld_io::ingest::IngestOptions;
 use handheld_io::video::VideoOptions;
 use handheld_io::workspace::{now_unix_s, Fingerprint, StageManifest, Workspace, HANDHELD_VERSION};
 use serde::Serialize;
 
 use crate::args::InputArgs;
+use crate::stages;
 use crate::ui::Bars;
 
-/// Pipeline stages, in order. Later stages (features, sparse, dense, mesh) join as they land.
+/// Pipeline stages, in order. Later stages (sparse, dense, mesh) join as they land.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, ValueEnum, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Stage {
     /// Validate photos / decode video frames.
     Ingest,
+    /// Detect and describe features (RootSIFT).
+    Features,
+    /// Match image pairs and verify them (Table 1); writes COLMAP's database.db.
+    Matches,
 }
 
 impl Stage {
     /// The last implemented stage: what `reconstruct` runs up to by default.
-    pub const LAST: Stage = Stage::Ingest;
-    pub const ALL: [Stage; 1] = [Stage::Ingest];
+    pub const LAST: Stage = Stage::Matches;
+    pub const ALL: [Stage; 3] = [Stage::Ingest, Stage::Features, Stage::Matches];
 
     /// The stage's folder name in the workspace.
     pub fn dir_name(self) -> &'static str {
         match self {
             Stage::Ingest => "ingest",
+            Stage::Features => "features",
+            Stage::Matches => "matches",
         }
     }
 }
@@ -47,6 +54,12 @@ pub struct StageReport {
     pub summary: serde_json::Value,
 }
 
+/// What a stage body returns: its output files (relative to the stage folder) and a summary.
+pub struct StageOutput {
+    pub outputs: Vec<String>,
+    pub summary: serde_json::Value,
+}
+
 /// Builds the ingest options from the command line, naming the option that is out of range.
 pub fn ingest_options(a: &InputArgs) -> Result<IngestOptions> {
     let opts = IngestOptions {
@@ -57,9 +70,49 @@ pub fn ingest_options(a: &InputArgs) -> Result<IngestOptions> {
     Ok(opts)
 }
 
+/// Runs one stage unless its manifest is up to date. `fingerprint` already holds the stage's inputs
+/// and options; the upstream manifests' hashes are added here.
+pub fn run_stage(
+    ws: &Workspace,
+    stage: Stage,
+    mut fingerprint: Fingerprint,
+    options: serde_json::Value,
+    force: bool,
+    body: impl FnOnce(&Path) -> Result<StageOutput>,
+) -> Result<StageReport> {
+    fingerprint.add_str("stage", stage.dir_name()).add_json("options", &options);
+    for up in Stage::ALL.into_iter().filter(|s| *s < stage) {
+        let m = ws.manifest(up.dir_name()).with_context(|| format!("stage {} has not run", up.dir_name()))?;
+        fingerprint.add_str(up.dir_name(), &m.input_hash);
+    }
+    let hash = fingerprint.hex();
+    if !force && ws.is_up_to_date(stage.dir_name(), &hash) {
+        let m = ws.manifest(stage.dir_name()).context("manifest vanished")?;
+        return Ok(StageReport { stage, status: "up_to_date", seconds: m.seconds, summary: m.summary });
+    }
+    let started = now_unix_s();
+    let t0 = Instant::now();
+    let dir = ws.begin(stage.dir_name())?;
+    let out = body(&dir)?;
+    let seconds = t0.elapsed().as_secs_f64();
+    ws.finish(&StageManifest {
+        stage: stage.dir_name().into(),
+        handheld_version: HANDHELD_VERSION.into(),
+        input_hash: hash,
+        options,
+        started_unix_s: started,
+        seconds,
+        outputs: out.outputs,
+        summary: out.summary.clone(),
+    })?;
+    Ok(StageReport { stage, status: "ran", seconds, summary: out.summary })
+}
+
 /// Runs the stages up to `until` on the workspace.
 pub fn run(a: &InputArgs, until: Stage, bars: &Bars) -> Result<Vec<StageReport>> {
-    let opts = ingest_options(a)?;
+    let ingest_opts = ingest_options(a)?;
+    let feature_opts = stages::features::options(a)?;
+    let match_opts = stages::matches::options(a)?;
     if !a.input.exists() {
         anyhow::bail!("{}: does not exist", a.input.display());
     }
@@ -67,7 +120,9 @@ pub fn run(a: &InputArgs, until: Stage, bars: &Bars) -> Result<Vec<StageReport>>
     let mut reports = Vec::new();
     for stage in Stage::ALL.into_iter().filter(|s| *s <= until) {
         let report = match stage {
-            Stage::Ingest => run_ingest(&ws, &a.input, &opts, a.force, bars)?,
+            Stage::Ingest => stages::ingest::run(&ws, &a.input, &ingest_opts, a.force, bars)?,
+            Stage::Features => stages::features::run(&ws, &feature_opts, a.force, bars)?,
+            Stage::Matches => stages::matches::run(&ws, &match_opts, a.force, bars)?,
         };
         match report.status {
             "ran" => tracing::info!("{}: done in {:.2} s", stage.dir_name(), report.seconds),
@@ -76,57 +131,4 @@ pub fn run(a: &InputArgs, until: Stage, bars: &Bars) -> Result<Vec<StageReport>>
         reports.push(report);
     }
     Ok(reports)
-}
-
-fn ingest_fingerprint(input: &Path, opts: &IngestOptions) -> Result<String> {
-    let mut fp = Fingerprint::new();
-    fp.add_str("stage", "ingest").add_json("options", opts);
-    if input.is_dir() {
-        // Only the listing and file identities: cheap, and any change to the photos invalidates it.
-        let listing = list_image_folder(input, &ImageIngestOptions { min_images: 0, ..opts.images.clone() })?;
-        for p in &listing.images {
-            fp.add_file(p)?;
-        }
-    } else {
-        fp.add_file(input)?;
-    }
-    Ok(fp.hex())
-}
-
-fn run_ingest(ws: &Workspace, input: &Path, opts: &IngestOptions, force: bool, bars: &Bars) -> Result<StageReport> {
-    let stage = Stage::Ingest;
-    let hash = ingest_fingerprint(input, opts)?;
-    if !force && ws.is_up_to_date(stage.dir_name(), &hash) {
-        let m = ws.manifest(stage.dir_name()).context("manifest vanished")?;
-        return Ok(StageReport { stage, status: "up_to_date", seconds: m.seconds, summary: m.summary });
-    }
-    let started = now_unix_s();
-    let t0 = Instant::now();
-    let dir = ws.begin(stage.dir_name())?;
-    let result: IngestResult = ingest(input, &dir.join("frames"), opts, bars)?;
-    let json = serde_json::to_vec_pretty(&result)?;
-    handheld_io::atomic::write_bytes_atomic(&dir.join("images.json"), &json)?;
-    for (p, why) in &result.skipped {
-        tracing::warn!("{}: skipped ({why})", p.display());
-    }
-    let summary = serde_json::json!({
-        "kind": result.kind,
-        "images": result.images.len(),
-        "skipped": result.skipped.len(),
-        "width": result.images.first().map(|i| i.info.width),
-        "height": result.images.first().map(|i| i.info.height),
-        "exif_focal_priors": result.images.iter().filter(|i| i.info.focal_prior_px.is_some()).count(),
-    });
-    let seconds = t0.elapsed().as_secs_f64();
-    ws.finish(&StageManifest {
-        stage: stage.dir_name().into(),
-        handheld_version: HANDHELD_VERSION.into(),
-        input_hash: hash,
-        options: serde_json::to_value(opts)?,
-        started_unix_s: started,
-        seconds,
-        outputs: vec!["images.json".into()],
-        summary: summary.clone(),
-    })?;
-    Ok(StageReport { stage, status: "ran", seconds, summary })
 }

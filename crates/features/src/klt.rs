@@ -1,1 +1,498 @@
-//! In progress.
+//! Frame-to-frame feature tracking for video (paper §2.1): pyramidal Lucas–Kanade minimising the SSD
+//! of eq. 8 over a translation, with an affine consistency check against each track's first
+//! appearance.
+//!
+//! * **Translation, frame to frame** — Lucas & Kanade, "An iterative image registration technique"
+//!   (IJCAI 1981), in Bouguet's pyramidal formulation ("Pyramidal implementation of the Lucas Kanade
+//!   feature tracker", Intel 2000): the displacement found at a coarse level, doubled, seeds the next
+//!   finer one; at each level Newton–Raphson steps `η = G⁻¹ b` refine it to sub-pixel precision. A
+//!   feature is dropped when the smallest eigenvalue of `G` (per window pixel) is too small, when it
+//!   leaves the image, or when tracking back from the new frame misses its old position
+//!   (forward–backward check).
+//! * **Affine, against the first appearance** — Shi & Tomasi, "Good features to track" (CVPR 1994):
+//!   "to evaluate the accumulated difference from the start of the track it is advised to use an affine
+//!   motion model" (§2.1). The window stored at the track's birth is registered to the current frame by
+//!   Gauss–Newton over an affine warp plus an intensity offset; the track dies when the mean absolute
+//!   residual exceeds a threshold. With `affine_refine` the registered centre also becomes the track's
+//!   position, which removes the drift that frame-to-frame translation steps accumulate.
+//! * **Re-detection** — Harris corners ([`crate::harris`]) away from the live tracks keep the number of
+//!   tracks at the target.
+//!
+//! Coordinates use the pixel-centre convention of [`crate::Keypoint`]; a position `p` at pyramid level
+//! `l` is `(p + ½)/2ˡ − ½` there (see [`GrayImage::downsample2`]).
+
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::gray::GrayImage;
+use crate::harris::{detect_harris, HarrisOptions};
+use crate::zncc::sample_patch;
+
+/// Blur (σ, pixels) applied before each 2× pyramid reduction, on top of the 2×2 averaging.
+const PYRAMID_SIGMA: f32 = 0.8;
+/// The affine fit may move a feature at most this far (pixels) from its translational estimate.
+const AFFINE_MAX_SHIFT: f32 = 2.0;
+/// Weight of the prior that keeps the affine deformation near its previous value, relative to the
+/// data term's scale for those parameters.
+const AFFINE_PRIOR: f64 = 0.05;
+/// Bounds of the determinant of the fitted affine map (area change since the first appearance).
+const AFFINE_DET_RANGE: (f32, f32) = (0.25, 4.0);
+
+/// Options of [`KltTracker`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct KltOptions {
+    /// Half-size of the integration window: `(2r+1)²` pixels. Default 7 (15×15).
+    pub window_radius: usize,
+    /// Pyramid levels including full resolution. Default 4.
+    pub levels: usize,
+    /// Newton–Raphson iterations per pyramid level. Default 30.
+    pub max_iterations: usize,
+    /// Iterations stop when the update is shorter than this (pixels). Default 0.01.
+    pub epsilon: f32,
+    /// Minimum smallest eigenvalue of the gradient matrix `G` divided by the window area (intensities
+    /// in [0, 1]); weaker features are dropped (Shi & Tomasi). Default 1e-4.
+    pub min_eigenvalue: f32,
+    /// Maximum forward–backward error in pixels; `None` skips the backward tracking. Default 0.5.
+    pub forward_backward_max: Option<f32>,
+    /// Maximum mean absolute residual (intensities in [0, 1]) of the affine registration of the first
+    /// appearance; `None` disables the affine stage. Default 0.04 (about 10 grey levels).
+    pub affine_max_residual: Option<f32>,
+    /// Replace the translational position by the centre of the affine registration (anchors the track
+    /// to its first appearance). Default true.
+    pub affine_refine: bool,
+    /// Gauss–Newton iterations of the affine registration. Default 20.
+    pub affine_max_iterations: usize,
+    /// Number of live tracks that re-detection maintains. Default 500.
+    pub target_features: usize,
+    /// New features keep at least this distance (pixels) from live tracks and from each other.
+    /// Default 8.
+    pub redetect_min_distance: f32,
+    /// Corner detector for new tracks; its border is raised to clear the tracking window.
+    pub detector: HarrisOptions,
+}
+
+impl Default for KltOptions {
+    fn default() -> Self {
+        Self {
+            window_radius: 7,
+            levels: 4,
+            max_iterations: 30,
+            epsilon: 0.01,
+            min_eigenvalue: 1e-4,
+            forward_backward_max: Some(0.5),
+            affine_max_residual: Some(0.04),
+            affine_refine: true,
+            affine_max_iterations: 20,
+            target_features: 500,
+            redetect_min_distance: 8.0,
+            detector: HarrisOptions::default(),
+        }
+    }
+}
+
+impl KltOptions {
+    /// Checks that every field is in range.
+    pub fn validate(&self) -> Result<(), String> {
+        if !(1..=32).contains(&self.window_radius) {
+            return Err(format!("window_radius must be in 1..=32, got {}", self.window_radius));
+        }
+        if !(1..=8).contains(&self.levels) {
+            return Err(format!("levels must be in 1..=8, got {}", self.levels));
+        }
+        if self.max_iterations == 0 {
+            return Err("max_iterations must be positive".into());
+        }
+        if !(self.epsilon > 0.0 && self.epsilon.is_finite()) {
+            return Err(format!("epsilon must be finite and positive, got {}", self.epsilon));
+        }
+        if !(self.min_eigenvalue >= 0.0 && self.min_eigenvalue.is_finite()) {
+            return Err(format!("min_eigenvalue must be finite and non-negative, got {}", self.min_eigenvalue));
+        }
+        for (name, v) in [("forward_backward_max", self.forward_backward_max), ("affine_max_residual", self.affine_max_residual)] {
+            if let Some(v) = v {
+                if !(v > 0.0 && v.is_finite()) {
+                    return Err(format!("{name} must be finite and positive, got {v}"));
+                }
+            }
+        }
+        if !(self.redetect_min_distance >= 0.0 && self.redetect_min_distance.is_finite()) {
+            return Err(format!("redetect_min_distance must be finite and non-negative, got {}", self.redetect_min_distance));
+        }
+        self.detector.validate()
+    }
+}
+
+/// One feature track: its positions in consecutive frames.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Track2d {
+    /// Stable identifier, increasing in order of birth.
+    pub id: u64,
+    /// `(frame_index, x, y)` for every frame since birth (consecutive frame indices).
+    pub positions: Vec<(usize, f32, f32)>,
+    /// False once the track is lost; it never comes back.
+    pub alive: bool,
+}
+
+/// One pyramid level with its central-difference gradients.
+struct Level {
+    img: GrayImage,
+    gx: GrayImage,
+    gy: GrayImage,
+}
+
+fn build_pyramid(img: &GrayImage, levels: usize, min_size: usize) -> Vec<Level> {
+    let mut imgs = vec![img.clone()];
+    while imgs.len() < levels {
+        let Some(last) = imgs.last() else { break };
+        if last.width / 2 < min_size || last.height / 2 < min_size {
+            break;
+        }
+        let next = last.gaussian_blur(PYRAMID_SIGMA).downsample2();
+        imgs.push(next);
+    }
+    imgs.into_par_iter()
+        .map(|img| {
+            let (gx, gy) = img.gradients();
+            Level { img, gx, gy }
+        })
+        .collect()
+}
+
+/// State of a live track beyond its public history.
+struct Live {
+    /// Index into `KltTracker::tracks`.
+    index: usize,
+    /// Position in the previous frame.
+    x: f32,
+    y: f32,
+    /// Level-0 window at the first appearance (row-major, `(2r+1)²`).
+    template: Vec<f32>,
+    /// Affine map from template offsets to current image offsets, `[a00, a01, a10, a11]`.
+    affine: [f32; 4],
+}
+
+/// Pyramidal KLT tracker fed one frame at a time.
+pub struct KltTracker {
+    options: KltOptions,
+    frame: usize,
+    prev: Option<Vec<Level>>,
+    tracks: Vec<Track2d>,
+    live: Vec<Live>,
+    next_id: u64,
+}
+
+impl KltTracker {
+    /// A tracker with validated options.
+    pub fn new(options: KltOptions) -> Result<Self, String> {
+        options.validate()?;
+        Ok(Self { options, frame: 0, prev: None, tracks: Vec::new(), live: Vec::new(), next_id: 0 })
+    }
+
+    pub fn options(&self) -> &KltOptions {
+        &self.options
+    }
+
+    /// Number of frames processed so far (the index the next frame will get).
+    pub fn frame_count(&self) -> usize {
+        self.frame
+    }
+
+    /// Every track kept so far, alive or not, in order of birth.
+    pub fn tracks(&self) -> &[Track2d] {
+        &self.tracks
+    }
+
+    /// Number of live tracks.
+    pub fn alive_count(&self) -> usize {
+        self.live.len()
+    }
+
+    /// Removes and returns the finished (dead) tracks, so long videos do not accumulate them.
+    pub fn drain_finished(&mut self) -> Vec<Track2d> {
+        let old = std::mem::take(&mut self.tracks);
+        let mut remap = vec![usize::MAX; old.len()];
+        let mut dead = Vec::new();
+        for (i, t) in old.into_iter().enumerate() {
+            if t.alive {
+                remap[i] = self.tracks.len();
+                self.tracks.push(t);
+            } else {
+                dead.push(t);
+            }
+        }
+        for l in &mut self.live {
+            l.index = remap[l.index];
+        }
+        dead
+    }
+
+    /// Tracks the features into `image` (the next frame), drops lost ones, starts new ones and returns
+    /// every track. A frame of a different size than the previous one ends all tracks.
+    pub fn process(&mut self, image: &GrayImage) -> &[Track2d] {
+        let frame = self.frame;
+        self.frame += 1;
+        let pyr = build_pyramid(image, self.options.levels, 2 * self.options.window_radius + 1);
+        if let Some(prev) = self.prev.take() {
+            if prev[0].img.width == image.width && prev[0].img.height == image.height {
+                self.track(&prev, &pyr, frame);
+            } else {
+                self.end_all();
+            }
+        }
+        self.replenish(&pyr, frame);
+        self.prev = Some(pyr);
+        &self.tracks
+    }
+
+    fn end_all(&mut self) {
+        for l in self.live.drain(..) {
+            self.tracks[l.index].alive = false;
+        }
+    }
+
+    fn track(&mut self, prev: &[Level], next: &[Level], frame: usize) {
+        let opts = &self.options;
+        let results: Vec<Option<(f32, f32, [f32; 4])>> = self.live.par_iter().map(|l| track_one(opts, prev, next, l)).collect();
+        let mut kept = Vec::with_capacity(self.live.len());
+        for (mut l, res) in std::mem::take(&mut self.live).into_iter().zip(results) {
+            match res {
+                Some((x, y, a)) => {
+                    (l.x, l.y, l.affine) = (x, y, a);
+                    self.tracks[l.index].positions.push((frame, x, y));
+                    kept.push(l);
+                }
+                None => self.tracks[l.index].alive = false,
+            }
+        }
+        self.live = kept;
+    }
+
+    /// Starts tracks at Harris corners away from the live ones until `target_features` are alive.
+    fn replenish(&mut self, pyr: &[Level], frame: usize) {
+        let need = self.options.target_features.saturating_sub(self.live.len());
+        if need == 0 {
+            return;
+        }
+        let r = self.options.window_radius;
+        let img = &pyr[0].img;
+        let mut det = self.options.detector.clone();
+        det.border = det.border.max(r + 2);
+        let corners = detect_harris(img, &det);
+        let d = self.options.redetect_min_distance.max(1.0);
+        let cols = (img.width as f32 / d) as usize + 1;
+        let rows = (img.height as f32 / d) as usize + 1;
+        let mut grid: Vec<Vec<(f32, f32)>> = vec![Vec::new(); cols * rows];
+        let cell = |x: f32, y: f32| ((x / d).clamp(0.0, (cols - 1) as f32) as usize, (y / d).clamp(0.0, (rows - 1) as f32) as usize);
+        for l in &self.live {
+            let (cx, cy) = cell(l.x, l.y);
+            grid[cy * cols + cx].push((l.x, l.y));
+        }
+        let side = 2 * r + 1;
+        let mut added = 0;
+        for kp in corners {
+            if added == need {
+                break;
+            }
+            let (cx, cy) = cell(kp.x, kp.y);
+            let near = (cy.saturating_sub(1)..=(cy + 1).min(rows - 1)).any(|yy| {
+                (cx.saturating_sub(1)..=(cx + 1).min(cols - 1))
+                    .any(|xx| grid[yy * cols + xx].iter().any(|&(px, py)| (px - kp.x).powi(2) + (py - kp.y).powi(2) < d * d))
+            });
+            if near {
+                continue;
+            }
+            grid[cy * cols + cx].push((kp.x, kp.y));
+            let mut template = vec![0f32; side * side];
+            sample_patch(img, kp.x, kp.y, r, &mut template);
+            let index = self.tracks.len();
+            self.tracks.push(Track2d { id: self.next_id, positions: vec![(frame, kp.x, kp.y)], alive: true });
+            self.next_id += 1;
+            self.live.push(Live { index, x: kp.x, y: kp.y, template, affine: [1.0, 0.0, 0.0, 1.0] });
+            added += 1;
+        }
+    }
+}
+
+/// Tracks one live feature from `prev` to `next`: translation LK, forward–backward and affine checks.
+fn track_one(opts: &KltOptions, prev: &[Level], next: &[Level], l: &Live) -> Option<(f32, f32, [f32; 4])> {
+    let margin = opts.window_radius as f32 + 1.0;
+    let (x, y) = lk_translation(opts, prev, next, l.x, l.y)?;
+    if !next[0].img.inside(x, y, margin) {
+        return None;
+    }
+    if let Some(max_fb) = opts.forward_backward_max {
+        let (bx, by) = lk_translation(opts, next, prev, x, y)?;
+        if (bx - l.x).powi(2) + (by - l.y).powi(2) > max_fb * max_fb {
+            return None;
+        }
+    }
+    let Some(max_res) = opts.affine_max_residual else { return Some((x, y, l.affine)) };
+    let (ax, ay, a, residual) = affine_register(&next[0], &l.template, opts.window_radius, x, y, l.affine, opts)?;
+    if residual > max_res || (ax - x).powi(2) + (ay - y).powi(2) > AFFINE_MAX_SHIFT * AFFINE_MAX_SHIFT {
+        return None;
+    }
+    if opts.affine_refine {
+        next[0].img.inside(ax, ay, margin).then_some((ax, ay, a))
+    } else {
+        Some((x, y, a))
+    }
+}
+
+/// Bouguet's pyramidal Lucas–Kanade: the position in `next` of the feature at `(x, y)` in `prev`, or
+/// `None` when the gradient matrix is too weak or the iteration diverges.
+fn lk_translation(opts: &KltOptions, prev: &[Level], next: &[Level], x: f32, y: f32) -> Option<(f32, f32)> {
+    let r = opts.window_radius;
+    let n = (2 * r + 1) * (2 * r + 1);
+    let mut buf = vec![0f32; 4 * n];
+    let (t, rest) = buf.split_at_mut(n);
+    let (tx, rest) = rest.split_at_mut(n);
+    let (ty, c) = rest.split_at_mut(n);
+    let levels = prev.len().min(next.len());
+    let (mut gx, mut gy) = (0f32, 0f32);
+    for lvl in (0..levels).rev() {
+        let s = 0.5f32.powi(lvl as i32);
+        let (ux, uy) = ((x + 0.5) * s - 0.5, (y + 0.5) * s - 0.5);
+        let (p, q) = (&prev[lvl], &next[lvl]);
+        sample_patch(&p.img, ux, uy, r, t);
+        sample_patch(&p.gx, ux, uy, r, tx);
+        sample_patch(&p.gy, ux, uy, r, ty);
+        let (mut gxx, mut gxy, mut gyy) = (0f32, 0f32, 0f32);
+        for (a, b) in tx.iter().zip(ty.iter()) {
+            gxx += a * a;
+            gxy += a * b;
+            gyy += b * b;
+        }
+        let det = gxx * gyy - gxy * gxy;
+        let min_eig = 0.5 * ((gxx + gyy) - ((gxx - gyy).powi(2) + 4.0 * gxy * gxy).sqrt()) / n as f32;
+        if !(det > f32::EPSILON * (gxx + gyy).powi(2)) || (lvl == 0 && min_eig < opts.min_eigenvalue) {
+            return None;
+        }
+        let (mut vx, mut vy) = (0f32, 0f32);
+        let limit = (q.img.width + q.img.height) as f32;
+        for _ in 0..opts.max_iterations {
+            sample_patch(&q.img, ux + gx + vx, uy + gy + vy, r, c);
+            let (mut bx, mut by) = (0f32, 0f32);
+            for i in 0..n {
+                let di = t[i] - c[i];
+                bx += di * tx[i];
+                by += di * ty[i];
+            }
+            let (ex, ey) = ((gyy * bx - gxy * by) / det, (gxx * by - gxy * bx) / det);
+            vx += ex;
+            vy += ey;
+            if !(vx.is_finite() && vy.is_finite()) || (gx + vx).abs() > limit || (gy + vy).abs() > limit {
+                return None;
+            }
+            if ex * ex + ey * ey < opts.epsilon * opts.epsilon {
+                break;
+            }
+        }
+        if lvl > 0 {
+            (gx, gy) = (2.0 * (gx + vx), 2.0 * (gy + vy));
+        } else {
+            (gx, gy) = (gx + vx, gy + vy);
+        }
+    }
+    Some((x + gx, y + gy))
+}
+
+/// Bilinear samples of the image and both gradients at one position (one set of weights; clamped
+/// sampling near the border).
+#[inline]
+fn sample3(level: &Level, x: f32, y: f32) -> (f32, f32, f32) {
+    let (x0, y0) = (x.floor(), y.floor());
+    let (xi, yi) = (x0 as isize, y0 as isize);
+    let w = level.img.width;
+    if xi >= 0 && yi >= 0 && ((xi + 1) as usize) < w && ((yi + 1) as usize) < level.img.height {
+        let (fx, fy) = (x - x0, y - y0);
+        let (w00, w10, w01, w11) = ((1.0 - fx) * (1.0 - fy), fx * (1.0 - fy), (1.0 - fx) * fy, fx * fy);
+        let i = yi as usize * w + xi as usize;
+        let s = |d: &[f32]| w00 * d[i] + w10 * d[i + 1] + w01 * d[i + w] + w11 * d[i + w + 1];
+        (s(&level.img.data), s(&level.gx.data), s(&level.gy.data))
+    } else {
+        (level.img.sample(x, y), level.gx.sample(x, y), level.gy.sample(x, y))
+    }
+}
+
+/// Registers the first-appearance window `template` to `level` (full resolution) by Gauss–Newton over
+/// `I(p + A w) − β ≈ T(w)`: affine `A`, centre `p` and intensity offset `β` (Shi & Tomasi 1994), with a
+/// weak prior keeping `A` near `a0`. Returns the centre, `A` and the mean absolute residual, or `None`
+/// when the fit is singular or degenerate.
+fn affine_register(
+    level: &Level,
+    template: &[f32],
+    r: usize,
+    x: f32,
+    y: f32,
+    a0: [f32; 4],
+    opts: &KltOptions,
+) -> Option<(f32, f32, [f32; 4], f32)> {
+    use nalgebra::{SMatrix, SVector};
+    let ri = r as isize;
+    let side = 2 * r + 1;
+    let template = template.get(..side * side)?;
+    let mut p = [a0[0] as f64, a0[1] as f64, a0[2] as f64, a0[3] as f64, x as f64, y as f64, 0.0];
+    let warp = |p: &[f64; 7], k: usize| {
+        let (u, v) = (((k % side) as isize - ri) as f64, ((k / side) as isize - ri) as f64);
+        (u, v, (p[4] + p[0] * u + p[1] * v) as f32, (p[5] + p[2] * u + p[3] * v) as f32)
+    };
+    for _ in 0..opts.affine_max_iterations {
+        // Upper triangle of JᵀJ (row-major over the 7 parameters) and Jᵀr.
+        let mut hh = [0f64; 28];
+        let mut g = [0f64; 7];
+        for (k, &tv) in template.iter().enumerate() {
+            let (u, v, wx, wy) = warp(&p, k);
+            let (iv, ix, iy) = sample3(level, wx, wy);
+            let res = iv as f64 - p[6] - tv as f64;
+            let (ix, iy) = (ix as f64, iy as f64);
+            let jac = [ix * u, ix * v, iy * u, iy * v, ix, iy, -1.0];
+            let mut n = 0;
+            for a in 0..7 {
+                g[a] += jac[a] * res;
+                for b in a..7 {
+                    hh[n] += jac[a] * jac[b];
+                    n += 1;
+                }
+            }
+        }
+        let mut h = SMatrix::<f64, 7, 7>::zeros();
+        let mut n = 0;
+        for a in 0..7 {
+            for b in a..7 {
+                h[(a, b)] = hh[n];
+                h[(b, a)] = hh[n];
+                n += 1;
+            }
+        }
+        // Weak prior towards the previous frame's affine map: the four deformation parameters are poorly
+        // constrained by one window (a shear along an edge costs almost nothing), and are otherwise free
+        // to wander off and drag the centre along.
+        let mu = AFFINE_PRIOR * 0.5 * (h[(4, 4)] + h[(5, 5)]) * (r * r) as f64 / 3.0;
+        for k in 0..4 {
+            h[(k, k)] += mu;
+            g[k] += mu * (p[k] - a0[k] as f64);
+        }
+        let step = h.cholesky()?.solve(&(-SVector::<f64, 7>::from(g)));
+        if !step.iter().all(|s| s.is_finite()) {
+            return None;
+        }
+        for (pk, sk) in p.iter_mut().zip(step.iter()) {
+            *pk += sk;
+        }
+        let da = step[0].abs().max(step[1].abs()).max(step[2].abs()).max(step[3].abs()) * r as f64;
+        if step[4].hypot(step[5]) < opts.epsilon as f64 && da < opts.epsilon as f64 {
+            break;
+        }
+    }
+    let a = [p[0] as f32, p[1] as f32, p[2] as f32, p[3] as f32];
+    let det = a[0] * a[3] - a[1] * a[2];
+    if !(AFFINE_DET_RANGE.0..=AFFINE_DET_RANGE.1).contains(&det) {
+        return None;
+    }
+    let mut sum = 0f64;
+    for (k, &tv) in template.iter().enumerate() {
+        let (_, _, wx, wy) = warp(&p, k);
+        sum += (level.img.sample(wx, wy) as f64 - p[6] - tv as f64).abs();
+    }
+    Some((p[4] as f32, p[5] as f32, a, (sum / (side * side) as f64) as f32))
+}

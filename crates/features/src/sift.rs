@@ -1,1 +1,730 @@
-//! In progress.
+//! SIFT-class wide-baseline features with RootSIFT descriptors (issue #3).
+//!
+//! Follows Lowe, "Distinctive image features from scale-invariant keypoints", IJCV 60(2), 2004:
+//! a difference-of-Gaussians (DoG) scale space (§3), extrema in 3×3×3 neighbourhoods refined by a
+//! quadratic fit in position and scale (§4, eq. 3), low-contrast and edge rejection (§4.1, eq. 4),
+//! a 36-bin orientation histogram keeping every peak within 80 % of the highest (§5), and a
+//! 4×4×8 gradient histogram with trilinear interpolation, normalised, clipped at 0.2 and renormalised
+//! (§6.1). Thresholds follow OpenCV's conventions (contrast threshold divided by the layer count).
+//! Descriptors are then mapped to RootSIFT (Arandjelović & Zisserman, "Three things everyone should
+//! know to improve object retrieval", CVPR 2012): L1-normalise and take square roots, so the dot
+//! product of two descriptors is the Hellinger kernel of the SIFT histograms and squared Euclidean
+//! distance is `2 − 2·dot`.
+//!
+//! One file, split by stage: options, the scale space (parallel separable blurs with incremental
+//! sigmas, 2×2-average decimation so that `x_img = (x_o + 0.5)·2^o − 0.5`), detection and
+//! refinement, precomputed gradient magnitude/orientation per layer, then orientation and descriptor
+//! per keypoint in parallel with stack-only scratch.
+
+use std::f32::consts::{PI, SQRT_2};
+
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::detector::{Descriptors, FeatureDetector, Features, Keypoint};
+use crate::gray::{gaussian_kernel, GrayImage};
+
+/// Length of a SIFT descriptor (4 × 4 spatial cells × 8 orientation bins).
+pub const SIFT_DIM: usize = DESC_WIDTH * DESC_WIDTH * DESC_BINS;
+const DESC_WIDTH: usize = 4;
+const DESC_BINS: usize = 8;
+const ORI_BINS: usize = 36;
+/// Pixels at the octave border where no extremum is searched (OpenCV's `SIFT_IMG_BORDER`).
+const IMG_BORDER: usize = 5;
+const MAX_INTERP_STEPS: usize = 5;
+/// Orientation window: Gaussian σ = 1.5 × scale, radius 3σ (Lowe §5).
+const ORI_SIG_FACTOR: f32 = 1.5;
+/// Width of one descriptor cell in units of the keypoint scale (Lowe §6.1).
+const DESC_SCALE_FACTOR: f32 = 3.0;
+const DESC_MAG_THRESHOLD: f32 = 0.2;
+/// Largest window radius kept on the stack; larger windows are truncated (needs scale > 6 px per octave).
+const MAX_RADIUS: usize = 64;
+/// The smallest octave keeps at least this many pixels along its shorter side.
+const MIN_OCTAVE_SIZE: usize = 16;
+
+/// Options of [`Sift`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SiftOptions {
+    /// Number of octaves; `None` (default) uses every octave whose shorter side is at least 16 px.
+    pub num_octaves: Option<usize>,
+    /// Scales sampled per octave, `s` in Lowe §3.2 (default 3).
+    pub octave_layers: usize,
+    /// DoG contrast threshold for images in [0, 1], divided by `octave_layers` as in OpenCV (default 0.04).
+    pub contrast_threshold: f32,
+    /// Largest ratio `r` of principal curvatures kept (Lowe eq. 4; default 10).
+    pub edge_threshold: f32,
+    /// Blur of each octave's base level, σ₀ (default 1.6).
+    pub sigma: f32,
+    /// Blur assumed already present in the input image (default 0.5).
+    pub input_sigma: f32,
+    /// Doubles the image first (octave −1): about 4× the keypoints of small scale, 4× the time (default false).
+    pub upsample_first_octave: bool,
+    /// Keeps at most this many keypoints, strongest DoG response first (default `Some(8192)`).
+    pub max_features: Option<usize>,
+    /// Orientation peaks at least this fraction of the highest one spawn a keypoint (default 0.8).
+    pub orientation_peak_ratio: f32,
+    /// Output RootSIFT (default true); false gives L2-normalised SIFT.
+    pub root_sift: bool,
+}
+
+impl Default for SiftOptions {
+    fn default() -> Self {
+        Self {
+            num_octaves: None,
+            octave_layers: 3,
+            contrast_threshold: 0.04,
+            edge_threshold: 10.0,
+            sigma: 1.6,
+            input_sigma: 0.5,
+            upsample_first_octave: false,
+            max_features: Some(8192),
+            orientation_peak_ratio: 0.8,
+            root_sift: true,
+        }
+    }
+}
+
+impl SiftOptions {
+    pub fn validate(&self) -> Result<(), String> {
+        if self.num_octaves == Some(0) {
+            return Err("num_octaves must be at least 1".into());
+        }
+        if !(1..=16).contains(&self.octave_layers) {
+            return Err(format!("octave_layers must be in 1..=16, got {}", self.octave_layers));
+        }
+        let positive = [("contrast_threshold", self.contrast_threshold), ("sigma", self.sigma)];
+        for (name, v) in positive {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(format!("{name} must be positive and finite, got {v}"));
+            }
+        }
+        if !(self.edge_threshold.is_finite() && self.edge_threshold >= 1.0) {
+            return Err(format!("edge_threshold must be ≥ 1, got {}", self.edge_threshold));
+        }
+        if !(self.input_sigma.is_finite() && self.input_sigma >= 0.0) {
+            return Err(format!("input_sigma must be ≥ 0, got {}", self.input_sigma));
+        }
+        if !(self.orientation_peak_ratio > 0.0 && self.orientation_peak_ratio <= 1.0) {
+            return Err(format!("orientation_peak_ratio must be in (0, 1], got {}", self.orientation_peak_ratio));
+        }
+        if self.max_features == Some(0) {
+            return Err("max_features must be at least 1 (use None for no limit)".into());
+        }
+        Ok(())
+    }
+}
+
+/// The SIFT detector and (Root)SIFT descriptor.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Sift {
+    pub options: SiftOptions,
+}
+
+impl Sift {
+    pub fn new(options: SiftOptions) -> Self {
+        Self { options }
+    }
+}
+
+impl FeatureDetector for Sift {
+    fn name(&self) -> &'static str {
+        if self.options.root_sift {
+            "rootsift"
+        } else {
+            "sift"
+        }
+    }
+
+    /// Invalid options give no features (and a warning); use [`SiftOptions::validate`] up front.
+    fn detect(&self, image: &GrayImage) -> Features {
+        if let Err(e) = self.options.validate() {
+            tracing::warn!("invalid SIFT options: {e}");
+            return Features::default();
+        }
+        sift_detect(image, &self.options)
+    }
+}
+
+/// A plain buffer with its size.
+struct Plane {
+    w: usize,
+    h: usize,
+    data: Vec<f32>,
+}
+
+/// Precomputed gradient magnitude and orientation ([0, 2π), image y axis down) of layers 1..=s of one octave.
+struct OctaveGrad {
+    octave: i32,
+    w: usize,
+    h: usize,
+    mag: Vec<Vec<f32>>,
+    ori: Vec<Vec<f32>>,
+}
+
+/// A refined DoG extremum in its octave's coordinates.
+#[derive(Clone, Copy, Debug)]
+struct Candidate {
+    /// Index into the gradient pyramid.
+    grad: usize,
+    layer: usize,
+    x: f32,
+    y: f32,
+    /// σ in this octave's pixels.
+    scale: f32,
+    response: f32,
+}
+
+fn sift_detect(image: &GrayImage, o: &SiftOptions) -> Features {
+    let (first_octave, mut base) = if o.upsample_first_octave { (-1, upsample2(image)) } else { (0, plane_of(image)) };
+    if base.w < MIN_OCTAVE_SIZE || base.h < MIN_OCTAVE_SIZE {
+        return Features { keypoints: Vec::new(), descriptors: Descriptors { dim: SIFT_DIM, data: Vec::new() } };
+    }
+    let s = o.octave_layers;
+    let mut max_octaves = 1;
+    while base.w.min(base.h) >> max_octaves >= MIN_OCTAVE_SIZE {
+        max_octaves += 1;
+    }
+    let num_octaves = o.num_octaves.map_or(max_octaves, |n| n.min(max_octaves));
+    // Incremental blurs: level i has total σ₀·k^i, k = 2^{1/s}.
+    let k = 2f32.powf(1.0 / s as f32);
+    let sig_inc: Vec<f32> = (1..s + 3)
+        .map(|i| {
+            let prev = o.sigma * k.powi(i as i32 - 1);
+            ((prev * k).powi(2) - prev * prev).sqrt()
+        })
+        .collect();
+    let input_sigma = o.input_sigma * if o.upsample_first_octave { 2.0 } else { 1.0 };
+    let sig0 = (o.sigma * o.sigma - input_sigma * input_sigma).max(0.01).sqrt();
+    base.data = blur(&base.data, base.w, base.h, sig0);
+
+    let mut grads: Vec<OctaveGrad> = Vec::with_capacity(num_octaves);
+    let mut cands: Vec<Candidate> = Vec::new();
+    for oi in 0..num_octaves {
+        let (w, h) = (base.w, base.h);
+        let mut gauss: Vec<Vec<f32>> = Vec::with_capacity(s + 3);
+        gauss.push(std::mem::take(&mut base.data));
+        for &si in &sig_inc {
+            let next = blur(&gauss[gauss.len() - 1], w, h, si);
+            gauss.push(next);
+        }
+        let (mag, ori): (Vec<_>, Vec<_>) = (1..=s).into_par_iter().map(|l| gradient_polar(&gauss[l], w, h)).unzip();
+        if oi + 1 < num_octaves {
+            base = downsample(&gauss[s], w, h);
+        }
+        // DoG in place (level i becomes G[i+1] − G[i]; the last level is dropped), saving s+2 buffers.
+        for i in 0..s + 2 {
+            let (lo, hi) = gauss.split_at_mut(i + 1);
+            lo[i].par_chunks_mut(w).zip(hi[0].par_chunks(w)).for_each(|(a, b)| a.iter_mut().zip(b).for_each(|(a, b)| *a = b - *a));
+        }
+        gauss.truncate(s + 2);
+        cands.extend(detect_octave(&gauss, w, h, grads.len(), o));
+        grads.push(OctaveGrad { octave: first_octave + oi as i32, w, h, mag, ori });
+    }
+
+    // Strongest first; stable sort keeps the deterministic detection order among equals.
+    cands.sort_by(|a, b| b.response.total_cmp(&a.response));
+    if let Some(m) = o.max_features {
+        cands.truncate(m);
+    }
+    let mut oriented: Vec<(usize, f32)> = cands
+        .par_iter()
+        .enumerate()
+        .flat_map_iter(|(ci, c)| {
+            let (angles, n) = orientations(&grads[c.grad], c, o.orientation_peak_ratio);
+            (0..n).map(move |a| (ci, angles[a]))
+        })
+        .collect();
+    if let Some(m) = o.max_features {
+        oriented.truncate(m);
+    }
+    let mut data = vec![0f32; oriented.len() * SIFT_DIM];
+    let avx = has_avx2_fma();
+    data.par_chunks_mut(SIFT_DIM).zip(oriented.par_iter()).for_each(|(out, &(ci, angle))| {
+        let c = &cands[ci];
+        describe(avx, &grads[c.grad], c, angle, o.root_sift, out);
+    });
+    let keypoints = oriented
+        .iter()
+        .map(|&(ci, angle)| {
+            let c = &cands[ci];
+            let f = 2f32.powi(grads[c.grad].octave);
+            Keypoint { x: (c.x + 0.5) * f - 0.5, y: (c.y + 0.5) * f - 0.5, scale: c.scale * f, orientation: angle, response: c.response }
+        })
+        .collect();
+    Features { keypoints, descriptors: Descriptors { dim: SIFT_DIM, data } }
+}
+
+fn plane_of(img: &GrayImage) -> Plane {
+    Plane { w: img.width, h: img.height, data: img.data.clone() }
+}
+
+/// Bilinear 2× upsampling: output pixel `i` samples input position `(i + 0.5)/2 − 0.5`.
+fn upsample2(img: &GrayImage) -> Plane {
+    let (w, h) = (img.width * 2, img.height * 2);
+    let mut data = vec![0f32; w * h];
+    data.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+        let sy = (y as f32 + 0.5) * 0.5 - 0.5;
+        for (x, v) in row.iter_mut().enumerate() {
+            *v = img.sample((x as f32 + 0.5) * 0.5 - 0.5, sy);
+        }
+    });
+    Plane { w, h, data }
+}
+
+/// 2×2 block average (the relation of [`GrayImage::downsample2`]), in parallel over rows.
+fn downsample(src: &[f32], w: usize, h: usize) -> Plane {
+    let (w2, h2) = (w / 2, h / 2);
+    let mut data = vec![0f32; w2 * h2];
+    data.par_chunks_mut(w2.max(1)).enumerate().for_each(|(y, row)| {
+        let (r0, r1) = (&src[2 * y * w..2 * y * w + w], &src[(2 * y + 1) * w..(2 * y + 1) * w + w]);
+        for (x, v) in row.iter_mut().enumerate() {
+            *v = 0.25 * (r0[2 * x] + r0[2 * x + 1] + r1[2 * x] + r1[2 * x + 1]);
+        }
+    });
+    Plane { w: w2, h: h2, data }
+}
+
+/// True when the CPU has AVX2 and FMA, for the hot kernels below (each compiled twice: baseline and
+/// AVX2+FMA, the latter used only after this runtime check).
+fn has_avx2_fma() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+/// Defines `$name(avx, args…)` that runs the `#[inline(always)]` kernel `$kernel` compiled for
+/// AVX2+FMA when `avx` is true, else for the baseline target.
+macro_rules! dispatch {
+    ($name:ident, $avx:ident, $kernel:ident, ($($arg:ident: $ty:ty),*)) => {
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = "avx2,fma")]
+        unsafe fn $avx($($arg: $ty),*) {
+            $kernel($($arg),*)
+        }
+
+        #[allow(clippy::too_many_arguments)]
+        fn $name(avx: bool, $($arg: $ty),*) {
+            #[cfg(target_arch = "x86_64")]
+            if avx {
+                // SAFETY: callers pass `avx = has_avx2_fma()`, so the CPU supports the enabled features.
+                return unsafe { $avx($($arg),*) };
+            }
+            let _ = avx;
+            $kernel($($arg),*)
+        }
+    };
+}
+
+/// Separable Gaussian blur (border replicated), parallel over output rows: for each row the vertical
+/// pass accumulates into a padded scratch row, then the horizontal pass uses the kernel's symmetry.
+/// Both inner loops are contiguous multiply-adds that vectorise.
+fn blur(src: &[f32], w: usize, h: usize, sigma: f32) -> Vec<f32> {
+    let kern = gaussian_kernel(sigma);
+    let r = kern.len() / 2;
+    let half = &kern[r..];
+    let avx = has_avx2_fma();
+    let mut out = vec![0f32; w * h];
+    out.par_chunks_mut(w).enumerate().for_each_init(|| vec![0f32; w + 2 * r], |buf, (y, dst)| blur_row(avx, src, w, h, y, half, buf, dst));
+    out
+}
+
+dispatch!(blur_row, blur_row_avx2, blur_row_kernel, (src: &[f32], w: usize, h: usize, y: usize, half: &[f32], buf: &mut [f32], dst: &mut [f32]));
+
+#[inline(always)]
+fn blur_row_kernel(src: &[f32], w: usize, h: usize, y: usize, half: &[f32], buf: &mut [f32], dst: &mut [f32]) {
+    let r = half.len() - 1;
+    let acc = &mut buf[r..r + w];
+    let row = |yy: isize| {
+        let yy = yy.clamp(0, h as isize - 1) as usize;
+        &src[yy * w..yy * w + w]
+    };
+    for (a, &s) in acc.iter_mut().zip(row(y as isize)) {
+        *a = half[0] * s;
+    }
+    for (i, &kv) in half.iter().enumerate().skip(1) {
+        let (up, down) = (row(y as isize - i as isize), row(y as isize + i as isize));
+        for ((a, &u), &d) in acc.iter_mut().zip(up).zip(down) {
+            *a += kv * (u + d);
+        }
+    }
+    let (first, last) = (buf[r], buf[r + w - 1]);
+    buf[..r].fill(first);
+    buf[r + w..].fill(last);
+    for (d, &s) in dst.iter_mut().zip(&buf[r..r + w]) {
+        *d = half[0] * s;
+    }
+    for (i, &kv) in half.iter().enumerate().skip(1) {
+        let (left, right) = (&buf[r - i..r - i + w], &buf[r + i..r + i + w]);
+        for ((d, &l), &rr) in dst.iter_mut().zip(left).zip(right) {
+            *d += kv * (l + rr);
+        }
+    }
+}
+
+/// Central-difference gradient magnitude and orientation of a blurred level (zero on the border,
+/// which no window reads).
+fn gradient_polar(src: &[f32], w: usize, h: usize) -> (Vec<f32>, Vec<f32>) {
+    let mut mag = vec![0f32; w * h];
+    let mut ori = vec![0f32; w * h];
+    let avx = has_avx2_fma();
+    mag.par_chunks_mut(w).zip(ori.par_chunks_mut(w)).enumerate().for_each(|(y, (m, a))| {
+        if y > 0 && y + 1 < h {
+            gradient_row(avx, &src[(y - 1) * w..(y + 2) * w], m, a);
+        }
+    });
+    (mag, ori)
+}
+
+dispatch!(gradient_row, gradient_row_avx2, gradient_row_kernel, (rows: &[f32], m: &mut [f32], a: &mut [f32]));
+
+/// One row of [`gradient_polar`]; `rows` holds the row above, the row and the row below.
+#[inline(always)]
+fn gradient_row_kernel(rows: &[f32], m: &mut [f32], a: &mut [f32]) {
+    let w = m.len();
+    let (up, mid, down) = (&rows[..w], &rows[w..2 * w], &rows[2 * w..3 * w]);
+    let it = m[1..w - 1].iter_mut().zip(&mut a[1..w - 1]).zip(mid.windows(3)).zip(&up[1..w - 1]).zip(&down[1..w - 1]);
+    for ((((mv, av), win), &u), &d) in it {
+        let dx = win[2] - win[0];
+        let dy = d - u;
+        *mv = (dx * dx + dy * dy).sqrt();
+        *av = fast_atan2(dy, dx);
+    }
+}
+
+/// `atan2(y, x)` in [0, 2π) by a 7th-order minimax polynomial (max error about 1e-4 rad), branch-free.
+#[inline(always)]
+pub(crate) fn fast_atan2(y: f32, x: f32) -> f32 {
+    let (ax, ay) = (x.abs(), y.abs());
+    let (num, den) = if ax >= ay { (ay, ax) } else { (ax, ay) };
+    let t = num / (den + f32::MIN_POSITIVE);
+    let t2 = t * t;
+    let mut a = (((-0.044_326_556 * t2 + 0.155_578_65) * t2 - 0.325_808_4) * t2 + 0.999_787_84) * t;
+    a = if ax >= ay { a } else { 0.5 * PI - a };
+    a = if x < 0.0 { PI - a } else { a };
+    if y < 0.0 {
+        2.0 * PI - a
+    } else {
+        a
+    }
+}
+
+/// Scale-space extrema of one octave, refined and filtered, in parallel over (layer, row).
+fn detect_octave(dog: &[Vec<f32>], w: usize, h: usize, grad: usize, o: &SiftOptions) -> Vec<Candidate> {
+    let s = o.octave_layers;
+    if w <= 2 * IMG_BORDER || h <= 2 * IMG_BORDER {
+        return Vec::new();
+    }
+    let threshold = 0.5 * o.contrast_threshold / s as f32;
+    let rows: Vec<(usize, usize)> = (1..=s).flat_map(|l| (IMG_BORDER..h - IMG_BORDER).map(move |r| (l, r))).collect();
+    rows.par_iter()
+        .flat_map_iter(|&(l, r)| {
+            let mut found = Vec::new();
+            let (prev, cur, next) = (&dog[l - 1], &dog[l], &dog[l + 1]);
+            for i in r * w + IMG_BORDER..(r + 1) * w - IMG_BORDER {
+                let v = cur[i];
+                // Cheap same-row tests first; most pixels fail them.
+                let candidate = (v > threshold && v >= cur[i - 1] && v >= cur[i + 1])
+                    || (v < -threshold && v <= cur[i - 1] && v <= cur[i + 1]);
+                if candidate && is_extremum(prev, cur, next, i, w) {
+                    if let Some(c) = refine(dog, w, h, l, r, i - r * w, grad, o) {
+                        found.push(c);
+                    }
+                }
+            }
+            found
+        })
+        .collect()
+}
+
+/// `cur[i]` is ≥ (or ≤, when negative) its 26 neighbours in the 3×3×3 DoG neighbourhood.
+#[inline]
+fn is_extremum(prev: &[f32], cur: &[f32], next: &[f32], i: usize, w: usize) -> bool {
+    let v = cur[i];
+    let offsets = [i - w - 1, i - w, i - w + 1, i - 1, i + 1, i + w - 1, i + w, i + w + 1];
+    if v > 0.0 {
+        offsets.iter().all(|&j| v >= cur[j]) && [prev, next].iter().all(|p| v >= p[i] && offsets.iter().all(|&j| v >= p[j]))
+    } else {
+        offsets.iter().all(|&j| v <= cur[j]) && [prev, next].iter().all(|p| v <= p[i] && offsets.iter().all(|&j| v <= p[j]))
+    }
+}
+
+/// Gradient and Hessian of the DoG at `(layer, i)` by central differences (order x, y, σ).
+fn dog_derivatives(dog: &[Vec<f32>], l: usize, i: usize, w: usize) -> ([f32; 3], [[f32; 3]; 3]) {
+    let (p, c, n) = (&dog[l - 1], &dog[l], &dog[l + 1]);
+    let g = [(c[i + 1] - c[i - 1]) * 0.5, (c[i + w] - c[i - w]) * 0.5, (n[i] - p[i]) * 0.5];
+    let v2 = 2.0 * c[i];
+    let dxx = c[i + 1] + c[i - 1] - v2;
+    let dyy = c[i + w] + c[i - w] - v2;
+    let dss = n[i] + p[i] - v2;
+    let dxy = (c[i + w + 1] - c[i + w - 1] - c[i - w + 1] + c[i - w - 1]) * 0.25;
+    let dxs = (n[i + 1] - n[i - 1] - p[i + 1] + p[i - 1]) * 0.25;
+    let dys = (n[i + w] - n[i - w] - p[i + w] + p[i - w]) * 0.25;
+    (g, [[dxx, dxy, dxs], [dxy, dyy, dys], [dxs, dys, dss]])
+}
+
+/// Solves `H x = g` by Cramer's rule in f64; `None` when `H` is singular.
+fn solve3(hm: &[[f32; 3]; 3], g: &[f32; 3]) -> Option<[f32; 3]> {
+    let m = hm.map(|r| r.map(f64::from));
+    let det3 = |a: &[[f64; 3]; 3]| {
+        a[0][0] * (a[1][1] * a[2][2] - a[1][2] * a[2][1]) - a[0][1] * (a[1][0] * a[2][2] - a[1][2] * a[2][0])
+            + a[0][2] * (a[1][0] * a[2][1] - a[1][1] * a[2][0])
+    };
+    let d = det3(&m);
+    if d.abs() < 1e-30 {
+        return None;
+    }
+    let mut x = [0f32; 3];
+    for (col, xc) in x.iter_mut().enumerate() {
+        let mut mc = m;
+        for row in 0..3 {
+            mc[row][col] = f64::from(g[row]);
+        }
+        *xc = (det3(&mc) / d) as f32;
+    }
+    Some(x)
+}
+
+/// Quadratic sub-pixel/sub-scale refinement (Lowe eq. 3), moving to a neighbour while an offset
+/// exceeds 0.5, then the contrast (|D(x̂)|·s ≥ threshold) and edge (eq. 4) tests.
+#[allow(clippy::too_many_arguments)]
+fn refine(dog: &[Vec<f32>], w: usize, h: usize, layer: usize, r: usize, c: usize, grad: usize, o: &SiftOptions) -> Option<Candidate> {
+    let s = o.octave_layers;
+    let (mut l, mut r, mut c) = (layer, r, c);
+    let mut step = 0;
+    let (offset, g, hm) = loop {
+        let (g, hm) = dog_derivatives(dog, l, r * w + c, w);
+        let x = solve3(&hm, &g)?.map(|v| -v);
+        if x.iter().all(|v| v.abs() < 0.5) {
+            break (x, g, hm);
+        }
+        step += 1;
+        if step >= MAX_INTERP_STEPS || x.iter().any(|v| !v.is_finite() || v.abs() > 1e4) {
+            return None;
+        }
+        let nc = c as i64 + x[0].round() as i64;
+        let nr = r as i64 + x[1].round() as i64;
+        let nl = l as i64 + x[2].round() as i64;
+        let b = IMG_BORDER as i64;
+        if nl < 1 || nl > s as i64 || nc < b || nc >= (w - IMG_BORDER) as i64 || nr < b || nr >= (h - IMG_BORDER) as i64 {
+            return None;
+        }
+        (l, r, c) = (nl as usize, nr as usize, nc as usize);
+    };
+    let contrast = dog[l][r * w + c] + 0.5 * (g[0] * offset[0] + g[1] * offset[1] + g[2] * offset[2]);
+    if contrast.abs() * (s as f32) < o.contrast_threshold {
+        return None;
+    }
+    let (tr, det) = (hm[0][0] + hm[1][1], hm[0][0] * hm[1][1] - hm[0][1] * hm[0][1]);
+    let e = o.edge_threshold;
+    if det <= 0.0 || tr * tr * e >= (e + 1.0) * (e + 1.0) * det {
+        return None;
+    }
+    Some(Candidate {
+        grad,
+        layer: l,
+        x: c as f32 + offset[0],
+        y: r as f32 + offset[1],
+        scale: o.sigma * 2f32.powf((l as f32 + offset[2]) / s as f32),
+        response: contrast.abs(),
+    })
+}
+
+/// Fills `out[0..=2r]` with `exp(-(i − r − frac)² · k)`, the separable factor of a Gaussian window.
+#[inline]
+fn gauss_weights(out: &mut [f32], r: usize, frac: f32, k: f32) {
+    for (i, v) in out[..=2 * r].iter_mut().enumerate() {
+        let d = i as f32 - r as f32 - frac;
+        *v = (-d * d * k).exp();
+    }
+}
+
+/// Dominant orientations (Lowe §5): 36-bin histogram of gradient orientations weighted by magnitude
+/// and a Gaussian of σ = 1.5·scale, smoothed, with every local peak ≥ `peak_ratio`·max kept and its
+/// position interpolated by a parabola. Returns up to 18 angles in [0, 2π).
+fn orientations(g: &OctaveGrad, c: &Candidate, peak_ratio: f32) -> ([f32; ORI_BINS / 2], usize) {
+    let sigma = ORI_SIG_FACTOR * c.scale;
+    let r = ((3.0 * sigma).round() as usize).min(MAX_RADIUS);
+    let (xi, yi) = (c.x.round() as isize, c.y.round() as isize);
+    let mut wts = [0f32; 2 * MAX_RADIUS + 1];
+    gauss_weights(&mut wts, r, 0.0, 0.5 / (sigma * sigma));
+    let (mag, ori) = (&g.mag[c.layer - 1], &g.ori[c.layer - 1]);
+    let mut hist = [0f32; ORI_BINS];
+    let bins_per_rad = ORI_BINS as f32 / (2.0 * PI);
+    let ri = r as isize;
+    let (y0, y1) = ((yi - ri).max(1), (yi + ri).min(g.h as isize - 2));
+    let (x0, x1) = ((xi - ri).max(1), (xi + ri).min(g.w as isize - 2));
+    for y in y0..=y1 {
+        let wy = wts[(y - yi + ri) as usize];
+        let row = y as usize * g.w;
+        for x in x0..=x1 {
+            let wgt = wy * wts[(x - xi + ri) as usize] * mag[row + x as usize];
+            let bin = (ori[row + x as usize] * bins_per_rad + 0.5) as usize % ORI_BINS;
+            hist[bin] += wgt;
+        }
+    }
+    let n = ORI_BINS;
+    let smooth: [f32; ORI_BINS] = std::array::from_fn(|i| {
+        let at = |d: isize| hist[(i as isize + d).rem_euclid(n as isize) as usize];
+        (at(-2) + at(2)) / 16.0 + (at(-1) + at(1)) * (4.0 / 16.0) + at(0) * (6.0 / 16.0)
+    });
+    let max = smooth.iter().copied().fold(0.0, f32::max);
+    let mut out = [0f32; ORI_BINS / 2];
+    let mut count = 0;
+    if max <= 0.0 {
+        return (out, 0);
+    }
+    for i in 0..n {
+        let (l, v, rr) = (smooth[(i + n - 1) % n], smooth[i], smooth[(i + 1) % n]);
+        if v > l && v > rr && v >= peak_ratio * max && count < out.len() {
+            let bin = i as f32 + 0.5 * (l - rr) / (l - 2.0 * v + rr);
+            out[count] = (bin / bins_per_rad).rem_euclid(2.0 * PI);
+            count += 1;
+        }
+    }
+    (out, count)
+}
+
+dispatch!(describe, describe_avx2, describe_kernel, (g: &OctaveGrad, c: &Candidate, angle: f32, root_sift: bool, out: &mut [f32]));
+
+/// The 4×4×8 descriptor (Lowe §6.1) with trilinear interpolation and a Gaussian window of σ = half the
+/// descriptor width, normalised, clipped at 0.2, renormalised; then optionally RootSIFT.
+#[inline(always)]
+fn describe_kernel(g: &OctaveGrad, c: &Candidate, angle: f32, root_sift: bool, out: &mut [f32]) {
+    const D: usize = DESC_WIDTH;
+    const N: usize = DESC_BINS;
+    let hist_width = DESC_SCALE_FACTOR * c.scale;
+    let r = ((hist_width * SQRT_2 * (D as f32 + 1.0) * 0.5).round() as usize).min(MAX_RADIUS);
+    let (sin_a, cos_a) = angle.sin_cos();
+    let (cos_t, sin_t) = (cos_a / hist_width, sin_a / hist_width);
+    let bins_per_rad = N as f32 / (2.0 * PI);
+    let (xi, yi) = (c.x.round() as isize, c.y.round() as isize);
+    // exp(−(c_rot² + r_rot²)/(D²/2)) with rotated offsets in cell units is separable in the pixel offsets.
+    let k = 2.0 / ((D * D) as f32 * hist_width * hist_width);
+    let mut wx = [0f32; 2 * MAX_RADIUS + 1];
+    let mut wy = [0f32; 2 * MAX_RADIUS + 1];
+    gauss_weights(&mut wx, r, c.x - xi as f32, k);
+    gauss_weights(&mut wy, r, c.y - yi as f32, k);
+    let (mag, ori) = (&g.mag[c.layer - 1], &g.ori[c.layer - 1]);
+    let mut hist = [0f32; (D + 2) * (D + 2) * (N + 2)];
+    let ri = r as isize;
+    let (y0, y1) = ((yi - ri).max(1), (yi + ri).min(g.h as isize - 2));
+    let (x0, x1) = ((xi - ri).max(1), (xi + ri).min(g.w as isize - 2));
+    let half = D as f32 / 2.0 - 0.5;
+    for y in y0..=y1 {
+        let dy = y as f32 - c.y;
+        let wrow = wy[(y - yi + ri) as usize];
+        let row = y as usize * g.w;
+        // The x range where both bin coordinates lie in (−1, D): skips the window's corners.
+        let (a0, a1) = slab(dy * sin_t + half, cos_t, D as f32);
+        let (b0, b1) = slab(dy * cos_t + half, -sin_t, D as f32);
+        let (xa, xb) = ((c.x + a0.max(b0)).floor() as isize, (c.x + a1.min(b1)).ceil() as isize);
+        for x in xa.max(x0)..=xb.min(x1) {
+            let dx = x as f32 - c.x;
+            let cbin = dx * cos_t + dy * sin_t + half;
+            let rbin = -dx * sin_t + dy * cos_t + half;
+            if !(rbin > -1.0 && rbin < D as f32 && cbin > -1.0 && cbin < D as f32) {
+                continue;
+            }
+            let idx = row + x as usize;
+            let wgt = wrow * wx[(x - xi + ri) as usize] * mag[idx];
+            let rel = ori[idx] - angle;
+            let obin = if rel < 0.0 { rel + 2.0 * PI } else { rel } * bins_per_rad;
+            // Truncation is the floor here (rbin, cbin > −1, obin ≥ 0); `min` guards `3.99999 + 1 == 5`.
+            let (r1, c1, o0) = (((rbin + 1.0) as usize).min(D), ((cbin + 1.0) as usize).min(D), obin as usize);
+            let (fr, fc, fo) = (rbin + 1.0 - r1 as f32, cbin + 1.0 - c1 as f32, obin - o0 as f32);
+            let base = (r1 * (D + 2) + c1) * (N + 2) + o0 % N;
+            let v_r1 = wgt * fr;
+            let v_r0 = wgt - v_r1;
+            let (v_rc11, v_rc01) = (v_r1 * fc, v_r0 * fc);
+            let (v_rc10, v_rc00) = (v_r1 - v_rc11, v_r0 - v_rc01);
+            let cells = [(0, v_rc00), (N + 2, v_rc01), ((D + 2) * (N + 2), v_rc10), ((D + 3) * (N + 2), v_rc11)];
+            for (off, v) in cells {
+                let v1 = v * fo;
+                hist[base + off] += v - v1;
+                hist[base + off + 1] += v1;
+            }
+        }
+    }
+    for i in 0..D {
+        for j in 0..D {
+            let src = ((i + 1) * (D + 2) + j + 1) * (N + 2);
+            let dst = &mut out[(i * D + j) * N..(i * D + j + 1) * N];
+            dst.copy_from_slice(&hist[src..src + N]);
+            dst[0] += hist[src + N];
+            dst[1] += hist[src + N + 1];
+        }
+    }
+    normalize_descriptor(out, root_sift);
+}
+
+/// The interval of `t` where `−1 < offset + slope·t < upper` (unbounded when `slope` is 0 and the
+/// offset is inside).
+#[inline(always)]
+fn slab(offset: f32, slope: f32, upper: f32) -> (f32, f32) {
+    if slope.abs() < 1e-12 {
+        return if offset > -1.0 && offset < upper { (-1e6, 1e6) } else { (1.0, -1.0) };
+    }
+    let (t0, t1) = ((-1.0 - offset) / slope, (upper - offset) / slope);
+    (t0.min(t1), t0.max(t1))
+}
+
+/// Normalise, clip at 0.2, renormalise (Lowe §6.1); then RootSIFT (L1-normalise, square root).
+fn normalize_descriptor(v: &mut [f32], root_sift: bool) {
+    let norm = v.iter().map(|x| x * x).sum::<f32>().sqrt();
+    if norm <= 0.0 {
+        return;
+    }
+    let clip = DESC_MAG_THRESHOLD * norm;
+    v.iter_mut().for_each(|x| *x = x.min(clip));
+    if root_sift {
+        let l1 = v.iter().sum::<f32>().max(f32::MIN_POSITIVE);
+        v.iter_mut().for_each(|x| *x = (*x / l1).sqrt());
+    } else {
+        let n2 = v.iter().map(|x| x * x).sum::<f32>().sqrt().max(f32::MIN_POSITIVE);
+        v.iter_mut().for_each(|x| *x /= n2);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fast_atan2_is_accurate() {
+        for i in 0..720 {
+            let a = i as f32 * PI / 360.0 + 0.001;
+            let (s, c) = a.sin_cos();
+            let got = fast_atan2(3.0 * s, 3.0 * c);
+            let want = a.rem_euclid(2.0 * PI);
+            let err = (got - want).abs().min(2.0 * PI - (got - want).abs());
+            assert!(err < 2e-4, "angle {a}: {got} vs {want}");
+        }
+    }
+
+    #[test]
+    fn blur_matches_reference() {
+        let img = GrayImage {
+            width: 37,
+            height: 23,
+            data: (0..37 * 23).map(|i| ((i * 7919) % 97) as f32 / 97.0).collect(),
+        };
+        let want = img.gaussian_blur(1.7);
+        let got = blur(&img.data, 37, 23, 1.7);
+        for (a, b) in got.iter().zip(&want.data) {
+            assert!((a - b).abs() < 1e-5);
+        }
+    }
+
+    #[test]
+    fn options_validate() {
+        assert!(SiftOptions::default().validate().is_ok());
+        assert!(SiftOptions { octave_layers: 0, ..Default::default() }.validate().is_err());
+        assert!(SiftOptions { sigma: f32::NAN, ..Default::default() }.validate().is_err());
+        assert!(SiftOptions { max_features: Some(0), ..Default::default() }.validate().is_err());
+    }
+}

@@ -11,6 +11,7 @@ pub mod bal;
 pub mod colmap;
 pub mod database;
 pub mod error;
+pub mod features_file;
 pub mod images;
 pub mod ingest;
 pub mod pfm;

@@ -1,0 +1,273 @@
+//! Verified matching of image pairs: Table 1 end to end. Putative matches from the descriptor
+//! matcher (step 1), RANSAC + model selection + eq. 12/13 refinement (steps 2–3, in
+//! `handheld-robust`), guided matching along the epipolar lines (step 4) and a final refinement on
+//! all correct matches (step 5). Runs in parallel over pairs.
+
+use handheld_core::Progress;
+use handheld_robust::{estimate_two_view_geometry, refine_two_view, Match2d2d, TwoViewConfiguration, TwoViewGeometry, TwoViewOptions};
+use nalgebra::{Matrix3, Vector2, Vector3};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::detector::Features;
+use crate::matching::{match_descriptors, Match, MatchOptions};
+
+/// Options of [`verify_pairs`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct PairVerificationOptions {
+    pub matching: MatchOptions,
+    pub two_view: TwoViewOptions,
+    /// Look for additional matches near the epipolar lines (Table 1 step 4). Default true.
+    pub guided: bool,
+    /// Largest distance from the epipolar line of a guided candidate, pixels. Default 2.0.
+    pub guided_max_epipolar_px: f64,
+    /// Ratio test among the guided candidates of one keypoint (looser than the global one, since the
+    /// epipolar line already removed most distractors). Default 0.9.
+    pub guided_ratio: f32,
+    /// Largest descriptor distance of a guided match (RootSIFT: in [0, √2]). Default 0.7.
+    pub guided_max_distance: f32,
+}
+
+impl Default for PairVerificationOptions {
+    fn default() -> Self {
+        Self {
+            matching: MatchOptions::default(),
+            two_view: TwoViewOptions::default(),
+            guided: true,
+            guided_max_epipolar_px: 2.0,
+            guided_ratio: 0.9,
+            guided_max_distance: 0.7,
+        }
+    }
+}
+
+impl PairVerificationOptions {
+    pub fn validate(&self) -> Result<(), String> {
+        self.matching.validate()?;
+        self.two_view.validate()?;
+        if !(self.guided_max_epipolar_px > 0.0) {
+            return Err("guided_max_epipolar_px must be positive".into());
+        }
+        Ok(())
+    }
+}
+
+/// The outcome for one pair.
+#[derive(Clone, Debug)]
+pub struct VerifiedPair {
+    /// Image indices (into the feature list).
+    pub i: usize,
+    pub j: usize,
+    /// Putative matches from descriptor matching.
+    pub putative: Vec<Match>,
+    pub geometry: TwoViewGeometry,
+    /// Verified matches `(keypoint in i, keypoint in j)`, guided ones included.
+    pub inliers: Vec<(u32, u32)>,
+    /// How many of the inliers came from guided matching.
+    pub guided_added: usize,
+}
+
+/// A serialisable summary of a verified pair (for manifests and benches).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct PairSummary {
+    pub i: usize,
+    pub j: usize,
+    pub putative: usize,
+    pub inliers: usize,
+    pub guided_added: usize,
+    pub configuration: TwoViewConfiguration,
+    pub view_distance_px: Option<f64>,
+}
+
+impl VerifiedPair {
+    pub fn summary(&self) -> PairSummary {
+        PairSummary {
+            i: self.i,
+            j: self.j,
+            putative: self.putative.len(),
+            inliers: self.inliers.len(),
+            guided_added: self.guided_added,
+            configuration: self.geometry.configuration,
+            view_distance_px: self.geometry.view_distance_px,
+        }
+    }
+}
+
+fn point(f: &Features, k: u32) -> Vector2<f64> {
+    let kp = &f.keypoints[k as usize];
+    Vector2::new(kp.x as f64, kp.y as f64)
+}
+
+/// A uniform grid over the keypoints of one image, for epipolar-band queries.
+struct Grid {
+    cell: f64,
+    cols: usize,
+    rows: usize,
+    cells: Vec<Vec<u32>>,
+}
+
+impl Grid {
+    fn new(f: &Features, cell: f64) -> Self {
+        let (mut w, mut h) = (1.0f64, 1.0f64);
+        for k in &f.keypoints {
+            w = w.max(k.x as f64 + 1.0);
+            h = h.max(k.y as f64 + 1.0);
+        }
+        let cols = (w / cell).ceil() as usize + 1;
+        let rows = (h / cell).ceil() as usize + 1;
+        let mut cells = vec![Vec::new(); cols * rows];
+        for (idx, k) in f.keypoints.iter().enumerate() {
+            let (cx, cy) = ((k.x.max(0.0) as f64 / cell) as usize, (k.y.max(0.0) as f64 / cell) as usize);
+            if cx < cols && cy < rows {
+                cells[cy * cols + cx].push(idx as u32);
+            }
+        }
+        Self { cell, cols, rows, cells }
+    }
+
+    /// Keypoints within `band` pixels of the line `l` (`l·(x, y, 1) = 0`).
+    fn near_line(&self, l: &Vector3<f64>, band: f64, out: &mut Vec<u32>) {
+        out.clear();
+        let n = (l.x * l.x + l.y * l.y).sqrt();
+        if n < 1e-300 {
+            return;
+        }
+        let reach = band + self.cell * std::f64::consts::SQRT_2;
+        for cy in 0..self.rows {
+            for cx in 0..self.cols {
+                let (x, y) = ((cx as f64 + 0.5) * self.cell, (cy as f64 + 0.5) * self.cell);
+                if ((l.x * x + l.y * y + l.z) / n).abs() <= reach {
+                    out.extend_from_slice(&self.cells[cy * self.cols + cx]);
+                }
+            }
+        }
+    }
+}
+
+fn dist(a: &[f32], b: &[f32]) -> f32 {
+    a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum::<f32>().sqrt()
+}
+
+/// Table 1 step 4: for every keypoint of image 1 not yet matched, the nearest descriptor among the
+/// keypoints of image 2 within `max_epipolar_px` of its epipolar line `F x1` (ratio test among those
+/// candidates, distance limit, and image-2 keypoints used at most once).
+pub fn guided_matches(f1: &Features, f2: &Features, f: &Matrix3<f64>, existing: &[(u32, u32)], opts: &PairVerificationOptions) -> Vec<(u32, u32)> {
+    let d1 = &f1.descriptors;
+    let d2 = &f2.descriptors;
+    if d1.dim == 0 || d1.dim != d2.dim || d1.len() != f1.keypoints.len() || d2.len() != f2.keypoints.len() {
+        return Vec::new();
+    }
+    let mut used1 = vec![false; f1.keypoints.len()];
+    let mut used2 = vec![false; f2.keypoints.len()];
+    for &(a, b) in existing {
+        used1[a as usize] = true;
+        used2[b as usize] = true;
+    }
+    let grid = Grid::new(f2, 32.0);
+    let mut cand = Vec::new();
+    let mut best: Vec<(f32, u32, u32)> = Vec::new();
+    for a in 0..f1.keypoints.len() as u32 {
+        if used1[a as usize] {
+            continue;
+        }
+        let x1 = point(f1, a);
+        let l = f * Vector3::new(x1.x, x1.y, 1.0);
+        grid.near_line(&l, opts.guided_max_epipolar_px, &mut cand);
+        let n = (l.x * l.x + l.y * l.y).sqrt();
+        let (mut b1, mut s1, mut s2) = (u32::MAX, f32::INFINITY, f32::INFINITY);
+        for &b in &cand {
+            if used2[b as usize] {
+                continue;
+            }
+            let x2 = point(f2, b);
+            if ((l.x * x2.x + l.y * x2.y + l.z) / n).abs() > opts.guided_max_epipolar_px {
+                continue;
+            }
+            let d = dist(d1.row(a as usize), d2.row(b as usize));
+            if d < s1 {
+                s2 = s1;
+                s1 = d;
+                b1 = b;
+            } else if d < s2 {
+                s2 = d;
+            }
+        }
+        if b1 != u32::MAX && s1 <= opts.guided_max_distance && s1 < opts.guided_ratio * s2 {
+            best.push((s1, a, b1));
+        }
+    }
+    // Greedy one-to-one by descriptor distance.
+    best.sort_by(|x, y| x.0.total_cmp(&y.0));
+    let mut out = Vec::new();
+    for (_, a, b) in best {
+        if !used2[b as usize] {
+            used2[b as usize] = true;
+            out.push((a, b));
+        }
+    }
+    out
+}
+
+/// Verifies one pair from its putative matches.
+pub fn verify_pair(i: usize, j: usize, f1: &Features, f2: &Features, putative: Vec<Match>, opts: &PairVerificationOptions) -> VerifiedPair {
+    let m: Vec<Match2d2d> = putative.iter().map(|p| Match2d2d::new(point(f1, p.i), point(f2, p.j))).collect();
+    let mut geometry = match estimate_two_view_geometry(&m, &opts.two_view) {
+        Ok(g) => g,
+        Err(e) => {
+            tracing::warn!("pair ({i}, {j}): {e}");
+            return VerifiedPair { i, j, putative, geometry: failed(0), inliers: Vec::new(), guided_added: 0 };
+        }
+    };
+    let mut inliers: Vec<(u32, u32)> = putative.iter().zip(&geometry.inlier_mask).filter(|(_, &k)| k).map(|(p, _)| (p.i, p.j)).collect();
+    let mut guided_added = 0;
+    if opts.guided && geometry.configuration == TwoViewConfiguration::General {
+        if let Some(fm) = geometry.f {
+            let extra = guided_matches(f1, f2, &fm, &inliers, opts);
+            if !extra.is_empty() {
+                // Step 5: refine F on all correct matches and keep those it explains.
+                let all: Vec<(u32, u32)> = inliers.iter().chain(&extra).copied().collect();
+                let am: Vec<Match2d2d> = all.iter().map(|&(a, b)| Match2d2d::new(point(f1, a), point(f2, b))).collect();
+                let (f_ref, mask) = refine_two_view(&fm, &am, opts.two_view.f_threshold_px);
+                let kept: Vec<(u32, u32)> = all.iter().zip(&mask).filter(|(_, &k)| k).map(|(p, _)| *p).collect();
+                if kept.len() >= inliers.len() {
+                    guided_added = kept.len().saturating_sub(inliers.len());
+                    inliers = kept;
+                    geometry.f = Some(f_ref);
+                    geometry.num_inliers = inliers.len();
+                }
+            }
+        }
+    }
+    VerifiedPair { i, j, putative, geometry, inliers, guided_added }
+}
+
+fn failed(n: usize) -> TwoViewGeometry {
+    TwoViewGeometry {
+        configuration: TwoViewConfiguration::TooFewInliers,
+        f: None,
+        h: None,
+        inlier_mask: vec![false; n],
+        num_inliers: 0,
+        gric_f: f64::INFINITY,
+        gric_h: f64::INFINITY,
+        sigma_px: f64::NAN,
+        view_distance_px: None,
+    }
+}
+
+/// Matches and verifies every pair, in parallel, reporting progress per pair.
+pub fn verify_pairs(features: &[Features], pairs: &[(usize, usize)], opts: &PairVerificationOptions, progress: &dyn Progress) -> Vec<VerifiedPair> {
+    progress.start("matching pairs", pairs.len() as u64);
+    let out = pairs
+        .par_iter()
+        .filter_map(|&(i, j)| {
+            let (f1, f2) = (features.get(i)?, features.get(j)?);
+            let putative = match_descriptors(&f1.descriptors, &f2.descriptors, &opts.matching);
+            let v = verify_pair(i, j, f1, f2, putative, opts);
+            progress.inc(1);
+            Some(v)
+        })
+        .collect();
+    progress.finish();
+    out
+}
