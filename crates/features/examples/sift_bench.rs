@@ -29,6 +29,19 @@ fn fundamental(c1: &Path, c2: &Path) -> Option<Matrix3<f64>> {
     Some(k2.try_inverse()?.transpose() * e * k1.try_inverse()?)
 }
 
+/// CPU seconds used by this process so far (user + system, all threads) from `/proc/self/stat`
+/// (Linux; `None` elsewhere): wall time on a machine shared with other jobs overstates the cost.
+fn cpu_seconds() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    let fields: Vec<&str> = stat.rsplit_once(')')?.1.split_whitespace().collect();
+    let ticks = fields.get(11)?.parse::<f64>().ok()? + fields.get(12)?.parse::<f64>().ok()?;
+    Some(ticks / 100.0)
+}
+
+fn elapsed_cpu(start: Option<f64>) -> f64 {
+    start.zip(cpu_seconds()).map_or(f64::NAN, |(a, b)| b - a)
+}
+
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let upsample = args.iter().any(|a| a == "--upsample");
@@ -43,7 +56,7 @@ fn main() {
     let sift = Sift::new(SiftOptions { upsample_first_octave: upsample, ..Default::default() });
     let threads = rayon::current_num_threads();
     let mut feats = Vec::new();
-    let (mut secs, mut counts, mut sizes) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut wall, mut cpu, mut counts, mut size) = (Vec::new(), Vec::new(), Vec::new(), String::new());
     for i in 0..count {
         let path = dir.join("images").join(format!("{i:04}.jpg"));
         let img = match image::open(&path) {
@@ -53,16 +66,17 @@ fn main() {
                 return;
             }
         };
-        let t = Instant::now();
+        size = format!("[{}, {}]", img.width, img.height);
+        let (t, c) = (Instant::now(), cpu_seconds());
         let f = sift.detect(&img);
-        secs.push(t.elapsed().as_secs_f64());
+        wall.push(t.elapsed().as_secs_f64());
+        cpu.push(elapsed_cpu(c));
         counts.push(f.keypoints.len());
-        sizes.push(format!("[{}, {}]", img.width, img.height));
         feats.push(f);
     }
-    let t = Instant::now();
+    let (t, c) = (Instant::now(), cpu_seconds());
     let matches = match_descriptors(&feats[0].descriptors, &feats[1].descriptors, &MatchOptions::default());
-    let match_secs = t.elapsed().as_secs_f64();
+    let (match_wall, match_cpu) = (t.elapsed().as_secs_f64(), elapsed_cpu(c));
     let epi = fundamental(&dir.join("gt/0000.jpg.camera"), &dir.join("gt/0001.jpg.camera")).map(|f| {
         let good = matches
             .iter()
@@ -74,15 +88,19 @@ fn main() {
             .count();
         good as f64 / matches.len().max(1) as f64
     });
-    let list = |v: Vec<String>| format!("[{}]", v.join(", "));
+    let list = |v: &[f64], digits: usize| format!("[{}]", v.iter().map(|s| format!("{s:.digits$}")).collect::<Vec<_>>().join(", "));
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    let counts: Vec<String> = counts.iter().map(|c| c.to_string()).collect();
     println!(
-        "{{\"threads\": {threads}, \"upsample_first_octave\": {upsample}, \"image_size\": {}, \"extract_seconds\": {}, \
-         \"mean_extract_seconds\": {:.3}, \"features\": {}, \"match_seconds\": {match_secs:.3}, \"matches\": {}, \
-         \"epipolar_2px_fraction\": {}}}",
-        sizes.first().cloned().unwrap_or_default(),
-        list(secs.iter().map(|s| format!("{s:.3}")).collect()),
-        secs.iter().sum::<f64>() / secs.len() as f64,
-        list(counts.iter().map(|c| c.to_string()).collect()),
+        "{{\"threads\": {threads}, \"upsample_first_octave\": {upsample}, \"image_size\": {size}, \
+         \"extract_seconds\": {}, \"mean_extract_seconds\": {:.3}, \"extract_cpu_seconds\": {}, \
+         \"mean_extract_cpu_seconds\": {:.2}, \"features\": [{}], \"match_seconds\": {match_wall:.3}, \
+         \"match_cpu_seconds\": {match_cpu:.2}, \"matches\": {}, \"epipolar_2px_fraction\": {}}}",
+        list(&wall, 3),
+        mean(&wall),
+        list(&cpu, 2),
+        mean(&cpu),
+        counts.join(", "),
         matches.len(),
         epi.map_or_else(|| "null".to_string(), |e| format!("{e:.4}")),
     );

@@ -18,8 +18,11 @@ pub struct ExtractionOptions {
 }
 
 impl Default for ExtractionOptions {
+    /// RootSIFT with COLMAP's contrast threshold (its `peak_threshold` 0.02/3 is 0.02 in the
+    /// OpenCV convention used here), at most 8192 features, full resolution. Measured on
+    /// fountain-P11: 4.3–5.1 k verified inliers per adjacent pair at 0.38 s per pair (see README).
     fn default() -> Self {
-        Self { sift: SiftOptions::default(), max_image_size: None }
+        Self { sift: SiftOptions { contrast_threshold: 0.02, ..SiftOptions::default() }, max_image_size: None }
     }
 }
 

@@ -155,7 +155,7 @@ pub fn refine_corner_gradient(gx: &GrayImage, gy: &GrayImage, x: f32, y: f32, ra
             }
         }
         let det = a * c - b * b;
-        if !(det > 1e-12 * (a + c) * (a + c)) {
+        if det.is_nan() || det <= 1e-12 * (a + c) * (a + c) {
             return None;
         }
         let (nx, ny) = ((c * u - b * v) / det, (a * v - b * u) / det);

@@ -69,6 +69,9 @@ struct Best2 {
     s2: f32,
 }
 
+/// One row block's result: each row's two best, and each column's best `(score, row)` over the block.
+type BlockResult = (Vec<Best2>, Vec<(f32, u32)>);
+
 /// Matches every descriptor of `a` to its nearest neighbour in `b`, filtered by the ratio test, the
 /// mutual check and `max_distance`. Returns matches sorted by `i`. Mismatched dimensions or invalid
 /// options give no matches (with a warning).
@@ -90,7 +93,7 @@ pub fn match_descriptors(a: &Descriptors, b: &Descriptors, opts: &MatchOptions) 
     let nb: Vec<f32> = bdata.chunks_exact(d).map(sq).collect();
 
     // Per row block: the rows' two best and, for the mutual check, each column's best row in this block.
-    let blocks: Vec<(Vec<Best2>, Vec<(f32, u32)>)> = (0..n.div_ceil(ROW_BLOCK))
+    let blocks: Vec<BlockResult> = (0..n.div_ceil(ROW_BLOCK))
         .into_par_iter()
         .map(|blk| {
             let i0 = blk * ROW_BLOCK;

@@ -18,6 +18,7 @@
 
 use std::f32::consts::{PI, SQRT_2};
 
+use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -86,31 +87,17 @@ impl Default for SiftOptions {
 
 impl SiftOptions {
     pub fn validate(&self) -> Result<(), String> {
-        if self.num_octaves == Some(0) {
-            return Err("num_octaves must be at least 1".into());
+        let check = |ok: bool, msg: &dyn Fn() -> String| if ok { Ok(()) } else { Err(msg()) };
+        check(self.num_octaves != Some(0), &|| "num_octaves must be at least 1".into())?;
+        check((1..=16).contains(&self.octave_layers), &|| format!("octave_layers must be in 1..=16, got {}", self.octave_layers))?;
+        for (name, v) in [("contrast_threshold", self.contrast_threshold), ("sigma", self.sigma)] {
+            check(v.is_finite() && v > 0.0, &|| format!("{name} must be positive and finite, got {v}"))?;
         }
-        if !(1..=16).contains(&self.octave_layers) {
-            return Err(format!("octave_layers must be in 1..=16, got {}", self.octave_layers));
-        }
-        let positive = [("contrast_threshold", self.contrast_threshold), ("sigma", self.sigma)];
-        for (name, v) in positive {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(format!("{name} must be positive and finite, got {v}"));
-            }
-        }
-        if !(self.edge_threshold.is_finite() && self.edge_threshold >= 1.0) {
-            return Err(format!("edge_threshold must be ≥ 1, got {}", self.edge_threshold));
-        }
-        if !(self.input_sigma.is_finite() && self.input_sigma >= 0.0) {
-            return Err(format!("input_sigma must be ≥ 0, got {}", self.input_sigma));
-        }
-        if !(self.orientation_peak_ratio > 0.0 && self.orientation_peak_ratio <= 1.0) {
-            return Err(format!("orientation_peak_ratio must be in (0, 1], got {}", self.orientation_peak_ratio));
-        }
-        if self.max_features == Some(0) {
-            return Err("max_features must be at least 1 (use None for no limit)".into());
-        }
-        Ok(())
+        let (e, i, p) = (self.edge_threshold, self.input_sigma, self.orientation_peak_ratio);
+        check(e.is_finite() && e >= 1.0, &|| format!("edge_threshold must be ≥ 1, got {e}"))?;
+        check(i.is_finite() && i >= 0.0, &|| format!("input_sigma must be ≥ 0, got {i}"))?;
+        check(p > 0.0 && p <= 1.0, &|| format!("orientation_peak_ratio must be in (0, 1], got {p}"))?;
+        check(self.max_features != Some(0), &|| "max_features must be at least 1 (use None for no limit)".into())
     }
 }
 
@@ -145,13 +132,6 @@ impl FeatureDetector for Sift {
     }
 }
 
-/// A plain buffer with its size.
-struct Plane {
-    w: usize,
-    h: usize,
-    data: Vec<f32>,
-}
-
 /// Precomputed gradient magnitude and orientation ([0, 2π), image y axis down) of layers 1..=s of one octave.
 struct OctaveGrad {
     octave: i32,
@@ -175,32 +155,27 @@ struct Candidate {
 }
 
 fn sift_detect(image: &GrayImage, o: &SiftOptions) -> Features {
-    let (first_octave, mut base) = if o.upsample_first_octave { (-1, upsample2(image)) } else { (0, plane_of(image)) };
-    if base.w < MIN_OCTAVE_SIZE || base.h < MIN_OCTAVE_SIZE {
+    let (first_octave, mut base) = if o.upsample_first_octave { (-1, upsample2(image)) } else { (0, image.clone()) };
+    if base.width < MIN_OCTAVE_SIZE || base.height < MIN_OCTAVE_SIZE {
         return Features { keypoints: Vec::new(), descriptors: Descriptors { dim: SIFT_DIM, data: Vec::new() } };
     }
     let s = o.octave_layers;
     let mut max_octaves = 1;
-    while base.w.min(base.h) >> max_octaves >= MIN_OCTAVE_SIZE {
+    while base.width.min(base.height) >> max_octaves >= MIN_OCTAVE_SIZE {
         max_octaves += 1;
     }
     let num_octaves = o.num_octaves.map_or(max_octaves, |n| n.min(max_octaves));
-    // Incremental blurs: level i has total σ₀·k^i, k = 2^{1/s}.
+    // Incremental blurs: level i has total σ₀·k^i, k = 2^{1/s}, reached from level i−1 by σ₀·k^{i−1}·√(k²−1).
     let k = 2f32.powf(1.0 / s as f32);
-    let sig_inc: Vec<f32> = (1..s + 3)
-        .map(|i| {
-            let prev = o.sigma * k.powi(i as i32 - 1);
-            ((prev * k).powi(2) - prev * prev).sqrt()
-        })
-        .collect();
+    let sig_inc: Vec<f32> = (1..s + 3).map(|i| o.sigma * k.powi(i as i32 - 1) * (k * k - 1.0).sqrt()).collect();
     let input_sigma = o.input_sigma * if o.upsample_first_octave { 2.0 } else { 1.0 };
     let sig0 = (o.sigma * o.sigma - input_sigma * input_sigma).max(0.01).sqrt();
-    base.data = blur(&base.data, base.w, base.h, sig0);
+    base.data = blur(&base.data, base.width, base.height, sig0);
 
     let mut grads: Vec<OctaveGrad> = Vec::with_capacity(num_octaves);
     let mut cands: Vec<Candidate> = Vec::new();
     for oi in 0..num_octaves {
-        let (w, h) = (base.w, base.h);
+        let (w, h) = (base.width, base.height);
         let mut gauss: Vec<Vec<f32>> = Vec::with_capacity(s + 3);
         gauss.push(std::mem::take(&mut base.data));
         for &si in &sig_inc {
@@ -238,10 +213,9 @@ fn sift_detect(image: &GrayImage, o: &SiftOptions) -> Features {
         oriented.truncate(m);
     }
     let mut data = vec![0f32; oriented.len() * SIFT_DIM];
-    let avx = has_avx2_fma();
     data.par_chunks_mut(SIFT_DIM).zip(oriented.par_iter()).for_each(|(out, &(ci, angle))| {
         let c = &cands[ci];
-        describe(avx, &grads[c.grad], c, angle, o.root_sift, out);
+        describe(&grads[c.grad], c, angle, o.root_sift, out);
     });
     let keypoints = oriented
         .iter()
@@ -254,12 +228,8 @@ fn sift_detect(image: &GrayImage, o: &SiftOptions) -> Features {
     Features { keypoints, descriptors: Descriptors { dim: SIFT_DIM, data } }
 }
 
-fn plane_of(img: &GrayImage) -> Plane {
-    Plane { w: img.width, h: img.height, data: img.data.clone() }
-}
-
 /// Bilinear 2× upsampling: output pixel `i` samples input position `(i + 0.5)/2 − 0.5`.
-fn upsample2(img: &GrayImage) -> Plane {
+fn upsample2(img: &GrayImage) -> GrayImage {
     let (w, h) = (img.width * 2, img.height * 2);
     let mut data = vec![0f32; w * h];
     data.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
@@ -268,11 +238,11 @@ fn upsample2(img: &GrayImage) -> Plane {
             *v = img.sample((x as f32 + 0.5) * 0.5 - 0.5, sy);
         }
     });
-    Plane { w, h, data }
+    GrayImage { width: w, height: h, data }
 }
 
 /// 2×2 block average (the relation of [`GrayImage::downsample2`]), in parallel over rows.
-fn downsample(src: &[f32], w: usize, h: usize) -> Plane {
+fn downsample(src: &[f32], w: usize, h: usize) -> GrayImage {
     let (w2, h2) = (w / 2, h / 2);
     let mut data = vec![0f32; w2 * h2];
     data.par_chunks_mut(w2.max(1)).enumerate().for_each(|(y, row)| {
@@ -281,43 +251,7 @@ fn downsample(src: &[f32], w: usize, h: usize) -> Plane {
             *v = 0.25 * (r0[2 * x] + r0[2 * x + 1] + r1[2 * x] + r1[2 * x + 1]);
         }
     });
-    Plane { w: w2, h: h2, data }
-}
-
-/// True when the CPU has AVX2 and FMA, for the hot kernels below (each compiled twice: baseline and
-/// AVX2+FMA, the latter used only after this runtime check).
-fn has_avx2_fma() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        false
-    }
-}
-
-/// Defines `$name(avx, args…)` that runs the `#[inline(always)]` kernel `$kernel` compiled for
-/// AVX2+FMA when `avx` is true, else for the baseline target.
-macro_rules! dispatch {
-    ($name:ident, $avx:ident, $kernel:ident, ($($arg:ident: $ty:ty),*)) => {
-        #[cfg(target_arch = "x86_64")]
-        #[target_feature(enable = "avx2,fma")]
-        unsafe fn $avx($($arg: $ty),*) {
-            $kernel($($arg),*)
-        }
-
-        #[allow(clippy::too_many_arguments)]
-        fn $name(avx: bool, $($arg: $ty),*) {
-            #[cfg(target_arch = "x86_64")]
-            if avx {
-                // SAFETY: callers pass `avx = has_avx2_fma()`, so the CPU supports the enabled features.
-                return unsafe { $avx($($arg),*) };
-            }
-            let _ = avx;
-            $kernel($($arg),*)
-        }
-    };
+    GrayImage { width: w2, height: h2, data }
 }
 
 /// Separable Gaussian blur (border replicated), parallel over output rows: for each row the vertical
@@ -327,16 +261,13 @@ fn blur(src: &[f32], w: usize, h: usize, sigma: f32) -> Vec<f32> {
     let kern = gaussian_kernel(sigma);
     let r = kern.len() / 2;
     let half = &kern[r..];
-    let avx = has_avx2_fma();
     let mut out = vec![0f32; w * h];
-    out.par_chunks_mut(w).enumerate().for_each_init(|| vec![0f32; w + 2 * r], |buf, (y, dst)| blur_row(avx, src, w, h, y, half, buf, dst));
+    out.par_chunks_mut(w).enumerate().for_each_init(|| vec![0f32; w + 2 * r], |buf, (y, dst)| blur_row(src, (w, h), y, half, buf, dst));
     out
 }
 
-dispatch!(blur_row, blur_row_avx2, blur_row_kernel, (src: &[f32], w: usize, h: usize, y: usize, half: &[f32], buf: &mut [f32], dst: &mut [f32]));
-
-#[inline(always)]
-fn blur_row_kernel(src: &[f32], w: usize, h: usize, y: usize, half: &[f32], buf: &mut [f32], dst: &mut [f32]) {
+/// One output row of [`blur`]; `buf` is scratch of `w + 2r` floats.
+fn blur_row(src: &[f32], (w, h): (usize, usize), y: usize, half: &[f32], buf: &mut [f32], dst: &mut [f32]) {
     let r = half.len() - 1;
     let acc = &mut buf[r..r + w];
     let row = |yy: isize| {
@@ -371,20 +302,16 @@ fn blur_row_kernel(src: &[f32], w: usize, h: usize, y: usize, half: &[f32], buf:
 fn gradient_polar(src: &[f32], w: usize, h: usize) -> (Vec<f32>, Vec<f32>) {
     let mut mag = vec![0f32; w * h];
     let mut ori = vec![0f32; w * h];
-    let avx = has_avx2_fma();
     mag.par_chunks_mut(w).zip(ori.par_chunks_mut(w)).enumerate().for_each(|(y, (m, a))| {
         if y > 0 && y + 1 < h {
-            gradient_row(avx, &src[(y - 1) * w..(y + 2) * w], m, a);
+            gradient_row(&src[(y - 1) * w..(y + 2) * w], m, a);
         }
     });
     (mag, ori)
 }
 
-dispatch!(gradient_row, gradient_row_avx2, gradient_row_kernel, (rows: &[f32], m: &mut [f32], a: &mut [f32]));
-
 /// One row of [`gradient_polar`]; `rows` holds the row above, the row and the row below.
-#[inline(always)]
-fn gradient_row_kernel(rows: &[f32], m: &mut [f32], a: &mut [f32]) {
+fn gradient_row(rows: &[f32], m: &mut [f32], a: &mut [f32]) {
     let w = m.len();
     let (up, mid, down) = (&rows[..w], &rows[w..2 * w], &rows[2 * w..3 * w]);
     let it = m[1..w - 1].iter_mut().zip(&mut a[1..w - 1]).zip(mid.windows(3)).zip(&up[1..w - 1]).zip(&down[1..w - 1]);
@@ -467,26 +394,10 @@ fn dog_derivatives(dog: &[Vec<f32>], l: usize, i: usize, w: usize) -> ([f32; 3],
     (g, [[dxx, dxy, dxs], [dxy, dyy, dys], [dxs, dys, dss]])
 }
 
-/// Solves `H x = g` by Cramer's rule in f64; `None` when `H` is singular.
+/// Solves `H x = g` (LU with partial pivoting); `None` when `H` is singular.
 fn solve3(hm: &[[f32; 3]; 3], g: &[f32; 3]) -> Option<[f32; 3]> {
-    let m = hm.map(|r| r.map(f64::from));
-    let det3 = |a: &[[f64; 3]; 3]| {
-        a[0][0] * (a[1][1] * a[2][2] - a[1][2] * a[2][1]) - a[0][1] * (a[1][0] * a[2][2] - a[1][2] * a[2][0])
-            + a[0][2] * (a[1][0] * a[2][1] - a[1][1] * a[2][0])
-    };
-    let d = det3(&m);
-    if d.abs() < 1e-30 {
-        return None;
-    }
-    let mut x = [0f32; 3];
-    for (col, xc) in x.iter_mut().enumerate() {
-        let mut mc = m;
-        for row in 0..3 {
-            mc[row][col] = f64::from(g[row]);
-        }
-        *xc = (det3(&mc) / d) as f32;
-    }
-    Some(x)
+    let x = Matrix3::from_fn(|r, c| hm[r][c]).lu().solve(&Vector3::from(*g))?;
+    x.iter().all(|v| v.is_finite()).then(|| [x[0], x[1], x[2]])
 }
 
 /// Quadratic sub-pixel/sub-scale refinement (Lowe eq. 3), moving to a neighbour while an offset
@@ -589,12 +500,9 @@ fn orientations(g: &OctaveGrad, c: &Candidate, peak_ratio: f32) -> ([f32; ORI_BI
     (out, count)
 }
 
-dispatch!(describe, describe_avx2, describe_kernel, (g: &OctaveGrad, c: &Candidate, angle: f32, root_sift: bool, out: &mut [f32]));
-
 /// The 4×4×8 descriptor (Lowe §6.1) with trilinear interpolation and a Gaussian window of σ = half the
 /// descriptor width, normalised, clipped at 0.2, renormalised; then optionally RootSIFT.
-#[inline(always)]
-fn describe_kernel(g: &OctaveGrad, c: &Candidate, angle: f32, root_sift: bool, out: &mut [f32]) {
+fn describe(g: &OctaveGrad, c: &Candidate, angle: f32, root_sift: bool, out: &mut [f32]) {
     const D: usize = DESC_WIDTH;
     const N: usize = DESC_BINS;
     let hist_width = DESC_SCALE_FACTOR * c.scale;
@@ -718,13 +626,5 @@ mod tests {
         for (a, b) in got.iter().zip(&want.data) {
             assert!((a - b).abs() < 1e-5);
         }
-    }
-
-    #[test]
-    fn options_validate() {
-        assert!(SiftOptions::default().validate().is_ok());
-        assert!(SiftOptions { octave_layers: 0, ..Default::default() }.validate().is_err());
-        assert!(SiftOptions { sigma: f32::NAN, ..Default::default() }.validate().is_err());
-        assert!(SiftOptions { max_features: Some(0), ..Default::default() }.validate().is_err());
     }
 }

@@ -125,7 +125,8 @@ impl Grid {
         Self { cell, cols, rows, cells }
     }
 
-    /// Keypoints within `band` pixels of the line `l` (`l·(x, y, 1) = 0`).
+    /// Keypoints within `band` pixels of the line `l` (`l·(x, y, 1) = 0`): walks only the grid cells
+    /// the band crosses, along rows for steep lines and along columns for flat ones.
     fn near_line(&self, l: &Vector3<f64>, band: f64, out: &mut Vec<u32>) {
         out.clear();
         let n = (l.x * l.x + l.y * l.y).sqrt();
@@ -133,12 +134,23 @@ impl Grid {
             return;
         }
         let reach = band + self.cell * std::f64::consts::SQRT_2;
-        for cy in 0..self.rows {
-            for cx in 0..self.cols {
-                let (x, y) = ((cx as f64 + 0.5) * self.cell, (cy as f64 + 0.5) * self.cell);
-                if ((l.x * x + l.y * y + l.z) / n).abs() <= reach {
-                    out.extend_from_slice(&self.cells[cy * self.cols + cx]);
-                }
+        let steep = l.x.abs() >= l.y.abs();
+        let (outer, inner) = if steep { (self.rows, self.cols) } else { (self.cols, self.rows) };
+        // Along the outer axis, the line's inner coordinate is t = −(b·s + c)/a; the band is
+        // ±reach·n/|a| wide in t.
+        let (a, b) = if steep { (l.x, l.y) } else { (l.y, l.x) };
+        let half = reach * n / a.abs() / self.cell;
+        for o in 0..outer {
+            let s = (o as f64 + 0.5) * self.cell;
+            let t = -(b * s + l.z) / a / self.cell - 0.5;
+            let lo = (t - half).floor().max(0.0) as usize;
+            let hi = (t + half).ceil().min(inner as f64 - 1.0);
+            if hi < 0.0 || lo >= inner {
+                continue;
+            }
+            for i in lo..=hi as usize {
+                let idx = if steep { o * self.cols + i } else { i * self.cols + o };
+                out.extend_from_slice(&self.cells[idx]);
             }
         }
     }
@@ -270,4 +282,39 @@ pub fn verify_pairs(features: &[Features], pairs: &[(usize, usize)], opts: &Pair
         .collect();
     progress.finish();
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::detector::Keypoint;
+
+    #[test]
+    fn grid_band_query_finds_every_keypoint_near_the_line() {
+        let mut s = 12345u64;
+        let mut rnd = || {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (s >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let keypoints: Vec<Keypoint> = (0..3000)
+            .map(|_| Keypoint { x: (rnd() * 1000.0) as f32, y: (rnd() * 700.0) as f32, scale: 1.0, orientation: 0.0, response: 1.0 })
+            .collect();
+        let f = Features { keypoints, descriptors: Default::default() };
+        let grid = Grid::new(&f, 32.0);
+        let mut out = Vec::new();
+        for _ in 0..200 {
+            let th = rnd() * std::f64::consts::PI;
+            let (a, b) = (th.cos(), th.sin());
+            let c = -(a * rnd() * 1000.0 + b * rnd() * 700.0);
+            let l = Vector3::new(a, b, c) * (1.0 + 10.0 * rnd());
+            grid.near_line(&l, 2.0, &mut out);
+            let n = (l.x * l.x + l.y * l.y).sqrt();
+            for (k, p) in f.keypoints.iter().enumerate() {
+                if ((l.x * p.x as f64 + l.y * p.y as f64 + l.z) / n).abs() <= 2.0 {
+                    assert!(out.contains(&(k as u32)), "keypoint {k} missed");
+                }
+            }
+            assert!(out.len() < f.keypoints.len() / 2, "the band query should prune");
+        }
+    }
 }

@@ -59,7 +59,7 @@ pub fn normalize_zero_mean(v: &mut [f32], min_std: f32) -> bool {
         *x -= mean;
         ss += *x * *x;
     }
-    if !(ss / n >= min_std * min_std) || ss <= 0.0 {
+    if ss.is_nan() || ss / n < min_std * min_std || ss <= 0.0 {
         return false;
     }
     let inv = ss.sqrt().recip();

@@ -12,6 +12,7 @@ pub mod colmap;
 pub mod database;
 pub mod error;
 pub mod features_file;
+pub mod gt;
 pub mod images;
 pub mod ingest;
 pub mod pfm;

@@ -23,7 +23,7 @@ pub fn feature_file_name(index: usize) -> String {
 
 pub fn options(a: &InputArgs) -> Result<ExtractionOptions> {
     let opts = ExtractionOptions {
-        sift: SiftOptions { max_features: Some(a.max_features), ..Default::default() },
+        sift: SiftOptions { max_features: Some(a.max_features), ..ExtractionOptions::default().sift },
         max_image_size: a.max_image_size,
     };
     opts.validate().map_err(anyhow::Error::msg)?;

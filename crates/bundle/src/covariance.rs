@@ -1,0 +1,150 @@
+//! Marginal covariances of the 3D points and camera centres at a bundle-adjustment optimum, from the
+//! Schur system (Triggs et al. 2000, §2.2 and §6.1; Hartley & Zisserman 2004, §A6.4):
+//! `Σc = S⁺` for the camera-side parameters and `Σp = V⁻¹ + V⁻¹ Wᵀ Σc W V⁻¹` for each point, all scaled by
+//! the a-posteriori variance factor `σ̂² = Σ‖r‖² / (#residuals − #free parameters + gauge)`.
+//!
+//! Gauge: the first view is held fixed (as in [`crate::MetricBundleConfig`]); the remaining scale
+//! freedom is removed by the pseudo-inverse of the Jacobi-scaled `S` (eigenvalues below `1e-9` of the
+//! largest are dropped). This needs a dense `S`, so it is limited to a few thousand parameters.
+
+use std::collections::BTreeMap;
+
+use handheld_core::{ImageId, MetricReconstruction, PointId};
+use nalgebra::{DMatrix, Matrix3, SymmetricEigen};
+
+use crate::metric::{metric_problem, MetricBundleConfig};
+use crate::options::{BundleError, BundleOptions};
+use crate::schur::{assemble, invert_points, linearize, ReducedMatrix};
+use crate::structure::Structure;
+
+/// Largest reduced system for which covariances are computed.
+pub const MAX_COVARIANCE_DIMENSION: usize = 4000;
+
+/// A 3×3 covariance and its summary standard deviation `sqrt(trace/3)`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PointUncertainty {
+    pub covariance: Matrix3<f64>,
+    pub sigma: f64,
+}
+
+impl PointUncertainty {
+    fn new(covariance: Matrix3<f64>) -> Self {
+        Self { covariance, sigma: (covariance.trace().max(0.0) / 3.0).sqrt() }
+    }
+
+    /// Standard deviations along the axes.
+    pub fn sigma_xyz(&self) -> [f64; 3] {
+        [0, 1, 2].map(|i| self.covariance[(i, i)].max(0.0).sqrt())
+    }
+}
+
+/// Uncertainty of a metric reconstruction.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MetricUncertainty {
+    pub points: BTreeMap<PointId, PointUncertainty>,
+    /// Camera centres of the views whose pose is free.
+    pub centers: BTreeMap<ImageId, PointUncertainty>,
+    /// `σ̂²` in pixels² that scales every covariance.
+    pub variance_factor: f64,
+    /// Eigenvalues of the scaled `S` dropped as gauge freedoms.
+    pub dropped_directions: usize,
+}
+
+/// Covariances at the current estimate of `rec` (normally right after [`crate::bundle_adjust_metric`]
+/// with the same config); `options` supplies the loss and the thread count.
+pub fn metric_uncertainty(
+    rec: &MetricReconstruction,
+    config: &MetricBundleConfig,
+    options: &BundleOptions,
+) -> Result<MetricUncertainty, BundleError> {
+    options.validate()?;
+    let (p, index) = metric_problem(rec, config)?;
+    p.validate()?;
+    let st = Structure::new(&p);
+    let n = st.num_reduced;
+    if n > MAX_COVARIANCE_DIMENSION {
+        return Err(BundleError::TooLarge { what: "covariance estimation", dimension: n, limit: MAX_COVARIANCE_DIMENSION });
+    }
+    let lin = linearize(&p, &st, &options.loss);
+    let vinv = invert_points(&lin, &vec![0.0; 3 * p.points.len()]);
+    let mut m = ReducedMatrix::new(&st, true);
+    let mut rhs = vec![0.0; n];
+    assemble(&p, &st, &lin, &vinv, &lin.prior_h, &mut m, &mut rhs);
+    let mut s = DMatrix::from_column_slice(n, n, &m.values);
+    for j in 0..n {
+        for i in 0..j {
+            s[(i, j)] = s[(j, i)];
+        }
+    }
+    // Pseudo-inverse of the Jacobi-scaled matrix.
+    let d: Vec<f64> = (0..n).map(|i| 1.0 / s[(i, i)].max(1e-300).sqrt()).collect();
+    let scaled = DMatrix::from_fn(n, n, |i, j| s[(i, j)] * d[i] * d[j]);
+    let eig = SymmetricEigen::new(scaled);
+    let top = eig.eigenvalues.iter().fold(0.0f64, |a, v| a.max(*v));
+    let mut dropped = 0;
+    let inv_vals: Vec<f64> = eig
+        .eigenvalues
+        .iter()
+        .map(|v| {
+            if *v > 1e-9 * top {
+                1.0 / v
+            } else {
+                dropped += 1;
+                0.0
+            }
+        })
+        .collect();
+    let q = &eig.eigenvectors;
+    let mut cov = q * DMatrix::from_diagonal(&nalgebra::DVector::from_vec(inv_vals)) * q.transpose();
+    for i in 0..n {
+        for j in 0..n {
+            cov[(i, j)] *= d[i] * d[j];
+        }
+    }
+    let dof = (2 * p.num_observations()) as f64 - (n + 3 * p.points.len()) as f64 + dropped as f64;
+    let sum_sq: f64 = (0..p.num_observations()).map(|o| p.residual(o)).map(|r| r[0] * r[0] + r[1] * r[1]).sum();
+    let variance_factor = if dof > 0.0 { sum_sq / dof } else { 1.0 };
+
+    let mut points = BTreeMap::new();
+    for (pt, id) in index.points.iter().enumerate() {
+        let vi = vinv[pt];
+        let mut c = vi;
+        let range = st.point_inc.ptr[pt]..st.point_inc.ptr[pt + 1];
+        // Y_i = W_iᵀ-weighted: Σp += (W_i V⁻¹)ᵀ Σc[b_i, b_j] (W_j V⁻¹).
+        let ys: Vec<(usize, DMatrix<f64>)> = range
+            .map(|i| {
+                let b = st.point_inc.idx[i] as usize;
+                let dim = st.block_dim[b];
+                let w = DMatrix::from_column_slice(dim, 3, &lin.w[st.inc_woff[i]..st.inc_woff[i] + 3 * dim]);
+                (st.block_offset[b], w * DMatrix::from_column_slice(3, 3, vi.as_slice()))
+            })
+            .collect();
+        for (oi, yi) in &ys {
+            for (oj, yj) in &ys {
+                let block = cov.view((*oi, *oj), (yi.nrows(), yj.nrows()));
+                let add = yi.transpose() * block * yj;
+                for a in 0..3 {
+                    for b in 0..3 {
+                        c[(a, b)] += add[(a, b)];
+                    }
+                }
+            }
+        }
+        points.insert(*id, PointUncertainty::new(c * variance_factor));
+    }
+    let mut centers = BTreeMap::new();
+    for (i, id) in index.views.iter().enumerate() {
+        let Some(at) = st.cam_pose_at[i] else { continue };
+        let b = &p.cameras[i];
+        let rt = Matrix3::new(b[0], b[3], b[6], b[1], b[4], b[7], b[2], b[5], b[8]);
+        let tx = Matrix3::new(0.0, -b[11], b[10], b[11], 0.0, -b[9], -b[10], b[9], 0.0);
+        // C = −Rᵀt: ∂C/∂δ = −Rᵀ[t]×, ∂C/∂t = −Rᵀ.
+        let mut j = DMatrix::zeros(3, 6);
+        j.view_mut((0, 0), (3, 3)).copy_from(&(-rt * tx));
+        j.view_mut((0, 3), (3, 3)).copy_from(&(-rt));
+        let sub = cov.view((at, at), (6, 6));
+        let c = &j * sub * j.transpose();
+        centers.insert(*id, PointUncertainty::new(Matrix3::from_fn(|a, b| c[(a, b)]) * variance_factor));
+    }
+    Ok(MetricUncertainty { points, centers, variance_factor, dropped_directions: dropped })
+}

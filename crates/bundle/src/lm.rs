@@ -1,0 +1,221 @@
+//! The Levenberg–Marquardt trust-region loop, as in Ceres Solver (`TrustRegionMinimizer` with the
+//! `LevenbergMarquardtStrategy`): the damped system is `(JᵀJ + D/radius) δ = −Jᵀr` with `D` the diagonal
+//! of `JᵀJ` after Jacobi scaling, clamped to `[1e-6, 1e32]`; the step is accepted when the gain ratio
+//! (actual over model decrease) exceeds `min_relative_decrease`, then
+//! `radius ← radius / max(1/3, 1 − (2ρ − 1)³)`; a rejected step divides the radius by a factor that
+//! doubles at each consecutive failure. Stops on the gradient, step and relative-cost tolerances.
+
+use std::time::Instant;
+
+use handheld_core::Progress;
+use rayon::prelude::*;
+
+use crate::linear::Factorizer;
+use crate::options::{BundleError, BundleOptions, BundleSummary, LinearSolverKind, Termination};
+use crate::problem::{CameraModel, Problem};
+use crate::residual::{pose_plus, sphere_plus, NUM_INTRINSICS};
+use crate::schur::{assemble, back_substitute, invert_points, jacobian_step_norm2, linearize, ReducedMatrix};
+use crate::structure::Structure;
+
+const MIN_DIAGONAL: f64 = 1e-6;
+const MAX_DIAGONAL: f64 = 1e32;
+
+/// Ceres' Jacobi scaling `s = 1/(1 + ‖column‖)`, computed once from the initial Jacobian.
+#[inline]
+fn jacobi_scale(h: f64) -> f64 {
+    1.0 / (1.0 + h.sqrt())
+}
+
+/// Ceres' damping for one parameter with Jacobian column norm² `h` and scale `s`: `clamp(h s²)/radius`
+/// in the scaled coordinates, returned in the original ones.
+#[inline]
+fn damping(h: f64, s: f64, radius: f64) -> f64 {
+    (h * s * s).clamp(MIN_DIAGONAL, MAX_DIAGONAL) / radius / (s * s)
+}
+
+/// The parameter vectors that a step changes.
+struct Params {
+    cameras: Vec<[f64; 12]>,
+    groups: Vec<[f64; NUM_INTRINSICS]>,
+    points: Vec<[f64; 4]>,
+}
+
+fn swap_params(p: &mut Problem, x: &mut Params) {
+    std::mem::swap(&mut p.cameras, &mut x.cameras);
+    std::mem::swap(&mut p.groups, &mut x.groups);
+    std::mem::swap(&mut p.points, &mut x.points);
+}
+
+/// `x ⊕ δ` on every block's manifold.
+fn plus(p: &Problem, st: &Structure, dc: &[f64], dp: &[f64]) -> Params {
+    let cameras = p
+        .cameras
+        .par_iter()
+        .enumerate()
+        .map(|(c, cam)| match st.cam_pose_at[c] {
+            None => *cam,
+            Some(i) => match p.model {
+                CameraModel::Metric => pose_plus(cam, &dc[i..i + 6]),
+                CameraModel::Projective => sphere_plus(cam, &dc[i..i + 11]),
+            },
+        })
+        .collect();
+    let mut groups = p.groups.clone();
+    for (g, vals) in groups.iter_mut().enumerate() {
+        for (k, v) in vals.iter_mut().enumerate() {
+            if let Some(i) = st.group_param_at[g][k] {
+                *v += dc[i];
+            }
+        }
+    }
+    let points = p
+        .points
+        .par_iter()
+        .enumerate()
+        .with_min_len(1024)
+        .map(|(pt, x)| {
+            let d = &dp[3 * pt..3 * pt + 3];
+            match p.model {
+                CameraModel::Metric => [x[0] + d[0], x[1] + d[1], x[2] + d[2], x[3]],
+                CameraModel::Projective => sphere_plus(x, d),
+            }
+        })
+        .collect();
+    Params { cameras, groups, points }
+}
+
+/// Norm of the ambient parameter vector (for the step tolerance).
+fn param_norm(p: &Problem) -> f64 {
+    let c: f64 = p.cameras.iter().flatten().map(|v| v * v).sum();
+    let g: f64 = p.groups.iter().flatten().map(|v| v * v).sum();
+    let x: f64 = p.points.par_iter().map(|x| x.iter().map(|v| v * v).sum::<f64>()).sum();
+    (c + g + x).sqrt()
+}
+
+pub(crate) fn solve(p: &mut Problem, opts: &BundleOptions, progress: &dyn Progress) -> Result<BundleSummary, BundleError> {
+    opts.validate()?;
+    p.validate()?;
+    if opts.num_threads == 0 {
+        return run(p, opts, progress);
+    }
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(opts.num_threads)
+        .build()
+        .map_err(|e| BundleError::InvalidOptions(format!("cannot start {} threads: {e}", opts.num_threads)))?;
+    pool.install(|| run(p, opts, progress))
+}
+
+fn run(p: &mut Problem, opts: &BundleOptions, progress: &dyn Progress) -> Result<BundleSummary, BundleError> {
+    let t0 = Instant::now();
+    let st = Structure::new(p);
+    let n = st.num_reduced;
+    let dense = match opts.linear_solver {
+        LinearSolverKind::DenseSchur => true,
+        LinearSolverKind::SparseSchur => false,
+        LinearSolverKind::Auto => n <= opts.dense_max_dimension,
+    };
+    let mut m = ReducedMatrix::new(&st, dense);
+    let mut factor = Factorizer::new(&m)?;
+    let loss = opts.loss;
+    let initial_rms_px = p.rms_px();
+    let mut lin = linearize(p, &st, &loss);
+    if !lin.cost.is_finite() {
+        return Err(BundleError::NonFiniteCost);
+    }
+    let initial_cost = lin.cost;
+    let scale_c: Vec<f64> = lin.dc.iter().map(|h| jacobi_scale(*h)).collect();
+    let scale_p: Vec<f64> = lin.v.iter().flat_map(|v| [v[(0, 0)], v[(1, 1)], v[(2, 2)]]).map(jacobi_scale).collect();
+    let mut x_norm = param_norm(p);
+    let mut radius = opts.initial_trust_region_radius;
+    let mut decrease_factor = 2.0;
+    let (mut iterations, mut successful) = (0, 0);
+    let mut linear_seconds = 0.0;
+    let mut rhs = vec![0.0; n];
+    progress.start("bundle adjustment", opts.max_iterations as u64);
+    let termination = loop {
+        let grad_max = lin.bc.iter().chain(lin.bp.iter().flat_map(|b| b.iter())).fold(0.0f64, |a, v| a.max(v.abs()));
+        if grad_max <= opts.gradient_tolerance {
+            break Termination::GradientTolerance;
+        }
+        if iterations >= opts.max_iterations {
+            break Termination::MaxIterations;
+        }
+        if radius < opts.min_trust_region_radius {
+            break Termination::NoConvergence;
+        }
+        iterations += 1;
+        progress.inc(1);
+        let mu_c: Vec<f64> =
+            lin.dc.iter().zip(&scale_c).zip(&lin.prior_h).map(|((h, s), ph)| damping(*h, *s, radius) + ph).collect();
+        let mu_p: Vec<f64> = lin
+            .v
+            .iter()
+            .flat_map(|v| [v[(0, 0)], v[(1, 1)], v[(2, 2)]])
+            .zip(&scale_p)
+            .map(|(h, s)| damping(h, *s, radius))
+            .collect();
+        let vinv = invert_points(&lin, &mu_p);
+        assemble(p, &st, &lin, &vinv, &mu_c, &mut m, &mut rhs);
+        let tl = Instant::now();
+        let ok = factor.solve(&mut m, &mut rhs);
+        linear_seconds += tl.elapsed().as_secs_f64();
+        let rejected = |radius: &mut f64, decrease_factor: &mut f64| {
+            *radius /= *decrease_factor;
+            *decrease_factor *= 2.0;
+        };
+        if !ok {
+            rejected(&mut radius, &mut decrease_factor);
+            continue;
+        }
+        let dc = &rhs;
+        let dp = back_substitute(&st, &lin, &vinv, dc);
+        let b_dot: f64 = lin.bc.iter().zip(dc.iter()).map(|(a, b)| a * b).sum::<f64>()
+            + lin.bp.iter().flat_map(|b| b.iter()).zip(&dp).map(|(a, b)| a * b).sum::<f64>();
+        let model_decrease = b_dot - 0.5 * jacobian_step_norm2(p, &st, &lin, dc, &dp);
+        let step_norm = (dc.iter().chain(&dp).map(|v| v * v).sum::<f64>()).sqrt();
+        if step_norm <= opts.parameter_tolerance * (x_norm + opts.parameter_tolerance) {
+            break Termination::ParameterTolerance;
+        }
+        let mut cand = plus(p, &st, dc, &dp);
+        swap_params(p, &mut cand);
+        let cand_cost = p.cost(&loss);
+        let change = lin.cost - cand_cost;
+        if cand_cost.is_finite() && change.abs() <= opts.function_tolerance * lin.cost {
+            if change < 0.0 {
+                swap_params(p, &mut cand);
+            } else {
+                successful += 1;
+            }
+            break Termination::FunctionTolerance;
+        }
+        let ratio = change / model_decrease;
+        if cand_cost.is_finite() && model_decrease > 0.0 && ratio > opts.min_relative_decrease {
+            successful += 1;
+            radius = (radius / (1.0f64 / 3.0).max(1.0 - (2.0 * ratio - 1.0).powi(3))).min(opts.max_trust_region_radius);
+            decrease_factor = 2.0;
+            lin = linearize(p, &st, &loss);
+            x_norm = param_norm(p);
+        } else {
+            swap_params(p, &mut cand);
+            rejected(&mut radius, &mut decrease_factor);
+        }
+        tracing::debug!(iterations, cost = lin.cost, ratio, radius, "bundle adjustment iteration");
+    };
+    progress.finish();
+    let final_cost = p.cost(&loss);
+    Ok(BundleSummary {
+        initial_cost,
+        final_cost,
+        iterations,
+        successful_steps: successful,
+        termination,
+        linear_solver: if dense { LinearSolverKind::DenseSchur } else { LinearSolverKind::SparseSchur },
+        num_observations: p.num_observations(),
+        num_camera_parameters: n,
+        num_point_parameters: 3 * p.points.len(),
+        initial_rms_px,
+        final_rms_px: p.rms_px(),
+        total_seconds: t0.elapsed().as_secs_f64(),
+        linear_solver_seconds: linear_seconds,
+    })
+}
