@@ -227,7 +227,7 @@ pub fn verify_pair(i: usize, j: usize, f1: &Features, f2: &Features, putative: V
         Ok(g) => g,
         Err(e) => {
             tracing::warn!("pair ({i}, {j}): {e}");
-            return VerifiedPair { i, j, putative, geometry: failed(0), inliers: Vec::new(), guided_added: 0 };
+            return VerifiedPair { i, j, putative, geometry: TwoViewGeometry::too_few(0), inliers: Vec::new(), guided_added: 0 };
         }
     };
     let mut inliers: Vec<(u32, u32)> = putative.iter().zip(&geometry.inlier_mask).filter(|(_, &k)| k).map(|(p, _)| (p.i, p.j)).collect();
@@ -251,20 +251,6 @@ pub fn verify_pair(i: usize, j: usize, f1: &Features, f2: &Features, putative: V
         }
     }
     VerifiedPair { i, j, putative, geometry, inliers, guided_added }
-}
-
-fn failed(n: usize) -> TwoViewGeometry {
-    TwoViewGeometry {
-        configuration: TwoViewConfiguration::TooFewInliers,
-        f: None,
-        h: None,
-        inlier_mask: vec![false; n],
-        num_inliers: 0,
-        gric_f: f64::INFINITY,
-        gric_h: f64::INFINITY,
-        sigma_px: f64::NAN,
-        view_distance_px: None,
-    }
 }
 
 /// Matches and verifies every pair, in parallel, reporting progress per pair.

@@ -100,7 +100,8 @@ pub struct TwoViewGeometry {
 }
 
 impl TwoViewGeometry {
-    fn too_few(n: usize) -> Self {
+    /// The result for `n` matches when no relation could be established.
+    pub fn too_few(n: usize) -> Self {
         Self {
             configuration: TwoViewConfiguration::TooFewInliers,
             f: None,
