@@ -36,6 +36,10 @@ pub enum Command {
     Reconstruct(ReconstructArgs),
     /// Run only the ingest stage: validate the images (or decode the video) into the workspace.
     Ingest(IngestArgs),
+    /// Run the pipeline up to the features stage (RootSIFT per image).
+    Features(IngestArgs),
+    /// Run the pipeline up to the matches stage (verified pairs in COLMAP's database.db).
+    Match(IngestArgs),
     /// Benchmarks; each prints one JSON object (use with --json).
     Bench(BenchArgs),
 }

@@ -59,12 +59,17 @@ fn run(cmd: &Command, g: &GlobalArgs) -> anyhow::Result<()> {
             BenchCommand::Bundle(a) => bench_bundle::run(a, g, &bars),
             BenchCommand::Matching(a) => bench_matching::run(a, g, &bars),
         },
-        Command::Ingest(a) => {
-            let reports = pipeline::run(&a.input, pipeline::Stage::Ingest, &bars)?;
-            report_stages(g, &a.input.output, &reports);
-            Ok(())
-        }
+        Command::Ingest(a) => run_until(g, a, pipeline::Stage::Ingest, &bars),
+        Command::Features(a) => run_until(g, a, pipeline::Stage::Features, &bars),
+        Command::Match(a) => run_until(g, a, pipeline::Stage::Matches, &bars),
     }
+}
+
+/// Runs the pipeline up to one stage (the per-stage subcommands).
+fn run_until(g: &GlobalArgs, a: &args::IngestArgs, stage: pipeline::Stage, bars: &ui::Bars) -> anyhow::Result<()> {
+    let reports = pipeline::run(&a.input, stage, bars)?;
+    report_stages(g, &a.input.output, &reports);
+    Ok(())
 }
 
 fn report_stages(g: &GlobalArgs, workspace: &std::path::Path, reports: &[pipeline::StageReport]) {

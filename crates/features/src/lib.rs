@@ -3,7 +3,7 @@
 //! Split by concept: [`extract`] (one image in, features out), [`gray`] (the float grey image, blur, pyramid, sampling), [`detector`] (the
 //! swappable detector trait and feature types), [`harris`] (Harris corners, §2.1), [`zncc`] (normalised
 //! patches whose dot product is the ZNCC of eq. 9), [`klt`] (pyramidal Lucas–Kanade tracking, eq. 8),
-//! [`sift`] (SIFT-class wide-baseline features, RootSIFT), [`matching`] (brute-force descriptor matching
+//! [`keyframes`] (video key-frames by GRIC, §3.1 footnote 1), [`sift`] (SIFT-class wide-baseline features, RootSIFT), [`matching`] (brute-force descriptor matching
 //! by matrix product, ratio and mutual tests), [`verify`] (Table 1 over image pairs: RANSAC, model
 //! selection, guided matching, refinement).
 
@@ -11,6 +11,7 @@ pub mod detector;
 pub mod extract;
 pub mod gray;
 pub mod harris;
+pub mod keyframes;
 pub mod klt;
 pub mod matching;
 pub mod sift;

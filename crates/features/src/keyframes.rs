@@ -1,0 +1,99 @@
+//! Key-frame selection for video (§3.1 and its footnote 1). Consecutive video frames are too close
+//! for a well-conditioned epipolar geometry, so structure and motion only uses key-frames: the next
+//! key-frame is chosen once the fundamental-matrix model explains the tracked features better than
+//! a homography (GRIC, Torr 1998), and, "to avoid selecting too many key-frames", at the last frame
+//! for which `nᵢ ≥ 0.9·nₑ`, where `nᵢ` is the number of valid tracks shared with the previous
+//! key-frame and `nₑ` that number when F first overtook H. In-between frames get their poses later.
+
+use handheld_robust::{estimate_two_view_geometry, Match2d2d, TwoViewConfiguration, TwoViewOptions};
+use nalgebra::Vector2;
+
+use crate::klt::Track2d;
+
+/// Options of [`select_keyframes`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct KeyframeOptions {
+    /// The `0.9` of footnote 1.
+    pub track_ratio: f64,
+    /// Fewest shared tracks for a usable pair; when tracking falls below this before F overtakes H,
+    /// the last frame that still had enough tracks becomes a key-frame so the sequence goes on.
+    pub min_tracks: usize,
+    /// Two-view estimation used for the F-versus-H test (no refinement needed).
+    pub two_view: TwoViewOptions,
+}
+
+impl Default for KeyframeOptions {
+    fn default() -> Self {
+        Self {
+            track_ratio: 0.9,
+            min_tracks: 30,
+            two_view: TwoViewOptions { refine: false, f_threshold_px: 1.0, h_threshold_px: 2.5, ..Default::default() },
+        }
+    }
+}
+
+/// Position of a track in `frame`, if it was tracked there.
+fn position(t: &Track2d, frame: usize) -> Option<Vector2<f64>> {
+    let birth = t.positions.first()?.0;
+    let (f, x, y) = *t.positions.get(frame.checked_sub(birth)?)?;
+    (f == frame).then(|| Vector2::new(x as f64, y as f64))
+}
+
+fn shared(tracks: &[Track2d], a: usize, b: usize) -> Vec<Match2d2d> {
+    tracks.iter().filter_map(|t| Some(Match2d2d::new(position(t, a)?, position(t, b)?))).collect()
+}
+
+/// Why a key-frame was chosen.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum KeyframeReason {
+    /// The first frame.
+    First,
+    /// F overtook H, then the last frame with `nᵢ ≥ 0.9·nₑ` (footnote 1).
+    EpipolarGeometry,
+    /// Tracks ran out before F overtook H (e.g. a pure rotation or a cut): the last frame with
+    /// enough shared tracks.
+    TracksLost,
+}
+
+/// Selects key-frames among `num_frames` frames from KLT tracks. Returns `(frame, reason)` in order.
+pub fn select_keyframes(tracks: &[Track2d], num_frames: usize, opts: &KeyframeOptions) -> Vec<(usize, KeyframeReason)> {
+    let mut keys = Vec::new();
+    if num_frames == 0 {
+        return keys;
+    }
+    keys.push((0, KeyframeReason::First));
+    let mut k = 0;
+    while k + 1 < num_frames {
+        let mut n_e: Option<usize> = None;
+        let mut candidate = None;
+        let mut last_enough = None;
+        for i in k + 1..num_frames {
+            let m = shared(tracks, k, i);
+            if m.len() < opts.min_tracks {
+                break;
+            }
+            last_enough = Some(i);
+            match n_e {
+                None => {
+                    let general = estimate_two_view_geometry(&m, &opts.two_view)
+                        .map(|g| g.configuration == TwoViewConfiguration::General)
+                        .unwrap_or(false);
+                    if general {
+                        n_e = Some(m.len());
+                        candidate = Some(i);
+                    }
+                }
+                Some(ne) if m.len() as f64 >= opts.track_ratio * ne as f64 => candidate = Some(i),
+                Some(_) => break,
+            }
+        }
+        let next = match (candidate, last_enough) {
+            (Some(c), _) => (c, KeyframeReason::EpipolarGeometry),
+            (None, Some(l)) if l + 1 < num_frames => (l, KeyframeReason::TracksLost),
+            _ => break,
+        };
+        keys.push(next);
+        k = next.0;
+    }
+    keys
+}

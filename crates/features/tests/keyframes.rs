@@ -1,0 +1,53 @@
+//! Key-frame selection (§3.1, footnote 1) on a rendered hand-held video tracked by KLT: key-frames
+//! advance, are spaced more than one frame apart, and each consecutive key-frame pair is explained
+//! by F rather than H, while the in-between frames right after a key-frame are not.
+
+use handheld_features::keyframes::{select_keyframes, KeyframeOptions, KeyframeReason};
+use handheld_features::klt::{KltOptions, KltTracker};
+use handheld_features::GrayImage;
+use handheld_robust::{estimate_two_view_geometry, Match2d2d, TwoViewConfiguration};
+use handheld_testkit::{render_sequence, PathOptions, SequenceOptions};
+use nalgebra::Vector2;
+
+#[test]
+fn keyframes_follow_the_f_versus_h_rule() {
+    let n = 24;
+    let opts = SequenceOptions {
+        width: 320,
+        height: 240,
+        num_frames: n,
+        samples_per_axis: 2,
+        path: PathOptions { sweep: 10.0, ..PathOptions::orbit(n) },
+        ..SequenceOptions::default()
+    };
+    let seq = render_sequence(&opts).unwrap();
+    let mut tracker = KltTracker::new(KltOptions { target_features: 400, ..Default::default() }).unwrap();
+    for img in &seq.images {
+        tracker.process(&GrayImage::from_rgb8(img));
+    }
+    let tracks = tracker.tracks().to_vec();
+    let keys = select_keyframes(&tracks, n, &KeyframeOptions::default());
+    eprintln!("key-frames: {keys:?}");
+    assert!(keys.len() >= 3, "expected several key-frames over a 10° orbit: {keys:?}");
+    assert_eq!(keys[0], (0, KeyframeReason::First));
+    // Consecutive frames are too close (the reason for key-frames): most gaps span several frames.
+    let mut gaps: Vec<usize> = keys.windows(2).map(|w| w[1].0 - w[0].0).collect();
+    gaps.sort_unstable();
+    assert!(gaps[gaps.len() / 2] >= 3, "key-frames should be spaced: {keys:?}");
+    for w in keys.windows(2) {
+        assert!(w[1].0 > w[0].0, "{keys:?}");
+        assert_eq!(w[1].1, KeyframeReason::EpipolarGeometry, "{keys:?}");
+        // The pair is explained by F.
+        let m: Vec<Match2d2d> = tracks
+            .iter()
+            .filter_map(|t| {
+                let birth = t.positions.first()?.0;
+                let a = t.positions.get(w[0].0.checked_sub(birth)?)?;
+                let b = t.positions.get(w[1].0.checked_sub(birth)?)?;
+                Some(Match2d2d::new(Vector2::new(a.1 as f64, a.2 as f64), Vector2::new(b.1 as f64, b.2 as f64)))
+            })
+            .collect();
+        let g = estimate_two_view_geometry(&m, &KeyframeOptions::default().two_view).unwrap();
+        assert_eq!(g.configuration, TwoViewConfiguration::General, "pair {:?}", (w[0].0, w[1].0));
+    }
+}
