@@ -138,6 +138,9 @@ pub struct InputArgs {
     /// Matching: skip guided matching along epipolar lines (Table 1 step 4).
     #[arg(long)]
     pub no_guided: bool,
+    /// Matching: with sequential pairs, do not look for close views outside the window (§3.2).
+    #[arg(long)]
+    pub no_close_views: bool,
 }
 
 /// Which image pairs the matches stage matches.

@@ -90,6 +90,7 @@ pub fn run(a: &DemoArgs, g: &GlobalArgs, bars: &Bars) -> Result<()> {
         window: 8,
         ratio: 0.8,
         no_guided: false,
+        no_close_views: false,
     };
     let reports = pipeline::run(&input, pipeline::Stage::LAST, bars)?;
     let summary = json!({

@@ -3,6 +3,7 @@
 //! `matches/database.db` plus a `pairs.json` summary.
 
 use anyhow::{Context, Result};
+use handheld_features::close_views::{propose_close_views, CloseViewOptions};
 use handheld_features::matching::{exhaustive_pairs, sequential_pairs};
 use handheld_features::verify::{verify_pairs, PairVerificationOptions, VerifiedPair};
 use handheld_features::{Descriptors, Features, Keypoint};
@@ -27,13 +28,15 @@ pub struct MatchStageOptions {
     /// Ratio test of the putative matcher.
     pub ratio: f32,
     pub guided: bool,
+    /// With sequential matching, also propose and verify close views outside the window (§3.2).
+    pub close_views: bool,
 }
 
 pub fn options(a: &InputArgs) -> Result<MatchStageOptions> {
     if !(a.ratio > 0.0 && a.ratio <= 1.0) {
         anyhow::bail!("--ratio must be in (0, 1], got {}", a.ratio);
     }
-    Ok(MatchStageOptions { pairs: a.pairs, window: a.window, ratio: a.ratio, guided: !a.no_guided })
+    Ok(MatchStageOptions { pairs: a.pairs, window: a.window, ratio: a.ratio, guided: !a.no_guided, close_views: !a.no_close_views })
 }
 
 fn verification_options(o: &MatchStageOptions) -> PairVerificationOptions {
@@ -61,11 +64,10 @@ fn colmap_config(c: TwoViewConfiguration) -> i64 {
 pub fn run(ws: &Workspace, opts: &MatchStageOptions, force: bool, bars: &Bars) -> Result<StageReport> {
     let ingest = super::load_ingest(ws)?;
     let n = ingest.images.len();
-    let pairs = match (opts.pairs, ingest.kind) {
-        (PairMode::Exhaustive, _) => exhaustive_pairs(n),
-        (PairMode::Sequential, _) | (PairMode::Auto, InputKind::Video) => sequential_pairs(n, opts.window),
-        (PairMode::Auto, InputKind::Photos) if n <= 40 => exhaustive_pairs(n),
-        (PairMode::Auto, InputKind::Photos) => sequential_pairs(n, opts.window),
+    let sequential = match (opts.pairs, ingest.kind) {
+        (PairMode::Exhaustive, _) => false,
+        (PairMode::Sequential, _) | (PairMode::Auto, InputKind::Video) => true,
+        (PairMode::Auto, InputKind::Photos) => n > 40,
     };
     run_stage(ws, Stage::Matches, Fingerprint::new(), serde_json::to_value(opts)?, force, |dir| {
         let fdir = ws.root.join(Stage::Features.dir_name());
@@ -73,6 +75,13 @@ pub fn run(ws: &Workspace, opts: &MatchStageOptions, force: bool, bars: &Bars) -
             .map(|k| read_features(&fdir.join(feature_file_name(k))).map(to_features))
             .collect::<std::result::Result<_, _>>()
             .context("reading features (rerun the features stage with --force)")?;
+        let mut pairs = if sequential { sequential_pairs(n, opts.window) } else { exhaustive_pairs(n) };
+        let mut proposed = 0;
+        if sequential && opts.close_views {
+            let extra = propose_close_views(&features, opts.window, &CloseViewOptions::default());
+            proposed = extra.len();
+            pairs.extend(extra);
+        }
         let verified = verify_pairs(&features, &pairs, &verification_options(opts), bars);
         write_database(&dir.join("database.db"), &ingest, &features, &verified)?;
         let summaries: Vec<_> = verified.iter().map(VerifiedPair::summary).collect();
@@ -84,6 +93,8 @@ pub fn run(ws: &Workspace, opts: &MatchStageOptions, force: bool, bars: &Bars) -
             outputs: vec!["database.db".into(), "pairs.json".into()],
             summary: serde_json::json!({
                 "pairs": pairs.len(),
+                "close_view_pairs_proposed": proposed,
+                "close_view_pairs_verified": verified.iter().filter(|v| v.j > v.i + opts.window && v.geometry.configuration == TwoViewConfiguration::General).count(),
                 "verified_general": good,
                 "verified_planar_or_rotation": summaries.iter().filter(|s| matches!(s.configuration, TwoViewConfiguration::Planar | TwoViewConfiguration::PureRotation)).count(),
                 "inliers_per_verified_pair_median": inl.get(inl.len() / 2),
