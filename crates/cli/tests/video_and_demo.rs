@@ -64,22 +64,26 @@ fn video_ingest_of_a_real_mp4() {
 fn demo_writes_sequence_ground_truth_and_workspace() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("demo");
-    let args = ["demo", "-o", out.to_str().unwrap(), "--frames", "3", "--width", "160", "--height", "120", "--json"];
+    let args = ["demo", "-o", out.to_str().unwrap(), "--frames", "4", "--width", "320", "--height", "240", "--json"];
     let o = handheld(&args);
     assert!(o.status.success(), "{}", stderr(&o));
     let v: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
-    assert_eq!(v["frames"], 3);
+    assert_eq!(v["frames"], 4);
     assert_eq!(v["stages"][0]["stage"], "ingest");
-    assert_eq!(v["stages"][0]["summary"]["images"], 3);
-    for f in ["images/frame_0000.png", "ground_truth/sparse/cameras.txt", "ground_truth/sparse/images.bin", "ground_truth/mesh.ply", "ground_truth/depth/frame_0002.pfm", "workspace/ingest/manifest.json"] {
+    assert_eq!(v["stages"][0]["summary"]["images"], 4);
+    // Matching is scored against the exact relative poses.
+    let m = &v["accuracy"]["matching"];
+    assert!(m["verified_pairs"].as_u64().unwrap() >= 1, "{m}");
+    assert!(m["inlier_epipolar_error_median_px"].as_f64().unwrap() < 0.5, "{m}");
+    for f in ["images/frame_0000.png", "ground_truth/sparse/cameras.txt", "ground_truth/sparse/images.bin", "ground_truth/mesh.ply", "ground_truth/depth/frame_0003.pfm", "workspace/ingest/manifest.json"] {
         assert!(out.join(f).exists(), "{f} missing");
     }
     // The written ground truth reads back and is self-consistent.
     let gt = handheld_io::colmap::read_reconstruction(&out.join("ground_truth/sparse")).unwrap();
-    assert_eq!(gt.views.len(), 3);
+    assert_eq!(gt.views.len(), 4);
     assert!(gt.mean_reprojection_error() < 1e-6);
     let depth = handheld_io::pfm::read_pfm(&out.join("ground_truth/depth/frame_0000.pfm")).unwrap();
-    assert_eq!((depth.width, depth.height), (160, 120));
+    assert_eq!((depth.width, depth.height), (320, 240));
     assert!(depth.fill_ratio() > 0.5);
     // A second run is up to date.
     let o = handheld(&args);
