@@ -55,7 +55,7 @@ pub fn propose_close_views(features: &[Features], window: usize, opts: &CloseVie
     }
     let mut out = Vec::new();
     for (i, list) in per.iter_mut().enumerate() {
-        list.sort_by(|a, b| b.0.cmp(&a.0));
+        list.sort_by_key(|e| std::cmp::Reverse(e.0));
         for &(_, j) in list.iter().take(opts.per_image) {
             out.push((i.min(j), i.max(j)));
         }

@@ -45,7 +45,7 @@ impl PairVerificationOptions {
     pub fn validate(&self) -> Result<(), String> {
         self.matching.validate()?;
         self.two_view.validate()?;
-        if !(self.guided_max_epipolar_px > 0.0) {
+        if self.guided_max_epipolar_px.is_nan() || self.guided_max_epipolar_px <= 0.0 {
             return Err("guided_max_epipolar_px must be positive".into());
         }
         Ok(())
