@@ -20,6 +20,7 @@ pub mod mesh;
 pub mod multiview;
 pub mod path;
 pub mod render;
+pub mod ring;
 pub mod scene;
 pub mod texture;
 mod util;
@@ -28,6 +29,7 @@ pub use correspondences::{resection_set, two_view_set, ResectionOptions, Resecti
 pub use mesh::{distance_to_mesh, point_triangle_distance};
 pub use multiview::{multi_view_set, MultiViewOptions, MultiViewSet};
 pub use path::{CameraPath, PathOptions, Trajectory};
+pub use ring::{ring_set, RingOptions, RingSet};
 pub use render::{
     ground_truth, landmark_projection, pixel_ray, render_frame, render_frame_with_rays, render_sequence, render_sequence_with_scene,
     RayTable, SequenceOptions, SyntheticSequence,
