@@ -2,13 +2,15 @@
 //! sub-pixel corner accuracy on an analytically anti-aliased checkerboard, and the precision of ZNCC
 //! matches between two rendered views with a small baseline, checked by ray casting the scene.
 
+mod common;
+use common::{back_project, project_visible};
 use std::time::Instant;
 
 use handheld_features::harris::{detect_harris, HarrisOptions, HarrisZncc};
 use handheld_features::zncc::{match_zncc, zncc, zncc_patch, ZnccMatchOptions};
 use handheld_features::{FeatureDetector, GrayImage};
-use handheld_testkit::{pixel_ray, render_sequence, PathOptions, SequenceOptions, SyntheticSequence};
-use nalgebra::{Point3, Vector2};
+use handheld_testkit::{render_sequence, PathOptions, SequenceOptions};
+use nalgebra::Vector2;
 
 /// A checkerboard of `cell`-pixel squares rotated by `angle` about `origin`, box-filtered over each
 /// pixel area with `ss²` samples; returns the image and its inner corners (lattice points).
@@ -113,38 +115,6 @@ fn harris_zncc_descriptors_are_normalised_patches() {
     let m = match_zncc(&f, &f, &ZnccMatchOptions { max_disparity: Some(5.0), ..Default::default() });
     assert_eq!(m.len(), f.keypoints.len());
     assert!(m.iter().all(|&(i, j, s)| i == j && s > 0.999));
-}
-
-/// World point seen at pixel `(x, y)` of `frame` (exact ray cast), unless the pixel is within 3 px of a
-/// depth discontinuity.
-fn back_project(seq: &SyntheticSequence, frame: usize, x: f64, y: f64) -> Option<Point3<f64>> {
-    let depth = &seq.depths[frame];
-    let (cx, cy) = (x.round() as isize, y.round() as isize);
-    let (mut lo, mut hi) = (f32::INFINITY, 0f32);
-    for yy in cy - 3..=cy + 3 {
-        for xx in cx - 3..=cx + 3 {
-            if xx < 0 || yy < 0 || xx >= depth.width as isize || yy >= depth.height as isize {
-                return None;
-            }
-            let d = depth.get(xx as usize, yy as usize, 0);
-            (lo, hi) = (lo.min(d), hi.max(d));
-        }
-    }
-    if !(lo > 0.0 && hi < 1.05 * lo) {
-        return None;
-    }
-    let (cam, pose) = seq.frame(frame)?;
-    let (o, dir) = pixel_ray(cam, pose, Vector2::new(x, y));
-    Some(o + dir * seq.scene.intersect(&o, &dir)?.t)
-}
-
-/// Projection of `p` into `frame` when it is visible there (not occluded).
-fn project_visible(seq: &SyntheticSequence, frame: usize, p: &Point3<f64>) -> Option<Vector2<f64>> {
-    let (cam, pose) = seq.frame(frame)?;
-    let px = cam.project(pose, p)?;
-    let (o, dir) = pixel_ray(cam, pose, px);
-    let hit = seq.scene.intersect(&o, &dir)?;
-    ((o + dir * hit.t - p).norm() < 1e-3 * (p - o).norm()).then_some(px)
 }
 
 #[test]

@@ -4,44 +4,17 @@
 //! projected (with distortion) into the later frames; tracks born within 3 px of a depth discontinuity,
 //! or whose point becomes occluded, are not scored.
 
+mod common;
+use common::{back_project, project_visible};
 use std::time::Instant;
 
 use handheld_features::klt::{KltOptions, KltTracker, Track2d};
 use handheld_features::GrayImage;
-use handheld_testkit::{pixel_ray, render_sequence, PathOptions, SequenceOptions, SyntheticSequence};
-use nalgebra::{Point3, Vector2};
+use handheld_testkit::{render_sequence, PathOptions, SequenceOptions, SyntheticSequence};
+use nalgebra::Vector2;
 
 /// Frames a track must survive after its birth to be scored.
 const SPAN: usize = 10;
-
-fn back_project(seq: &SyntheticSequence, frame: usize, x: f64, y: f64) -> Option<Point3<f64>> {
-    let depth = &seq.depths[frame];
-    let (cx, cy) = (x.round() as isize, y.round() as isize);
-    let (mut lo, mut hi) = (f32::INFINITY, 0f32);
-    for yy in cy - 3..=cy + 3 {
-        for xx in cx - 3..=cx + 3 {
-            if xx < 0 || yy < 0 || xx >= depth.width as isize || yy >= depth.height as isize {
-                return None;
-            }
-            let d = depth.get(xx as usize, yy as usize, 0);
-            (lo, hi) = (lo.min(d), hi.max(d));
-        }
-    }
-    if !(lo > 0.0 && hi < 1.05 * lo) {
-        return None;
-    }
-    let (cam, pose) = seq.frame(frame)?;
-    let (o, dir) = pixel_ray(cam, pose, Vector2::new(x, y));
-    Some(o + dir * seq.scene.intersect(&o, &dir)?.t)
-}
-
-fn project_visible(seq: &SyntheticSequence, frame: usize, p: &Point3<f64>) -> Option<Vector2<f64>> {
-    let (cam, pose) = seq.frame(frame)?;
-    let px = cam.project(pose, p)?;
-    let (o, dir) = pixel_ray(cam, pose, px);
-    let hit = seq.scene.intersect(&o, &dir)?;
-    ((o + dir * hit.t - p).norm() < 1e-3 * (p - o).norm()).then_some(px)
-}
 
 /// Maximum error over the first `SPAN` frames after birth, or `None` when the track is not scorable.
 fn track_error(seq: &SyntheticSequence, t: &Track2d) -> Option<f64> {

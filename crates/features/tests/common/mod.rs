@@ -1,0 +1,39 @@
+//! Ground-truth helpers shared by the feature tests: exact back-projection and visibility-checked
+//! projection on testkit sequences.
+
+#![allow(dead_code)]
+
+use handheld_testkit::{pixel_ray, SyntheticSequence};
+use nalgebra::{Point3, Vector2};
+
+/// World point seen at pixel `(x, y)` of `frame` (exact ray cast), unless the pixel is within 3 px of a
+/// depth discontinuity.
+pub fn back_project(seq: &SyntheticSequence, frame: usize, x: f64, y: f64) -> Option<Point3<f64>> {
+    let depth = &seq.depths[frame];
+    let (cx, cy) = (x.round() as isize, y.round() as isize);
+    let (mut lo, mut hi) = (f32::INFINITY, 0f32);
+    for yy in cy - 3..=cy + 3 {
+        for xx in cx - 3..=cx + 3 {
+            if xx < 0 || yy < 0 || xx >= depth.width as isize || yy >= depth.height as isize {
+                return None;
+            }
+            let d = depth.get(xx as usize, yy as usize, 0);
+            (lo, hi) = (lo.min(d), hi.max(d));
+        }
+    }
+    if !(lo > 0.0 && hi < 1.05 * lo) {
+        return None;
+    }
+    let (cam, pose) = seq.frame(frame)?;
+    let (o, dir) = pixel_ray(cam, pose, Vector2::new(x, y));
+    Some(o + dir * seq.scene.intersect(&o, &dir)?.t)
+}
+
+/// Projection of `p` into `frame` when it is visible there (not occluded).
+pub fn project_visible(seq: &SyntheticSequence, frame: usize, p: &Point3<f64>) -> Option<Vector2<f64>> {
+    let (cam, pose) = seq.frame(frame)?;
+    let px = cam.project(pose, p)?;
+    let (o, dir) = pixel_ray(cam, pose, px);
+    let hit = seq.scene.intersect(&o, &dir)?;
+    ((o + dir * hit.t - p).norm() < 1e-3 * (p - o).norm()).then_some(px)
+}
