@@ -29,6 +29,7 @@ mod linalg;
 pub mod normalize;
 pub mod poly;
 pub mod refine_f;
+pub mod resection;
 pub mod skew;
 pub mod triangulation;
 pub mod view_distance;
@@ -44,7 +45,8 @@ pub use fundamental::{
 pub use homography::{homography_dlt, symmetric_transfer_error_sq, transfer_error_sq};
 pub use normalize::{hartley_normalization, Normalization};
 pub use skew::{canonical_cameras, skew};
-pub use triangulation::{optimal_correction, triangulate_linear, triangulate_optimal};
+pub use triangulation::{optimal_correction, triangulate_iterative, triangulate_linear, triangulate_optimal};
+pub use resection::{reprojection_distance, resection_dlt, resection_iterative};
 pub use gold_standard::{gold_standard_fundamental, GoldStandardOptions, GoldStandardReport};
 pub use refine_f::{epipolar_residuals, refine_fundamental, RefineFOptions, RefineFReport};
 pub use view_distance::{view_distance, ViewDistance};
