@@ -141,6 +141,26 @@ pub struct InputArgs {
     /// Matching: with sequential pairs, do not look for close views outside the window (§3.2).
     #[arg(long)]
     pub no_close_views: bool,
+    /// Sparse: seed of every random choice (the same seed gives the same model).
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Sparse: radial distortion estimated by metric BA (eq. 3).
+    #[arg(long, value_enum, default_value_t = DistortionArg::K1)]
+    pub distortion: DistortionArg,
+    /// Sparse: keep the principal point at the image centre instead of estimating it.
+    #[arg(long)]
+    pub fixed_principal_point: bool,
+}
+
+/// Radial distortion model of the sparse stage.
+#[derive(Debug, Clone, Copy, ValueEnum, PartialEq, Eq)]
+pub enum DistortionArg {
+    /// No distortion.
+    None,
+    /// k1 only.
+    K1,
+    /// k1 and k2.
+    K1k2,
 }
 
 /// Which image pairs the matches stage matches.

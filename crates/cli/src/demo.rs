@@ -139,6 +139,9 @@ pub fn run(a: &DemoArgs, g: &GlobalArgs, bars: &Bars) -> Result<()> {
         ratio: 0.8,
         no_guided: false,
         no_close_views: false,
+        seed: a.seed,
+        distortion: crate::args::DistortionArg::K1,
+        fixed_principal_point: false,
     };
     let reports = pipeline::run(&input, pipeline::Stage::LAST, bars)?;
     let matching = matching_accuracy(&a.output).unwrap_or_else(|e| json!({ "error": format!("{e:#}") }));

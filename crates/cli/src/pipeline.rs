@@ -27,12 +27,14 @@ pub enum Stage {
     Features,
     /// Match image pairs and verify them (Table 1); writes COLMAP's database.db.
     Matches,
+    /// Uncalibrated structure and motion with self-calibration (§3); writes the COLMAP model.
+    Sparse,
 }
 
 impl Stage {
     /// The last implemented stage: what `reconstruct` runs up to by default.
-    pub const LAST: Stage = Stage::Matches;
-    pub const ALL: [Stage; 3] = [Stage::Ingest, Stage::Features, Stage::Matches];
+    pub const LAST: Stage = Stage::Sparse;
+    pub const ALL: [Stage; 4] = [Stage::Ingest, Stage::Features, Stage::Matches, Stage::Sparse];
 
     /// The stage's folder name in the workspace.
     pub fn dir_name(self) -> &'static str {
@@ -40,6 +42,7 @@ impl Stage {
             Stage::Ingest => "ingest",
             Stage::Features => "features",
             Stage::Matches => "matches",
+            Stage::Sparse => "sparse",
         }
     }
 }
@@ -113,6 +116,7 @@ pub fn run(a: &InputArgs, until: Stage, bars: &Bars) -> Result<Vec<StageReport>>
     let ingest_opts = ingest_options(a)?;
     let feature_opts = stages::features::options(a)?;
     let match_opts = stages::matches::options(a)?;
+    let sparse_opts = stages::sparse::options(a)?;
     if !a.input.exists() {
         anyhow::bail!("{}: does not exist", a.input.display());
     }
@@ -123,6 +127,7 @@ pub fn run(a: &InputArgs, until: Stage, bars: &Bars) -> Result<Vec<StageReport>>
             Stage::Ingest => stages::ingest::run(&ws, &a.input, &ingest_opts, a.force, bars)?,
             Stage::Features => stages::features::run(&ws, &feature_opts, a.force, bars)?,
             Stage::Matches => stages::matches::run(&ws, &match_opts, a.force, bars)?,
+            Stage::Sparse => stages::sparse::run(&ws, &sparse_opts, a.force, bars)?,
         };
         match report.status {
             "ran" => tracing::info!("{}: done in {:.2} s", stage.dir_name(), report.seconds),

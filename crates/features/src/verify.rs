@@ -26,6 +26,10 @@ pub struct PairVerificationOptions {
     pub guided_ratio: f32,
     /// Largest descriptor distance of a guided match (RootSIFT: in [0, √2]). Default 0.7.
     pub guided_max_distance: f32,
+    /// Guided matching runs only when the RANSAC verification kept at least this many inliers: a
+    /// weakly supported `F` may be wrong, and matching along wrong epipolar lines invents thousands
+    /// of consistent-looking false matches. Default 50.
+    pub guided_min_inliers: usize,
 }
 
 impl Default for PairVerificationOptions {
@@ -37,6 +41,7 @@ impl Default for PairVerificationOptions {
             guided_max_epipolar_px: 2.0,
             guided_ratio: 0.9,
             guided_max_distance: 0.7,
+            guided_min_inliers: 50,
         }
     }
 }
@@ -232,7 +237,7 @@ pub fn verify_pair(i: usize, j: usize, f1: &Features, f2: &Features, putative: V
     };
     let mut inliers: Vec<(u32, u32)> = putative.iter().zip(&geometry.inlier_mask).filter(|(_, &k)| k).map(|(p, _)| (p.i, p.j)).collect();
     let mut guided_added = 0;
-    if opts.guided && geometry.configuration == TwoViewConfiguration::General {
+    if opts.guided && geometry.configuration == TwoViewConfiguration::General && inliers.len() >= opts.guided_min_inliers {
         if let Some(fm) = geometry.f {
             let extra = guided_matches(f1, f2, &fm, &inliers, opts);
             if !extra.is_empty() {

@@ -39,16 +39,34 @@ fn normalize_3d(points: &[Vector4<f64>]) -> Matrix4<f64> {
 /// eigenvector of the smallest eigenvalue as a camera, plus the ratio of the two smallest
 /// eigenvalues (a rank check).
 fn solve_dlt(points: &[Vector4<f64>], image: &[Vector2<f64>], weights: Option<&[f64]>) -> Option<(Matrix3x4<f64>, f64)> {
-    let mut ata = SMatrix::<f64, 12, 12>::zeros();
-    for (k, (m, x)) in points.iter().zip(image).enumerate() {
+    let row = |k: usize, r: usize| -> SMatrix<f64, 1, 12> {
+        let (m, x) = (&points[k], &image[k]);
         let w = weights.map_or(1.0, |w| w[k]);
         let mt = m.transpose();
+        let coord = if r == 0 { x.x } else { x.y };
         // x·(p3·M) − p1·M = 0 and y·(p3·M) − p2·M = 0.
-        for (row, coord) in [(0usize, x.x), (1usize, x.y)] {
-            let mut a = SMatrix::<f64, 1, 12>::zeros();
-            a.fixed_view_mut::<1, 4>(0, 4 * row).copy_from(&(-mt));
-            a.fixed_view_mut::<1, 4>(0, 8).copy_from(&(mt * coord));
-            let a = a * w;
+        let mut a = SMatrix::<f64, 1, 12>::zeros();
+        a.fixed_view_mut::<1, 4>(0, 4 * r).copy_from(&(-mt));
+        a.fixed_view_mut::<1, 4>(0, 8).copy_from(&(mt * coord));
+        a * w
+    };
+    if points.len() <= 32 {
+        // Small systems (the minimal 6-point case above all): SVD of A itself, which does not square
+        // the condition number as AᵀA would.
+        let mut a = nalgebra::DMatrix::<f64>::zeros((2 * points.len()).max(12), 12);
+        for k in 0..points.len() {
+            for r in 0..2 {
+                a.row_mut(2 * k + r).copy_from(&row(k, r));
+            }
+        }
+        let (sv, v_t) = crate::linalg::full_right_svd(a)?;
+        let ratio = sv[11] / sv[10].max(1e-300);
+        return Some((Matrix3x4::from_fn(|r, c| v_t[(11, 4 * r + c)]), ratio * ratio));
+    }
+    let mut ata = SMatrix::<f64, 12, 12>::zeros();
+    for k in 0..points.len() {
+        for r in 0..2 {
+            let a = row(k, r);
             ata += a.transpose() * a;
         }
     }

@@ -1,4 +1,231 @@
-//! Uncalibrated structure and motion: projective reconstruction, self-calibration, metric BA (§3, Table 2).
+//! Uncalibrated structure and motion (§3, Table 2): correspondence graph and tracks, initial pair
+//! (§3.1), projective resection and structure extension (§3.2), projective bundle adjustment (§3.3),
+//! linear self-calibration with the dual absolute quadric (§3.4, eqs. 24–27), metric bundle
+//! adjustment with radial distortion, and the video mode (KLT tracks, GRIC key-frames, per-frame poses).
 //!
-//! Planned in issue #5; this crate currently only reserves its place in the dependency order
-//! documented in ARCHITECTURE.md.
+//! One call, [`reconstruct`], takes an [`SfmInput`] (images with keypoints, verified pairs) and
+//! returns one or more metric models: a broken sequence gives several models with the reason, never
+//! a silent partial result.
+
+pub mod graph;
+pub mod input;
+pub mod metric;
+pub mod options;
+pub mod projective;
+pub mod selfcal;
+
+use std::collections::BTreeMap;
+use std::time::Instant;
+
+use handheld_core::{MetricReconstruction, Progress};
+use serde::Serialize;
+
+pub use input::{SfmImage, SfmInput, SfmPair};
+pub use metric::{MetricBaRecord, SelfCalibrationReport, UncertaintyReport};
+pub use options::{Distortion, SfmOptions};
+pub use projective::ProjectiveBaRecord;
+
+/// Why the SfM stage could not produce any model.
+#[derive(Debug, thiserror::Error)]
+pub enum SfmError {
+    #[error("invalid SfM option: {0}")]
+    InvalidOptions(String),
+    #[error("invalid SfM input: {0}")]
+    InvalidInput(String),
+    #[error("need at least 2 images with features, got {0}; add more overlapping photos")]
+    TooFewImages(usize),
+    #[error("no model could be built: {0}")]
+    NoModel(String),
+}
+
+/// Per-group intrinsics of a model, in pixels.
+#[derive(Clone, Debug, Serialize)]
+pub struct GroupSummary {
+    pub camera_id: u32,
+    pub views: usize,
+    pub width: u32,
+    pub height: u32,
+    pub f: f64,
+    pub aspect: f64,
+    pub skew: f64,
+    pub pp: [f64; 2],
+    pub k1: f64,
+    pub k2: f64,
+}
+
+/// Everything measured about one model.
+#[derive(Clone, Debug, Serialize)]
+pub struct ModelSummary {
+    pub registered: usize,
+    pub total_images: usize,
+    pub points: usize,
+    pub observations: usize,
+    pub mean_track_length: f64,
+    pub mean_reprojection_error_px: f64,
+    pub initial_pair: [String; 2],
+    pub groups: Vec<GroupSummary>,
+    pub self_calibration: SelfCalibrationReport,
+    pub projective_ba: Vec<ProjectiveBaRecord>,
+    pub metric_ba: Vec<MetricBaRecord>,
+    pub uncertainty: Option<UncertaintyReport>,
+    /// Why uncertainty statistics are missing, when they are.
+    pub uncertainty_note: Option<String>,
+    pub timings_s: BTreeMap<String, f64>,
+}
+
+/// One metric model and its summary.
+#[derive(Clone, Debug)]
+pub struct SfmModel {
+    pub reconstruction: MetricReconstruction,
+    pub summary: ModelSummary,
+}
+
+/// The result of [`reconstruct`]: models, largest first, and the images left out with the reason.
+#[derive(Clone, Debug)]
+pub struct SfmResult {
+    pub models: Vec<SfmModel>,
+    pub unregistered: Vec<(String, String)>,
+}
+
+/// Runs Table 2 and §3.4 end to end. Deterministic for a given input and seed.
+pub fn reconstruct(input: &SfmInput, options: &SfmOptions, progress: &dyn Progress) -> Result<SfmResult, SfmError> {
+    options.validate().map_err(SfmError::InvalidOptions)?;
+    input.validate().map_err(SfmError::InvalidInput)?;
+    let usable = input.images.iter().filter(|im| !im.keypoints.is_empty()).count();
+    if usable < 2 {
+        return Err(SfmError::TooFewImages(usable));
+    }
+    let graph = graph::CorrespondenceGraph::build(input, 8);
+    let ctx = projective::Context::new(input, &graph, options);
+    let estimate_aspect = options.estimate_aspect.unwrap_or(input.video);
+    let n = input.images.len();
+    let mut allowed: Vec<bool> = input.images.iter().map(|im| !im.keypoints.is_empty()).collect();
+    let mut models = Vec::new();
+    let mut failures: BTreeMap<usize, String> = BTreeMap::new();
+    let mut last_err = String::new();
+    for _ in 0..options.max_models {
+        if allowed.iter().filter(|a| **a).count() < 2 {
+            break;
+        }
+        let mut timings = BTreeMap::new();
+        let t0 = Instant::now();
+        let model = match projective::reconstruct_projective(&ctx, &allowed, progress) {
+            Ok(m) => m,
+            Err(e) => {
+                last_err = e;
+                break;
+            }
+        };
+        timings.insert("projective".to_string(), t0.elapsed().as_secs_f64());
+        for &i in &model.order {
+            allowed[i] = false;
+        }
+        for (i, e) in &model.failures {
+            failures.insert(*i, e.clone());
+        }
+        if model.order.len() < 2 {
+            break;
+        }
+        let t1 = Instant::now();
+        let up = match metric::upgrade(&ctx, &model, estimate_aspect) {
+            Ok(u) => u,
+            Err(e) => {
+                last_err = e;
+                continue;
+            }
+        };
+        timings.insert("self_calibration".to_string(), t1.elapsed().as_secs_f64());
+        let t2 = Instant::now();
+        let mut rec = up.rec;
+        let metric_ba = match metric::refine_metric(&ctx, &mut rec, estimate_aspect) {
+            Ok(r) => r,
+            Err(e) => {
+                last_err = e;
+                continue;
+            }
+        };
+        timings.insert("metric_ba".to_string(), t2.elapsed().as_secs_f64());
+        let t3 = Instant::now();
+        let (uncertainty, uncertainty_note) = if options.uncertainty {
+            match metric::uncertainty(&ctx, &rec) {
+                Ok(u) => (Some(u), None),
+                Err(e) => (None, Some(e)),
+            }
+        } else {
+            (None, Some("disabled".into()))
+        };
+        timings.insert("uncertainty".to_string(), t3.elapsed().as_secs_f64());
+        let summary = summarize(&ctx, &model, &rec, up.report, metric_ba, uncertainty, uncertainty_note, timings);
+        models.push(SfmModel { reconstruction: rec, summary });
+    }
+    if models.is_empty() {
+        return Err(SfmError::NoModel(last_err));
+    }
+    models.sort_by(|a, b| b.summary.registered.cmp(&a.summary.registered));
+    let registered: std::collections::BTreeSet<_> = models.iter().flat_map(|m| m.reconstruction.views.keys().copied()).collect();
+    let unregistered = (0..n)
+        .filter(|&i| !registered.contains(&input.images[i].id))
+        .map(|i| {
+            let im = &input.images[i];
+            let why = if im.keypoints.is_empty() {
+                "no features".to_string()
+            } else if graph.neighbours(i).is_empty() {
+                "no verified matches with any other image".to_string()
+            } else {
+                failures.get(&i).cloned().unwrap_or_else(|| "not connected to a model".to_string())
+            };
+            (im.name.clone(), why)
+        })
+        .collect();
+    Ok(SfmResult { models, unregistered })
+}
+
+#[allow(clippy::too_many_arguments)]
+fn summarize(
+    ctx: &projective::Context,
+    model: &projective::ProjectiveModel,
+    rec: &MetricReconstruction,
+    self_calibration: SelfCalibrationReport,
+    metric_ba: Vec<MetricBaRecord>,
+    uncertainty: Option<UncertaintyReport>,
+    uncertainty_note: Option<String>,
+    timings_s: BTreeMap<String, f64>,
+) -> ModelSummary {
+    let observations: usize = rec.points.values().map(|p| p.track.len()).sum();
+    let groups = rec
+        .cameras
+        .values()
+        .map(|c| {
+            let k = &c.intrinsics;
+            GroupSummary {
+                camera_id: c.id.0,
+                views: rec.views.values().filter(|v| v.camera_id == c.id).count(),
+                width: c.width,
+                height: c.height,
+                f: k.f,
+                aspect: k.aspect,
+                skew: k.skew,
+                pp: [k.pp.x, k.pp.y],
+                k1: k.k1,
+                k2: k.k2,
+            }
+        })
+        .collect();
+    let names = &ctx.input.images;
+    ModelSummary {
+        registered: rec.views.len(),
+        total_images: names.len(),
+        points: rec.points.len(),
+        observations,
+        mean_track_length: observations as f64 / rec.points.len().max(1) as f64,
+        mean_reprojection_error_px: rec.mean_reprojection_error(),
+        initial_pair: [names[model.init_pair.0].name.clone(), names[model.init_pair.1].name.clone()],
+        groups,
+        self_calibration,
+        projective_ba: model.ba.clone(),
+        metric_ba,
+        uncertainty,
+        uncertainty_note,
+        timings_s,
+    }
+}

@@ -4,6 +4,7 @@
 pub mod features;
 pub mod ingest;
 pub mod matches;
+pub mod sparse;
 
 use anyhow::{Context, Result};
 use handheld_io::ingest::IngestResult;

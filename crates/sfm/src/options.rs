@@ -1,0 +1,115 @@
+//! Options of the SfM stage, plain data with documented units and a `validate()`.
+
+use serde::{Deserialize, Serialize};
+
+use crate::selfcal::SelfCalibrationOptions;
+
+/// Which radial distortion coefficients metric BA estimates (eq. 3).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Distortion {
+    None,
+    K1,
+    K1K2,
+}
+
+/// Options of [`crate::reconstruct`].
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct SfmOptions {
+    /// Inlier threshold of the projective stage in pixels (resection, triangulation, filtering). It
+    /// absorbs the not-yet-modelled radial distortion. Default 4.
+    pub projective_max_error_px: f64,
+    /// Observations further than this from their reprojection are removed after the first metric
+    /// bundle adjustment. Default 4.
+    pub metric_max_error_px: f64,
+    /// Threshold of the final filtering, after distortion and principal point are estimated. Default 2.
+    pub final_max_error_px: f64,
+    /// Huber scale of every bundle adjustment in pixels. Default 1.5.
+    pub loss_scale_px: f64,
+    /// Points an initial pair must triangulate. Default 50.
+    pub init_min_points: usize,
+    /// Initial pairs tried before giving up on a model. Default 10.
+    pub max_initial_pairs: usize,
+    /// Resection inliers needed to register a view. Default 20.
+    pub min_resection_inliers: usize,
+    /// Registration attempts per view (each after the structure grew). Default 3.
+    pub max_resection_attempts: usize,
+    /// Projective BA runs whenever the number of views grew by this factor (and for the first 5). Default 1.25.
+    pub ba_growth_factor: f64,
+    /// Weighted re-solves of eq. 20. Default 3.
+    pub triangulation_iterations: usize,
+    /// Points seen in fewer views are dropped from the final model (2-view points stay only while
+    /// reprojection-consistent, §3.2). Default 2.
+    pub min_track_length: usize,
+    /// Estimate the principal point in the final metric BA. Default true.
+    pub refine_principal_point: bool,
+    /// Radial distortion model. Default k1.
+    pub distortion: Distortion,
+    /// Estimate a constant aspect ratio; `None` = automatic (true for video, §3.4). Default None.
+    pub estimate_aspect: Option<bool>,
+    /// Independent models (pieces of a broken sequence) to attempt at most. Default 5.
+    pub max_models: usize,
+    /// Seed of every random choice. Default 0.
+    pub seed: u64,
+    /// Compute per-point uncertainty (covariance) statistics. Default true.
+    pub uncertainty: bool,
+    pub self_calibration: SelfCalibrationOptions,
+}
+
+impl Default for SfmOptions {
+    fn default() -> Self {
+        Self {
+            projective_max_error_px: 4.0,
+            metric_max_error_px: 4.0,
+            final_max_error_px: 2.0,
+            loss_scale_px: 1.5,
+            init_min_points: 50,
+            max_initial_pairs: 10,
+            min_resection_inliers: 20,
+            max_resection_attempts: 3,
+            ba_growth_factor: 1.25,
+            triangulation_iterations: 3,
+            min_track_length: 2,
+            refine_principal_point: true,
+            distortion: Distortion::K1,
+            estimate_aspect: None,
+            max_models: 5,
+            seed: 0,
+            uncertainty: true,
+            self_calibration: SelfCalibrationOptions::default(),
+        }
+    }
+}
+
+impl SfmOptions {
+    /// Rejects out-of-range values, naming the option.
+    pub fn validate(&self) -> Result<(), String> {
+        let pos = [
+            ("projective_max_error_px", self.projective_max_error_px),
+            ("metric_max_error_px", self.metric_max_error_px),
+            ("final_max_error_px", self.final_max_error_px),
+            ("loss_scale_px", self.loss_scale_px),
+        ];
+        for (name, v) in pos {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(format!("{name} must be positive and finite, got {v}"));
+            }
+        }
+        if self.init_min_points < 8 {
+            return Err(format!("init_min_points must be at least 8, got {}", self.init_min_points));
+        }
+        if self.min_resection_inliers < 6 {
+            return Err(format!("min_resection_inliers must be at least 6, got {}", self.min_resection_inliers));
+        }
+        if self.max_initial_pairs == 0 || self.max_resection_attempts == 0 || self.max_models == 0 {
+            return Err("max_initial_pairs, max_resection_attempts and max_models must be at least 1".into());
+        }
+        if !(self.ba_growth_factor.is_finite() && self.ba_growth_factor > 1.0) {
+            return Err(format!("ba_growth_factor must be > 1, got {}", self.ba_growth_factor));
+        }
+        if self.min_track_length < 2 {
+            return Err(format!("min_track_length must be at least 2, got {}", self.min_track_length));
+        }
+        self.self_calibration.validate().map_err(|e| e.to_string())
+    }
+}
