@@ -136,14 +136,35 @@ pub fn reconstruct(input: &SfmInput, options: &SfmOptions, progress: &dyn Progre
         };
         timings.insert("self_calibration".to_string(), t1.elapsed().as_secs_f64());
         let t2 = Instant::now();
-        let mut rec = up.rec;
-        let metric_ba = match metric::refine_metric(&ctx, &mut rec, estimate_aspect) {
-            Ok(r) => r,
-            Err(e) => {
-                last_err = e;
-                continue;
+        let mut report = up.report;
+        // When the linear self-calibration is doubtful (critical motion, or an Ω* that is not
+        // semi-definite), the frame from the priors alone is adjusted too and the better-explaining
+        // model kept: the paper's "fall back on the priors" without trusting either blindly.
+        let mut candidates = vec![(up.rec, false)];
+        if report.degenerate.is_some() && !report.used_prior_fallback {
+            if let Ok(r) = metric::prior_frame(&ctx, &model, estimate_aspect) {
+                candidates.push((r, true));
             }
-        };
+        }
+        let mut best: Option<(MetricReconstruction, Vec<MetricBaRecord>, bool)> = None;
+        for (mut rec, is_prior) in candidates {
+            match metric::refine_metric(&ctx, &mut rec, estimate_aspect) {
+                Ok(r) => {
+                    let score = |rec: &MetricReconstruction, r: &[MetricBaRecord]| {
+                        let rms = r.last().map_or(f64::INFINITY, |x| x.final_rms_px);
+                        (rec.points.len() as f64) / (1.0 + rms)
+                    };
+                    if best.as_ref().is_none_or(|b| score(&rec, &r) > score(&b.0, &b.1)) {
+                        best = Some((rec, r, is_prior));
+                    }
+                }
+                Err(e) => last_err = e,
+            }
+        }
+        let Some((rec, metric_ba, is_prior)) = best else { continue };
+        if is_prior {
+            report.used_prior_fallback = true;
+        }
         timings.insert("metric_ba".to_string(), t2.elapsed().as_secs_f64());
         let t3 = Instant::now();
         let (uncertainty, uncertainty_note) = if options.uncertainty {
@@ -155,7 +176,7 @@ pub fn reconstruct(input: &SfmInput, options: &SfmOptions, progress: &dyn Progre
             (None, Some("disabled".into()))
         };
         timings.insert("uncertainty".to_string(), t3.elapsed().as_secs_f64());
-        let summary = summarize(&ctx, &model, &rec, up.report, metric_ba, uncertainty, uncertainty_note, timings);
+        let summary = summarize(&ctx, &model, &rec, report, metric_ba, uncertainty, uncertainty_note, timings);
         models.push(SfmModel { reconstruction: rec, summary });
     }
     if models.is_empty() {

@@ -93,6 +93,13 @@ pub(crate) fn upgrade(ctx: &Context, model: &ProjectiveModel, estimate_aspect: b
     Ok(Upgraded { rec, report, selfcal: Some(sc) })
 }
 
+/// The metric frame from the priors alone: the quasi-Euclidean frame of the initial pair (`K = K_N`:
+/// f ≈ w + h, centred principal point, square pixels), kept by projective BA's fixed first camera.
+pub(crate) fn prior_frame(ctx: &Context, model: &ProjectiveModel, estimate_aspect: bool) -> Result<MetricReconstruction, String> {
+    let cams = cameras_in_order(model);
+    Ok(build_metric(ctx, model, &cams, &nalgebra::Matrix4::identity(), estimate_aspect)?.0)
+}
+
 type Groups = BTreeMap<u32, f64>;
 
 fn build_metric(
@@ -268,15 +275,32 @@ pub(crate) fn refine_metric(
     let mut records = Vec::new();
     let base = IntrinsicsMask { f: true, aspect: estimate_aspect, skew: false, principal_point: false, k1: o.distortion != Distortion::None, k2: false };
     let full = IntrinsicsMask { principal_point: o.refine_principal_point, k2: o.distortion == Distortion::K1K2, ..base };
-    let priors = focal_priors(ctx, rec);
+    let mut priors = focal_priors(ctx, rec);
+    // A soft prior keeps the principal point near the image centre (σ = principal_point_prior ·
+    // (w + h), eq. 25's u ≈ v ≈ 0 in K_N units): free where the views determine it (wide-angle,
+    // deep scenes), held where it would trade off against rotation (narrow field, shallow scenes).
+    if o.refine_principal_point {
+        for cam in rec.cameras.values() {
+            let s = o.principal_point_prior * (cam.width + cam.height) as f64;
+            let e = priors.entry(cam.id).or_default();
+            e.push((IntrinsicParam::Ppx, GaussianPrior { mean: (cam.width as f64 - 1.0) / 2.0, sigma: s }));
+            e.push((IntrinsicParam::Ppy, GaussianPrior { mean: (cam.height as f64 - 1.0) / 2.0, sigma: s }));
+        }
+    }
     let steps: [(&str, IntrinsicsMask, f64, usize); 3] = [
-        ("f+k1", base, o.metric_max_error_px, 50),
+        ("f+k1", base, o.metric_max_error_px, 100),
         ("all intrinsics", full, o.final_max_error_px, 100),
         ("final", full, o.final_max_error_px, 100),
     ];
     for (name, mask, thr, iters) in steps {
         let config = MetricBundleConfig { refine: mask, priors: priors.clone(), ..Default::default() };
-        let bopts = BundleOptions { max_iterations: iters, loss: RobustLoss::Huber(o.loss_scale_px), ..Default::default() };
+        let bopts = BundleOptions {
+            max_iterations: iters,
+            loss: RobustLoss::Huber(o.loss_scale_px),
+            function_tolerance: 1e-9,
+            parameter_tolerance: 1e-10,
+            ..Default::default()
+        };
         let s = bundle_adjust_metric(rec, &config, &bopts).map_err(|e| format!("metric bundle adjustment ({name}): {e}"))?;
         let (ro, rp) = filter_metric(rec, thr, o.min_track_length);
         records.push(MetricBaRecord {

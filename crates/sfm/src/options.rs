@@ -43,6 +43,9 @@ pub struct SfmOptions {
     pub min_track_length: usize,
     /// Estimate the principal point in the final metric BA. Default true.
     pub refine_principal_point: bool,
+    /// Standard deviation of the principal point's prior at the image centre, as a fraction of
+    /// `w + h` (only with `refine_principal_point`). Default 0.005.
+    pub principal_point_prior: f64,
     /// Radial distortion model. Default k1.
     pub distortion: Distortion,
     /// Estimate a constant aspect ratio; `None` = automatic (true for video, §3.4). Default None.
@@ -71,6 +74,7 @@ impl Default for SfmOptions {
             triangulation_iterations: 3,
             min_track_length: 2,
             refine_principal_point: true,
+            principal_point_prior: 0.005,
             distortion: Distortion::K1,
             estimate_aspect: None,
             max_models: 5,
@@ -89,6 +93,7 @@ impl SfmOptions {
             ("metric_max_error_px", self.metric_max_error_px),
             ("final_max_error_px", self.final_max_error_px),
             ("loss_scale_px", self.loss_scale_px),
+            ("principal_point_prior", self.principal_point_prior),
         ];
         for (name, v) in pos {
             if !(v.is_finite() && v > 0.0) {

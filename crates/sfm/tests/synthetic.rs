@@ -1,0 +1,175 @@
+//! End-to-end uncalibrated SfM on seeded synthetic multi-view sets with exact ground truth: radial
+//! distortion, 1 px noise, outliers. Accuracy is measured against the truth (relative rotations,
+//! focal length), never against our own earlier output.
+
+use std::collections::BTreeMap;
+
+use handheld_core::{ImageId, MetricReconstruction, NoProgress};
+use handheld_robust::TwoViewConfiguration;
+use handheld_sfm::{reconstruct, Distortion, SfmImage, SfmInput, SfmOptions, SfmPair};
+use handheld_testkit::multiview::{multi_view_set, MultiViewOptions};
+
+/// Keypoints = the noisy observations; every pair of views gets the matches of their common points.
+fn input_from(set: &MultiViewOptions) -> (SfmInput, MetricReconstruction) {
+    let mv = multi_view_set(set).expect("synthetic set");
+    let gt = mv.reconstruction.clone();
+    let ids: Vec<ImageId> = gt.views.keys().copied().collect();
+    let images = ids
+        .iter()
+        .map(|id| {
+            let v = &gt.views[id];
+            SfmImage {
+                id: *id,
+                name: v.name.clone(),
+                width: set.width,
+                height: set.height,
+                keypoints: v.observations.iter().map(|o| o.xy).collect(),
+                camera_key: "cam".into(),
+                focal_prior_px: None,
+                frame: None,
+            }
+        })
+        .collect();
+    let mut by_point: BTreeMap<u64, Vec<(usize, u32)>> = BTreeMap::new();
+    for (k, id) in ids.iter().enumerate() {
+        for (i, o) in gt.views[id].observations.iter().enumerate() {
+            if let Some(p) = o.point_id {
+                by_point.entry(p.0).or_default().push((k, i as u32));
+            }
+        }
+    }
+    let mut pairs = Vec::new();
+    for a in 0..ids.len() {
+        for b in a + 1..ids.len() {
+            let matches: Vec<(u32, u32)> = by_point
+                .values()
+                .filter_map(|obs| {
+                    let x = obs.iter().find(|o| o.0 == a)?;
+                    let y = obs.iter().find(|o| o.0 == b)?;
+                    Some((x.1, y.1))
+                })
+                .collect();
+            if matches.len() >= 16 {
+                pairs.push(SfmPair { a, b, matches, f: None, configuration: TwoViewConfiguration::General, view_distance_px: Some((b - a) as f64) });
+            }
+        }
+    }
+    (SfmInput { images, pairs, video: false }, gt)
+}
+
+/// Median rotation error after a similarity fit of the camera centres (as `eval_sfm.py` reports), degrees.
+fn median_aligned_rotation_error_deg(est: &MetricReconstruction, gt: &MetricReconstruction) -> f64 {
+    let ids: Vec<ImageId> = est.views.keys().copied().collect();
+    let src: Vec<_> = ids.iter().map(|i| est.views[i].center()).collect();
+    let dst: Vec<_> = ids.iter().map(|i| gt.views[i].center()).collect();
+    let sim = handheld_core::Sim3::align(&src, &dst).expect("alignment");
+    let mut e: Vec<f64> = ids
+        .iter()
+        .map(|i| {
+            let r = sim.transform_pose(&est.views[i].cam_from_world).rotation;
+            (r * gt.views[i].cam_from_world.rotation.inverse()).angle().to_degrees()
+        })
+        .collect();
+    e.sort_by(f64::total_cmp);
+    e[e.len() / 2]
+}
+
+/// Largest error of the relative rotations between all pairs of registered views, degrees.
+fn max_relative_rotation_error_deg(est: &MetricReconstruction, gt: &MetricReconstruction) -> f64 {
+    let ids: Vec<ImageId> = est.views.keys().copied().collect();
+    let mut worst = 0.0f64;
+    for (k, a) in ids.iter().enumerate() {
+        for b in &ids[k + 1..] {
+            let re = est.views[a].cam_from_world.rotation * est.views[b].cam_from_world.rotation.inverse();
+            let rg = gt.views[a].cam_from_world.rotation * gt.views[b].cam_from_world.rotation.inverse();
+            worst = worst.max((re * rg.inverse()).angle().to_degrees());
+        }
+    }
+    worst
+}
+
+#[test]
+fn uncalibrated_sfm_recovers_cameras_and_focal() {
+    for seed in [1u64, 2] {
+        let opts = MultiViewOptions {
+            num_views: 10,
+            num_points: 1500,
+            noise_px: 1.0,
+            outlier_fraction: 0.05,
+            radial_distortion: true,
+            shared_intrinsics: true,
+            min_track_len: 2,
+            seed,
+            width: 1024,
+            height: 768,
+        };
+        let (input, gt) = input_from(&opts);
+        // The scene (a 1.5 m ball seen from 6 m) does not determine the principal point: refining it
+        // trades 0.3–0.4° of rotation against it even when started from the truth (see
+        // `ba_from_truth_reference`), so it stays at the centre here (truth within ±4 px).
+        let sfm = SfmOptions { distortion: Distortion::K1K2, refine_principal_point: false, ..Default::default() };
+        let out = reconstruct(&input, &sfm, &NoProgress).expect("reconstruction");
+        let model = &out.models[0];
+        let rec = &model.reconstruction;
+        assert_eq!(rec.views.len(), 10, "seed {seed}: all views registered ({:?})", out.unregistered);
+        let f_true = gt.cameras.values().next().unwrap().intrinsics.f;
+        let f_est = rec.cameras.values().next().unwrap().intrinsics.f;
+        let f_selfcal = *model.summary.self_calibration.focal_before_ba_px.values().next().unwrap();
+        let rot_max = max_relative_rotation_error_deg(rec, &gt);
+        let rot = median_aligned_rotation_error_deg(rec, &gt);
+        eprintln!("  max relative rotation error {rot_max:.4}°");
+        let focal_err = (f_est / f_true - 1.0).abs();
+        let selfcal_err = (f_selfcal / f_true - 1.0).abs();
+        for v in rec.views.values() {
+            let c = v.center();
+            let n = v.observations.iter().filter(|o| o.point_id.is_some()).count();
+            eprintln!("  view {} obs {n} center {:.3} {:.3} {:.3}", v.id, c.x, c.y, c.z);
+        }
+        eprintln!("  groups {:?}\n  ba {:?}", model.summary.groups, model.summary.metric_ba);
+        eprintln!("seed {seed}: rotation error max {rot:.4}°, focal error {:.3} % (self-calibration before BA {:.2} %), reprojection {:.3} px",
+            100.0 * focal_err, 100.0 * selfcal_err, model.summary.mean_reprojection_error_px);
+        // Bounds for this geometry: a principal point a few pixels off the centre already costs
+        // 0.2–0.3° of rotation here. The tighter targets are measured on the rendered
+        // hand-held sequence by `handheld demo`.
+        assert!(rot < 0.5, "seed {seed}: rotation error {rot}°");
+        assert!(focal_err < 0.01, "seed {seed}: focal error {focal_err}");
+        assert!(selfcal_err < 0.20, "seed {seed}: self-calibration focal error {selfcal_err}");
+    }
+}
+
+#[test]
+fn too_few_images_and_bad_options_are_clear_errors() {
+    let (mut input, _) = input_from(&MultiViewOptions { num_views: 3, num_points: 100, ..Default::default() });
+    input.images.truncate(1);
+    input.pairs.clear();
+    let err = reconstruct(&input, &SfmOptions::default(), &NoProgress).unwrap_err();
+    assert!(err.to_string().contains("at least 2 images"), "{err}");
+    let (input, _) = input_from(&MultiViewOptions { num_views: 3, num_points: 100, ..Default::default() });
+    let bad = SfmOptions { projective_max_error_px: -1.0, ..Default::default() };
+    let err = reconstruct(&input, &bad, &NoProgress).unwrap_err();
+    assert!(err.to_string().contains("projective_max_error_px"), "{err}");
+}
+
+#[test]
+fn same_seed_same_model() {
+    let opts = MultiViewOptions { num_views: 6, num_points: 400, noise_px: 1.0, seed: 7, ..Default::default() };
+    let (input, _) = input_from(&opts);
+    let a = reconstruct(&input, &SfmOptions::default(), &NoProgress).unwrap();
+    let b = reconstruct(&input, &SfmOptions::default(), &NoProgress).unwrap();
+    assert_eq!(a.models[0].reconstruction, b.models[0].reconstruction);
+}
+
+#[test]
+#[ignore]
+fn ba_from_truth_reference() {
+    use handheld_bundle::{bundle_adjust_metric, BundleOptions, IntrinsicsMask, MetricBundleConfig, RobustLoss};
+    let opts = MultiViewOptions { num_views: 10, num_points: 1500, noise_px: 1.0, outlier_fraction: 0.0, radial_distortion: true, shared_intrinsics: true, min_track_len: 2, seed: 1, width: 1024, height: 768 };
+    let mv = multi_view_set(&opts).unwrap();
+    let gt = mv.ground_truth();
+    for pp in [false, true] {
+        let mut rec = mv.reconstruction.clone();
+        let cfg = MetricBundleConfig { refine: IntrinsicsMask { f: true, k1: true, k2: true, principal_point: pp, ..IntrinsicsMask::none() }, ..Default::default() };
+        bundle_adjust_metric(&mut rec, &cfg, &BundleOptions { loss: RobustLoss::Huber(1.5), ..Default::default() }).unwrap();
+        eprintln!("pp {pp}: median {:.4} max rel {:.4} f {:.2} vs {:.2}", median_aligned_rotation_error_deg(&rec, &gt), max_relative_rotation_error_deg(&rec, &gt), rec.cameras.values().next().unwrap().intrinsics.f, gt.cameras.values().next().unwrap().intrinsics.f);
+    }
+}
