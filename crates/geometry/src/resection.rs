@@ -38,7 +38,7 @@ fn normalize_3d(points: &[Vector4<f64>]) -> Matrix4<f64> {
 /// Accumulates the weighted DLT normal matrix `AᵀA` (12×12, `p` row-major) and returns its
 /// eigenvector of the smallest eigenvalue as a camera, plus the ratio of the two smallest
 /// eigenvalues (a rank check).
-fn solve_dlt(points: &[Vector4<f64>], image: &[Vector2<f64>], weights: Option<&[f64]>) -> Option<(Matrix3x4<f64>, f64)> {
+fn solve_dlt(points: &[Vector4<f64>], image: &[Vector2<f64>], weights: Option<&[f64]>) -> Option<(Matrix3x4<f64>, f64, f64)> {
     let row = |k: usize, r: usize| -> SMatrix<f64, 1, 12> {
         let (m, x) = (&points[k], &image[k]);
         let w = weights.map_or(1.0, |w| w[k]);
@@ -61,7 +61,8 @@ fn solve_dlt(points: &[Vector4<f64>], image: &[Vector2<f64>], weights: Option<&[
         }
         let (sv, v_t) = crate::linalg::full_right_svd(a)?;
         let ratio = sv[11] / sv[10].max(1e-300);
-        return Some((Matrix3x4::from_fn(|r, c| v_t[(11, 4 * r + c)]), ratio * ratio));
+        let rel = sv[10] / sv[0].max(1e-300);
+        return Some((Matrix3x4::from_fn(|r, c| v_t[(11, 4 * r + c)]), ratio * ratio, rel));
     }
     let mut ata = SMatrix::<f64, 12, 12>::zeros();
     for k in 0..points.len() {
@@ -78,7 +79,8 @@ fn solve_dlt(points: &[Vector4<f64>], image: &[Vector2<f64>], weights: Option<&[
     idx.sort_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]));
     let v = eig.eigenvectors.column(idx[0]);
     let ratio = eig.eigenvalues[idx[0]].abs() / eig.eigenvalues[idx[1]].abs().max(1e-300);
-    Some((Matrix3x4::from_fn(|r, c| v[4 * r + c]), ratio))
+    let rel = (eig.eigenvalues[idx[1]].abs() / eig.eigenvalues[idx[11]].abs().max(1e-300)).sqrt();
+    Some((Matrix3x4::from_fn(|r, c| v[4 * r + c]), ratio, rel))
 }
 
 fn check(points: &[Vector4<f64>], image: &[Vector2<f64>]) -> Result<()> {
@@ -119,10 +121,11 @@ fn resection_weighted_impl(points: &[Vector4<f64>], image: &[Vector2<f64>], iter
         v / v.norm()
     }).collect();
     let degenerate = GeometryError::Degenerate { reason: "the 2D–3D correspondences do not determine a camera" };
-    let (mut p, ratio) = solve_dlt(&pts, &n2.points, None).ok_or(GeometryError::NonFinite)?;
+    let (mut p, ratio, rel) = solve_dlt(&pts, &n2.points, None).ok_or(GeometryError::NonFinite)?;
     // With exactly 6 points the system is square and the smallest eigenvalue is ~0 for any data;
     // a second tiny eigenvalue means a one-parameter family of cameras (degenerate sample).
-    if ratio > 0.5 && pts.len() > 6 {
+    // A second (near-)null direction relative to the largest singular value: e.g. coplanar points.
+    if pts.len() > 6 && (ratio > 0.5 || rel < 1e-8) {
         return Err(degenerate);
     }
     let mut weights = vec![1.0; pts.len()];
