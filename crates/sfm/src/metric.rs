@@ -288,7 +288,7 @@ pub(crate) fn refine_metric(
         }
     }
     let steps: [(&str, IntrinsicsMask, f64, usize); 3] = [
-        ("f+k1", base, o.metric_max_error_px, 100),
+        ("f+k1", base, o.metric_max_error_px, 50),
         ("all intrinsics", full, o.final_max_error_px, 100),
         ("final", full, o.final_max_error_px, 100),
     ];
@@ -297,8 +297,9 @@ pub(crate) fn refine_metric(
         let bopts = BundleOptions {
             max_iterations: iters,
             loss: RobustLoss::Huber(o.loss_scale_px),
-            function_tolerance: 1e-9,
-            parameter_tolerance: 1e-10,
+            // Tight tolerances only for the last adjustment; the earlier ones feed a filter.
+            function_tolerance: if name == "final" { 1e-9 } else { 1e-6 },
+            parameter_tolerance: if name == "final" { 1e-10 } else { 1e-8 },
             ..Default::default()
         };
         let s = bundle_adjust_metric(rec, &config, &bopts).map_err(|e| format!("metric bundle adjustment ({name}): {e}"))?;
