@@ -8,6 +8,7 @@
 //! a silent partial result.
 
 pub mod graph;
+mod init;
 pub mod input;
 pub mod metric;
 pub mod options;

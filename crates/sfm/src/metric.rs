@@ -15,7 +15,7 @@ use nalgebra::{Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector2
 use serde::Serialize;
 
 use crate::options::Distortion;
-use crate::projective::{cameras_in_order, Context, ProjectiveModel, NONE};
+use crate::projective::{cameras_in_order, Context, ProjectiveModel};
 use crate::selfcal::{decompose_camera, self_calibrate, SelfCalibration};
 
 /// Self-calibration diagnostics for the summary.
@@ -208,7 +208,6 @@ fn build_metric(
         }
         rec.points.insert(id, Point3D { xyz: *x, color: [128, 128, 128], error: 0.0, track });
     }
-    let _ = NONE;
     Ok((rec, focal, aspect))
 }
 
