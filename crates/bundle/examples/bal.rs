@@ -5,13 +5,23 @@ use handheld_bundle::{bundle_adjust_metric, BundleOptions, IntrinsicsMask, Metri
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().collect();
-    let path = args.get(1).ok_or("usage: bal FILE [ITERATIONS] [THREADS]")?;
+    let path = args
+        .get(1)
+        .ok_or("usage: bal FILE [ITERATIONS] [THREADS]")?;
     let iterations = args.get(2).map(|s| s.parse()).transpose()?.unwrap_or(50);
     let threads = args.get(3).map(|s| s.parse()).transpose()?.unwrap_or(2);
     let bal = handheld_io::bal::read_bal(std::path::Path::new(path))?;
     let mut rec = bal.to_metric_reconstruction();
-    let config = MetricBundleConfig { refine: IntrinsicsMask::focal_and_radial(), fix_first_view: false, ..Default::default() };
-    let opts = BundleOptions { max_iterations: iterations, num_threads: threads, ..Default::default() };
+    let config = MetricBundleConfig {
+        refine: IntrinsicsMask::focal_and_radial(),
+        fix_first_view: false,
+        ..Default::default()
+    };
+    let opts = BundleOptions {
+        max_iterations: iterations,
+        num_threads: threads,
+        ..Default::default()
+    };
     let s = bundle_adjust_metric(&mut rec, &config, &opts)?;
     println!(
         "{path}: {} cameras {} points {} observations\ninitial_cost {:.6e} final_cost {:.6e} iterations {} ({} successful, {}) \

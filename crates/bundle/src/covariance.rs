@@ -29,7 +29,10 @@ pub struct PointUncertainty {
 
 impl PointUncertainty {
     fn new(covariance: Matrix3<f64>) -> Self {
-        Self { covariance, sigma: (covariance.trace().max(0.0) / 3.0).sqrt() }
+        Self {
+            covariance,
+            sigma: (covariance.trace().max(0.0) / 3.0).sqrt(),
+        }
     }
 
     /// Standard deviations along the axes.
@@ -63,7 +66,11 @@ pub fn metric_uncertainty(
     let st = Structure::new(&p);
     let n = st.num_reduced;
     if n > MAX_COVARIANCE_DIMENSION {
-        return Err(BundleError::TooLarge { what: "covariance estimation", dimension: n, limit: MAX_COVARIANCE_DIMENSION });
+        return Err(BundleError::TooLarge {
+            what: "covariance estimation",
+            dimension: n,
+            limit: MAX_COVARIANCE_DIMENSION,
+        });
     }
     let lin = linearize(&p, &st, &options.loss);
     let vinv = invert_points(&lin, &vec![0.0; 3 * p.points.len()]);
@@ -95,14 +102,18 @@ pub fn metric_uncertainty(
         })
         .collect();
     let q = &eig.eigenvectors;
-    let mut cov = q * DMatrix::from_diagonal(&nalgebra::DVector::from_vec(inv_vals)) * q.transpose();
+    let mut cov =
+        q * DMatrix::from_diagonal(&nalgebra::DVector::from_vec(inv_vals)) * q.transpose();
     for i in 0..n {
         for j in 0..n {
             cov[(i, j)] *= d[i] * d[j];
         }
     }
     let dof = (2 * p.num_observations()) as f64 - (n + 3 * p.points.len()) as f64 + dropped as f64;
-    let sum_sq: f64 = (0..p.num_observations()).map(|o| p.residual(o)).map(|r| r[0] * r[0] + r[1] * r[1]).sum();
+    let sum_sq: f64 = (0..p.num_observations())
+        .map(|o| p.residual(o))
+        .map(|r| r[0] * r[0] + r[1] * r[1])
+        .sum();
     let variance_factor = if dof > 0.0 { sum_sq / dof } else { 1.0 };
 
     let mut points = BTreeMap::new();
@@ -115,8 +126,15 @@ pub fn metric_uncertainty(
             .map(|i| {
                 let b = st.point_inc.idx[i] as usize;
                 let dim = st.block_dim[b];
-                let w = DMatrix::from_column_slice(dim, 3, &lin.w[st.inc_woff[i]..st.inc_woff[i] + 3 * dim]);
-                (st.block_offset[b], w * DMatrix::from_column_slice(3, 3, vi.as_slice()))
+                let w = DMatrix::from_column_slice(
+                    dim,
+                    3,
+                    &lin.w[st.inc_woff[i]..st.inc_woff[i] + 3 * dim],
+                );
+                (
+                    st.block_offset[b],
+                    w * DMatrix::from_column_slice(3, 3, vi.as_slice()),
+                )
             })
             .collect();
         for (oi, yi) in &ys {
@@ -134,7 +152,9 @@ pub fn metric_uncertainty(
     }
     let mut centers = BTreeMap::new();
     for (i, id) in index.views.iter().enumerate() {
-        let Some(at) = st.cam_pose_at[i] else { continue };
+        let Some(at) = st.cam_pose_at[i] else {
+            continue;
+        };
         let b = &p.cameras[i];
         let rt = Matrix3::new(b[0], b[3], b[6], b[1], b[4], b[7], b[2], b[5], b[8]);
         let tx = Matrix3::new(0.0, -b[11], b[10], b[11], 0.0, -b[9], -b[10], b[9], 0.0);
@@ -144,7 +164,15 @@ pub fn metric_uncertainty(
         j.view_mut((0, 3), (3, 3)).copy_from(&(-rt));
         let sub = cov.view((at, at), (6, 6));
         let c = &j * sub * j.transpose();
-        centers.insert(*id, PointUncertainty::new(Matrix3::from_fn(|a, b| c[(a, b)]) * variance_factor));
+        centers.insert(
+            *id,
+            PointUncertainty::new(Matrix3::from_fn(|a, b| c[(a, b)]) * variance_factor),
+        );
     }
-    Ok(MetricUncertainty { points, centers, variance_factor, dropped_directions: dropped })
+    Ok(MetricUncertainty {
+        points,
+        centers,
+        variance_factor,
+        dropped_directions: dropped,
+    })
 }

@@ -34,7 +34,9 @@ mod structure;
 
 pub use covariance::{metric_uncertainty, MetricUncertainty, PointUncertainty};
 pub use loss::RobustLoss;
-pub use metric::{bundle_adjust_metric, GaussianPrior, IntrinsicParam, IntrinsicsMask, MetricBundleConfig};
+pub use metric::{
+    bundle_adjust_metric, GaussianPrior, IntrinsicParam, IntrinsicsMask, MetricBundleConfig,
+};
 pub use options::{BundleError, BundleOptions, BundleSummary, LinearSolverKind, Termination};
 pub use problem::{CameraModel, Problem};
 pub use projective::{bundle_adjust_projective, ProjectiveBundleConfig};

@@ -5,7 +5,8 @@
 use faer::dyn_stack::{MemBuffer, MemStack};
 use faer::linalg::cholesky::llt;
 use faer::sparse::linalg::cholesky::{
-    factorize_symbolic_cholesky, CholeskySymbolicParams, LltRef, SymbolicCholesky, SymmetricOrdering,
+    factorize_symbolic_cholesky, CholeskySymbolicParams, LltRef, SymbolicCholesky,
+    SymmetricOrdering,
 };
 use faer::sparse::linalg::SupernodalThreshold;
 use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
@@ -16,7 +17,11 @@ use crate::schur::ReducedMatrix;
 
 pub(crate) enum Factorizer {
     Dense,
-    Sparse { symbolic: Box<SymbolicCholesky<usize>>, l_values: Vec<f64>, buffer: MemBuffer },
+    Sparse {
+        symbolic: Box<SymbolicCholesky<usize>>,
+        l_values: Vec<f64>,
+        buffer: MemBuffer,
+    },
 }
 
 impl Factorizer {
@@ -30,14 +35,20 @@ impl Factorizer {
             supernodal_flop_ratio_threshold: SupernodalThreshold::FORCE_SUPERNODAL,
             ..Default::default()
         };
-        let symbolic = factorize_symbolic_cholesky(sym, Side::Lower, SymmetricOrdering::Amd, params)
-            .map_err(|e| BundleError::Linear(format!("{e:?}")))?;
+        let symbolic =
+            factorize_symbolic_cholesky(sym, Side::Lower, SymmetricOrdering::Amd, params)
+                .map_err(|e| BundleError::Linear(format!("{e:?}")))?;
         let req = symbolic
             .factorize_numeric_llt_scratch::<f64>(Par::Seq, Default::default())
             .or(symbolic.solve_in_place_scratch::<f64>(1, Par::Seq));
-        let buffer = MemBuffer::try_new(req).map_err(|_| BundleError::Linear("out of memory".into()))?;
+        let buffer =
+            MemBuffer::try_new(req).map_err(|_| BundleError::Linear("out of memory".into()))?;
         let l_values = vec![0.0; symbolic.len_val()];
-        Ok(Factorizer::Sparse { symbolic: Box::new(symbolic), l_values, buffer })
+        Ok(Factorizer::Sparse {
+            symbolic: Box::new(symbolic),
+            l_values,
+            buffer,
+        })
     }
 
     /// Factorises `m` (destroying its values when dense) and solves `m x = rhs` in place. Returns
@@ -50,17 +61,38 @@ impl Factorizer {
         match self {
             Factorizer::Dense => {
                 let mut a = MatMut::from_column_major_slice_mut(&mut m.values, n, n);
-                let req = llt::factor::cholesky_in_place_scratch::<f64>(n, Par::Seq, Default::default())
-                    .or(llt::solve::solve_in_place_scratch::<f64>(n, 1, Par::Seq));
-                let Ok(mut buf) = MemBuffer::try_new(req) else { return false };
+                let req =
+                    llt::factor::cholesky_in_place_scratch::<f64>(n, Par::Seq, Default::default())
+                        .or(llt::solve::solve_in_place_scratch::<f64>(n, 1, Par::Seq));
+                let Ok(mut buf) = MemBuffer::try_new(req) else {
+                    return false;
+                };
                 let stack = MemStack::new(&mut buf);
-                if llt::factor::cholesky_in_place(a.as_mut(), Default::default(), Par::Seq, stack, Default::default()).is_err() {
+                if llt::factor::cholesky_in_place(
+                    a.as_mut(),
+                    Default::default(),
+                    Par::Seq,
+                    stack,
+                    Default::default(),
+                )
+                .is_err()
+                {
                     return false;
                 }
                 let l = MatRef::from_column_major_slice(&m.values, n, n);
-                llt::solve::solve_in_place_with_conj(l, Conj::No, MatMut::from_column_major_slice_mut(rhs, n, 1), Par::Seq, stack);
+                llt::solve::solve_in_place_with_conj(
+                    l,
+                    Conj::No,
+                    MatMut::from_column_major_slice_mut(rhs, n, 1),
+                    Par::Seq,
+                    stack,
+                );
             }
-            Factorizer::Sparse { symbolic, l_values, buffer } => {
+            Factorizer::Sparse {
+                symbolic,
+                l_values,
+                buffer,
+            } => {
                 let sym = SymbolicSparseColMatRef::new_checked(n, n, &m.col_ptr, None, &m.row_idx);
                 let a = SparseColMatRef::new(sym, &m.values);
                 let stack = MemStack::new(buffer);
@@ -76,7 +108,12 @@ impl Factorizer {
                     return false;
                 };
                 let llt: LltRef<'_, usize, f64> = llt;
-                llt.solve_in_place_with_conj(Conj::No, MatMut::from_column_major_slice_mut(rhs, n, 1), Par::Seq, stack);
+                llt.solve_in_place_with_conj(
+                    Conj::No,
+                    MatMut::from_column_major_slice_mut(rhs, n, 1),
+                    Par::Seq,
+                    stack,
+                );
             }
         }
         rhs.iter().all(|v| v.is_finite())

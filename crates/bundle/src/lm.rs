@@ -14,7 +14,9 @@ use crate::linear::Factorizer;
 use crate::options::{BundleError, BundleOptions, BundleSummary, LinearSolverKind, Termination};
 use crate::problem::{CameraModel, Problem};
 use crate::residual::{pose_plus, sphere_plus, NUM_INTRINSICS};
-use crate::schur::{assemble, back_substitute, invert_points, jacobian_step_norm2, linearize, ReducedMatrix};
+use crate::schur::{
+    assemble, back_substitute, invert_points, jacobian_step_norm2, linearize, ReducedMatrix,
+};
 use crate::structure::Structure;
 
 const MIN_DIAGONAL: f64 = 1e-6;
@@ -81,18 +83,30 @@ fn plus(p: &Problem, st: &Structure, dc: &[f64], dp: &[f64]) -> Params {
             }
         })
         .collect();
-    Params { cameras, groups, points }
+    Params {
+        cameras,
+        groups,
+        points,
+    }
 }
 
 /// Norm of the ambient parameter vector (for the step tolerance).
 fn param_norm(p: &Problem) -> f64 {
     let c: f64 = p.cameras.iter().flatten().map(|v| v * v).sum();
     let g: f64 = p.groups.iter().flatten().map(|v| v * v).sum();
-    let x: f64 = p.points.par_iter().map(|x| x.iter().map(|v| v * v).sum::<f64>()).sum();
+    let x: f64 = p
+        .points
+        .par_iter()
+        .map(|x| x.iter().map(|v| v * v).sum::<f64>())
+        .sum();
     (c + g + x).sqrt()
 }
 
-pub(crate) fn solve(p: &mut Problem, opts: &BundleOptions, progress: &dyn Progress) -> Result<BundleSummary, BundleError> {
+pub(crate) fn solve(
+    p: &mut Problem,
+    opts: &BundleOptions,
+    progress: &dyn Progress,
+) -> Result<BundleSummary, BundleError> {
     opts.validate()?;
     p.validate()?;
     if opts.num_threads == 0 {
@@ -101,11 +115,17 @@ pub(crate) fn solve(p: &mut Problem, opts: &BundleOptions, progress: &dyn Progre
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(opts.num_threads)
         .build()
-        .map_err(|e| BundleError::InvalidOptions(format!("cannot start {} threads: {e}", opts.num_threads)))?;
+        .map_err(|e| {
+            BundleError::InvalidOptions(format!("cannot start {} threads: {e}", opts.num_threads))
+        })?;
     pool.install(|| run(p, opts, progress))
 }
 
-fn run(p: &mut Problem, opts: &BundleOptions, progress: &dyn Progress) -> Result<BundleSummary, BundleError> {
+fn run(
+    p: &mut Problem,
+    opts: &BundleOptions,
+    progress: &dyn Progress,
+) -> Result<BundleSummary, BundleError> {
     let t0 = Instant::now();
     let st = Structure::new(p);
     let n = st.num_reduced;
@@ -124,7 +144,12 @@ fn run(p: &mut Problem, opts: &BundleOptions, progress: &dyn Progress) -> Result
     }
     let initial_cost = lin.cost;
     let scale_c: Vec<f64> = lin.dc.iter().map(|h| jacobi_scale(*h)).collect();
-    let scale_p: Vec<f64> = lin.v.iter().flat_map(|v| [v[(0, 0)], v[(1, 1)], v[(2, 2)]]).map(jacobi_scale).collect();
+    let scale_p: Vec<f64> = lin
+        .v
+        .iter()
+        .flat_map(|v| [v[(0, 0)], v[(1, 1)], v[(2, 2)]])
+        .map(jacobi_scale)
+        .collect();
     let mut x_norm = param_norm(p);
     let mut radius = opts.initial_trust_region_radius;
     let mut decrease_factor = 2.0;
@@ -133,7 +158,11 @@ fn run(p: &mut Problem, opts: &BundleOptions, progress: &dyn Progress) -> Result
     let mut rhs = vec![0.0; n];
     progress.start("bundle adjustment", opts.max_iterations as u64);
     let termination = loop {
-        let grad_max = lin.bc.iter().chain(lin.bp.iter().flat_map(|b| b.iter())).fold(0.0f64, |a, v| a.max(v.abs()));
+        let grad_max = lin
+            .bc
+            .iter()
+            .chain(lin.bp.iter().flat_map(|b| b.iter()))
+            .fold(0.0f64, |a, v| a.max(v.abs()));
         if grad_max <= opts.gradient_tolerance {
             break Termination::GradientTolerance;
         }
@@ -145,8 +174,13 @@ fn run(p: &mut Problem, opts: &BundleOptions, progress: &dyn Progress) -> Result
         }
         iterations += 1;
         progress.inc(1);
-        let mu_c: Vec<f64> =
-            lin.dc.iter().zip(&scale_c).zip(&lin.prior_h).map(|((h, s), ph)| damping(*h, *s, radius) + ph).collect();
+        let mu_c: Vec<f64> = lin
+            .dc
+            .iter()
+            .zip(&scale_c)
+            .zip(&lin.prior_h)
+            .map(|((h, s), ph)| damping(*h, *s, radius) + ph)
+            .collect();
         let mu_p: Vec<f64> = lin
             .v
             .iter()
@@ -169,8 +203,19 @@ fn run(p: &mut Problem, opts: &BundleOptions, progress: &dyn Progress) -> Result
         }
         let dc = &rhs;
         let dp = back_substitute(&st, &lin, &vinv, dc);
-        let b_dot: f64 = lin.bc.iter().zip(dc.iter()).map(|(a, b)| a * b).sum::<f64>()
-            + lin.bp.iter().flat_map(|b| b.iter()).zip(&dp).map(|(a, b)| a * b).sum::<f64>();
+        let b_dot: f64 = lin
+            .bc
+            .iter()
+            .zip(dc.iter())
+            .map(|(a, b)| a * b)
+            .sum::<f64>()
+            + lin
+                .bp
+                .iter()
+                .flat_map(|b| b.iter())
+                .zip(&dp)
+                .map(|(a, b)| a * b)
+                .sum::<f64>();
         let model_decrease = b_dot - 0.5 * jacobian_step_norm2(p, &st, &lin, dc, &dp);
         let step_norm = (dc.iter().chain(&dp).map(|v| v * v).sum::<f64>()).sqrt();
         if step_norm <= opts.parameter_tolerance * (x_norm + opts.parameter_tolerance) {
@@ -191,7 +236,8 @@ fn run(p: &mut Problem, opts: &BundleOptions, progress: &dyn Progress) -> Result
         let ratio = change / model_decrease;
         if cand_cost.is_finite() && model_decrease > 0.0 && ratio > opts.min_relative_decrease {
             successful += 1;
-            radius = (radius / (1.0f64 / 3.0).max(1.0 - (2.0 * ratio - 1.0).powi(3))).min(opts.max_trust_region_radius);
+            radius = (radius / (1.0f64 / 3.0).max(1.0 - (2.0 * ratio - 1.0).powi(3)))
+                .min(opts.max_trust_region_radius);
             decrease_factor = 2.0;
             lin = linearize(p, &st, &loss);
             x_norm = param_norm(p);
@@ -199,7 +245,13 @@ fn run(p: &mut Problem, opts: &BundleOptions, progress: &dyn Progress) -> Result
             swap_params(p, &mut cand);
             rejected(&mut radius, &mut decrease_factor);
         }
-        tracing::debug!(iterations, cost = lin.cost, ratio, radius, "bundle adjustment iteration");
+        tracing::debug!(
+            iterations,
+            cost = lin.cost,
+            ratio,
+            radius,
+            "bundle adjustment iteration"
+        );
     };
     progress.finish();
     let final_cost = p.cost(&loss);
@@ -209,7 +261,11 @@ fn run(p: &mut Problem, opts: &BundleOptions, progress: &dyn Progress) -> Result
         iterations,
         successful_steps: successful,
         termination,
-        linear_solver: if dense { LinearSolverKind::DenseSchur } else { LinearSolverKind::SparseSchur },
+        linear_solver: if dense {
+            LinearSolverKind::DenseSchur
+        } else {
+            LinearSolverKind::SparseSchur
+        },
         num_observations: p.num_observations(),
         num_camera_parameters: n,
         num_point_parameters: 3 * p.points.len(),

@@ -18,7 +18,9 @@ impl RobustLoss {
         match self {
             RobustLoss::None => Ok(()),
             RobustLoss::Huber(a) | RobustLoss::Cauchy(a) if a.is_finite() && *a > 0.0 => Ok(()),
-            _ => Err(format!("the robust loss scale must be positive and finite: {self:?}")),
+            _ => Err(format!(
+                "the robust loss scale must be positive and finite: {self:?}"
+            )),
         }
     }
 
@@ -61,11 +63,19 @@ impl Corrector {
         let rho = loss.evaluate(sq_norm);
         let sqrt_rho1 = rho[1].max(0.0).sqrt();
         if sq_norm == 0.0 || rho[2] <= 0.0 || rho[1] <= 0.0 {
-            return Self { sqrt_rho1, residual_scaling: sqrt_rho1, alpha_sq_norm: 0.0 };
+            return Self {
+                sqrt_rho1,
+                residual_scaling: sqrt_rho1,
+                alpha_sq_norm: 0.0,
+            };
         }
         let d = 1.0 + 2.0 * sq_norm * rho[2] / rho[1];
         let alpha = 1.0 - d.sqrt();
-        Self { sqrt_rho1, residual_scaling: sqrt_rho1 / (1.0 - alpha), alpha_sq_norm: alpha / sq_norm }
+        Self {
+            sqrt_rho1,
+            residual_scaling: sqrt_rho1 / (1.0 - alpha),
+            alpha_sq_norm: alpha / sq_norm,
+        }
     }
 
     /// True when nothing changes (no loss, or inside Huber's quadratic zone).

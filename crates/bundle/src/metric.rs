@@ -7,8 +7,8 @@ use std::collections::{BTreeMap, BTreeSet};
 use handheld_core::{CameraId, ImageId, MetricReconstruction, PointId};
 use nalgebra::{Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
 
-pub use crate::problem::GaussianPrior;
 use crate::options::{BundleError, BundleOptions, BundleSummary};
+pub use crate::problem::GaussianPrior;
 use crate::problem::{CameraModel, Problem};
 use crate::residual::NUM_INTRINSICS;
 
@@ -43,27 +43,58 @@ pub struct IntrinsicsMask {
 
 impl IntrinsicsMask {
     pub fn none() -> Self {
-        Self { f: false, aspect: false, skew: false, principal_point: false, k1: false, k2: false }
+        Self {
+            f: false,
+            aspect: false,
+            skew: false,
+            principal_point: false,
+            k1: false,
+            k2: false,
+        }
     }
 
     pub fn all() -> Self {
-        Self { f: true, aspect: true, skew: true, principal_point: true, k1: true, k2: true }
+        Self {
+            f: true,
+            aspect: true,
+            skew: true,
+            principal_point: true,
+            k1: true,
+            k2: true,
+        }
     }
 
     /// Focal length and both radial coefficients (BAL's camera).
     pub fn focal_and_radial() -> Self {
-        Self { f: true, k1: true, k2: true, ..Self::none() }
+        Self {
+            f: true,
+            k1: true,
+            k2: true,
+            ..Self::none()
+        }
     }
 
     pub fn to_array(self) -> [bool; NUM_INTRINSICS] {
-        [self.f, self.aspect, self.skew, self.principal_point, self.principal_point, self.k1, self.k2]
+        [
+            self.f,
+            self.aspect,
+            self.skew,
+            self.principal_point,
+            self.principal_point,
+            self.k1,
+            self.k2,
+        ]
     }
 }
 
 impl Default for IntrinsicsMask {
     /// Focal length and `k1` (eq. 3).
     fn default() -> Self {
-        Self { f: true, k1: true, ..Self::none() }
+        Self {
+            f: true,
+            k1: true,
+            ..Self::none()
+        }
     }
 }
 
@@ -102,14 +133,26 @@ pub(crate) struct MetricIndex {
 }
 
 /// Builds the flat problem of a reconstruction. Points without observations are left out.
-pub(crate) fn metric_problem(rec: &MetricReconstruction, config: &MetricBundleConfig) -> Result<(Problem, MetricIndex), BundleError> {
+pub(crate) fn metric_problem(
+    rec: &MetricReconstruction,
+    config: &MetricBundleConfig,
+) -> Result<(Problem, MetricIndex), BundleError> {
     let mut p = Problem::new(CameraModel::Metric);
     let cameras: Vec<CameraId> = rec.cameras.keys().copied().collect();
-    let group_of: BTreeMap<CameraId, usize> = cameras.iter().enumerate().map(|(i, c)| (*c, i)).collect();
+    let group_of: BTreeMap<CameraId, usize> =
+        cameras.iter().enumerate().map(|(i, c)| (*c, i)).collect();
     for (id, cam) in &rec.cameras {
         let k = &cam.intrinsics;
-        p.groups.push([k.f, k.aspect, k.skew, k.pp.x, k.pp.y, k.k1, k.k2]);
-        p.group_free.push(config.intrinsics.get(id).copied().unwrap_or(config.refine).to_array());
+        p.groups
+            .push([k.f, k.aspect, k.skew, k.pp.x, k.pp.y, k.k1, k.k2]);
+        p.group_free.push(
+            config
+                .intrinsics
+                .get(id)
+                .copied()
+                .unwrap_or(config.refine)
+                .to_array(),
+        );
         let mut pri = [None; NUM_INTRINSICS];
         for (param, prior) in config.priors.get(id).map(|v| v.as_slice()).unwrap_or(&[]) {
             pri[param.index()] = Some(*prior);
@@ -117,14 +160,16 @@ pub(crate) fn metric_problem(rec: &MetricReconstruction, config: &MetricBundleCo
         p.group_priors.push(pri);
     }
     let views: Vec<ImageId> = rec.views.keys().copied().collect();
-    let view_of: BTreeMap<ImageId, usize> = views.iter().enumerate().map(|(i, v)| (*v, i)).collect();
+    let view_of: BTreeMap<ImageId, usize> =
+        views.iter().enumerate().map(|(i, v)| (*v, i)).collect();
     for (i, v) in rec.views.values().enumerate() {
-        let g = *group_of
-            .get(&v.camera_id)
-            .ok_or_else(|| BundleError::InvalidInput(format!("view {} uses unknown camera {}", v.id, v.camera_id)))?;
+        let g = *group_of.get(&v.camera_id).ok_or_else(|| {
+            BundleError::InvalidInput(format!("view {} uses unknown camera {}", v.id, v.camera_id))
+        })?;
         p.cameras.push(pose_to_block(&v.cam_from_world));
         p.camera_group.push(g);
-        p.camera_constant.push(config.constant_views.contains(&v.id) || (config.fix_first_view && i == 0));
+        p.camera_constant
+            .push(config.constant_views.contains(&v.id) || (config.fix_first_view && i == 0));
     }
     let mut points = Vec::new();
     for (pid, pt) in &rec.points {
@@ -133,12 +178,21 @@ pub(crate) fn metric_problem(rec: &MetricReconstruction, config: &MetricBundleCo
         }
         let idx = points.len() as u32;
         for el in &pt.track.elements {
-            let vi = *view_of
-                .get(&el.image_id)
-                .ok_or_else(|| BundleError::InvalidInput(format!("point {pid} is seen by unknown view {}", el.image_id)))?;
-            let obs = rec.views[&el.image_id].observations.get(el.point2d_idx as usize).ok_or_else(|| {
-                BundleError::InvalidInput(format!("point {pid}: view {} has no keypoint {}", el.image_id, el.point2d_idx))
+            let vi = *view_of.get(&el.image_id).ok_or_else(|| {
+                BundleError::InvalidInput(format!(
+                    "point {pid} is seen by unknown view {}",
+                    el.image_id
+                ))
             })?;
+            let obs = rec.views[&el.image_id]
+                .observations
+                .get(el.point2d_idx as usize)
+                .ok_or_else(|| {
+                    BundleError::InvalidInput(format!(
+                        "point {pid}: view {} has no keypoint {}",
+                        el.image_id, el.point2d_idx
+                    ))
+                })?;
             p.obs_camera.push(vi as u32);
             p.obs_point.push(idx);
             p.obs_xy.push([obs.xy.x, obs.xy.y]);
@@ -146,7 +200,14 @@ pub(crate) fn metric_problem(rec: &MetricReconstruction, config: &MetricBundleCo
         p.points.push([pt.xyz.x, pt.xyz.y, pt.xyz.z, 1.0]);
         points.push(*pid);
     }
-    Ok((p, MetricIndex { views, cameras, points }))
+    Ok((
+        p,
+        MetricIndex {
+            views,
+            cameras,
+            points,
+        },
+    ))
 }
 
 pub(crate) fn pose_to_block(pose: &handheld_core::Rigid3) -> [f64; 12] {
@@ -186,7 +247,8 @@ pub fn bundle_adjust_metric(
         if let Some(c) = rec.cameras.get_mut(id) {
             let v = &p.groups[g];
             let k = &mut c.intrinsics;
-            (k.f, k.aspect, k.skew, k.pp.x, k.pp.y, k.k1, k.k2) = (v[0], v[1], v[2], v[3], v[4], v[5], v[6]);
+            (k.f, k.aspect, k.skew, k.pp.x, k.pp.y, k.k1, k.k2) =
+                (v[0], v[1], v[2], v[3], v[4], v[5], v[6]);
         }
     }
     let mut err = vec![(0.0, 0usize); p.points.len()];

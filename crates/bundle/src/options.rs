@@ -77,7 +77,11 @@ impl Default for BundleOptions {
 impl BundleOptions {
     pub fn validate(&self) -> Result<(), BundleError> {
         let bad = |what: &str| Err(BundleError::InvalidOptions(what.to_string()));
-        let nonneg = [self.function_tolerance, self.gradient_tolerance, self.parameter_tolerance];
+        let nonneg = [
+            self.function_tolerance,
+            self.gradient_tolerance,
+            self.parameter_tolerance,
+        ];
         if nonneg.iter().any(|v| !(v.is_finite() && *v >= 0.0)) {
             return bad("tolerances must be finite and non-negative");
         }
@@ -119,7 +123,12 @@ impl Termination {
 
     /// True for the three tolerance criteria.
     pub fn converged(&self) -> bool {
-        matches!(self, Termination::FunctionTolerance | Termination::GradientTolerance | Termination::ParameterTolerance)
+        matches!(
+            self,
+            Termination::FunctionTolerance
+                | Termination::GradientTolerance
+                | Termination::ParameterTolerance
+        )
     }
 }
 
@@ -156,8 +165,14 @@ pub enum BundleError {
     InvalidInput(String),
     #[error("the initial cost is not finite (a point lies in a camera's focal plane, or a parameter is NaN)")]
     NonFiniteCost,
-    #[error("the reduced camera system is too large for {what}: {dimension} parameters (limit {limit})")]
-    TooLarge { what: &'static str, dimension: usize, limit: usize },
+    #[error(
+        "the reduced camera system is too large for {what}: {dimension} parameters (limit {limit})"
+    )]
+    TooLarge {
+        what: &'static str,
+        dimension: usize,
+        limit: usize,
+    },
     #[error("sparse Cholesky failed: {0}")]
     Linear(String),
 }

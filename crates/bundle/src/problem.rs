@@ -75,26 +75,46 @@ impl Problem {
     pub fn validate(&self) -> Result<(), BundleError> {
         let bad = |m: String| Err(BundleError::InvalidInput(m));
         let (nc, np, no) = (self.cameras.len(), self.points.len(), self.obs_xy.len());
-        if self.camera_constant.len() != nc || self.obs_camera.len() != no || self.obs_point.len() != no {
-            return bad("array lengths disagree (cameras/camera_constant or observation arrays)".into());
+        if self.camera_constant.len() != nc
+            || self.obs_camera.len() != no
+            || self.obs_point.len() != no
+        {
+            return bad(
+                "array lengths disagree (cameras/camera_constant or observation arrays)".into(),
+            );
         }
         if self.model == CameraModel::Metric {
             let ng = self.groups.len();
-            if self.camera_group.len() != nc || self.group_free.len() != ng || self.group_priors.len() != ng {
+            if self.camera_group.len() != nc
+                || self.group_free.len() != ng
+                || self.group_priors.len() != ng
+            {
                 return bad("array lengths disagree (camera_group or group arrays)".into());
             }
             if let Some(c) = self.camera_group.iter().position(|g| *g >= ng) {
-                return bad(format!("camera {c} uses intrinsics group {} of {ng}", self.camera_group[c]));
+                return bad(format!(
+                    "camera {c} uses intrinsics group {} of {ng}",
+                    self.camera_group[c]
+                ));
             }
             for (g, pri) in self.group_priors.iter().enumerate() {
-                if pri.iter().flatten().any(|p| !(p.sigma > 0.0 && p.sigma.is_finite() && p.mean.is_finite())) {
-                    return bad(format!("intrinsics group {g} has a prior with a non-positive or non-finite sigma"));
+                if pri
+                    .iter()
+                    .flatten()
+                    .any(|p| !(p.sigma > 0.0 && p.sigma.is_finite() && p.mean.is_finite()))
+                {
+                    return bad(format!(
+                        "intrinsics group {g} has a prior with a non-positive or non-finite sigma"
+                    ));
                 }
             }
         }
         for o in 0..no {
             if self.obs_camera[o] as usize >= nc || self.obs_point[o] as usize >= np {
-                return bad(format!("observation {o} refers to camera {} / point {} (of {nc} / {np})", self.obs_camera[o], self.obs_point[o]));
+                return bad(format!(
+                    "observation {o} refers to camera {} / point {} (of {nc} / {np})",
+                    self.obs_camera[o], self.obs_point[o]
+                ));
             }
         }
         let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
@@ -114,7 +134,12 @@ impl Problem {
         let c = self.obs_camera[o] as usize;
         let x = &self.points[self.obs_point[o] as usize];
         match self.model {
-            CameraModel::Metric => metric_residual(&self.cameras[c], &self.groups[self.camera_group[c]], x, self.obs_xy[o]),
+            CameraModel::Metric => metric_residual(
+                &self.cameras[c],
+                &self.groups[self.camera_group[c]],
+                x,
+                self.obs_xy[o],
+            ),
             CameraModel::Projective => projective_residual(&self.cameras[c], x, self.obs_xy[o]),
         }
     }
@@ -135,7 +160,12 @@ impl Problem {
     pub(crate) fn prior_cost(&self) -> f64 {
         let mut c = 0.0;
         if self.model == CameraModel::Metric {
-            for ((vals, free), pri) in self.groups.iter().zip(&self.group_free).zip(&self.group_priors) {
+            for ((vals, free), pri) in self
+                .groups
+                .iter()
+                .zip(&self.group_free)
+                .zip(&self.group_priors)
+            {
                 for k in 0..NUM_INTRINSICS {
                     if let (true, Some(p)) = (free[k], pri[k]) {
                         let z = (vals[k] - p.mean) / p.sigma;

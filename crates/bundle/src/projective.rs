@@ -21,7 +21,10 @@ pub struct ProjectiveBundleConfig {
 
 impl Default for ProjectiveBundleConfig {
     fn default() -> Self {
-        Self { fix_first_camera: true, constant_cameras: BTreeSet::new() }
+        Self {
+            fix_first_camera: true,
+            constant_cameras: BTreeSet::new(),
+        }
     }
 }
 
@@ -35,11 +38,14 @@ pub fn bundle_adjust_projective(
 ) -> Result<BundleSummary, BundleError> {
     let mut p = Problem::new(CameraModel::Projective);
     let views: Vec<ImageId> = rec.cameras.keys().copied().collect();
-    let view_of: BTreeMap<ImageId, usize> = views.iter().enumerate().map(|(i, v)| (*v, i)).collect();
+    let view_of: BTreeMap<ImageId, usize> =
+        views.iter().enumerate().map(|(i, v)| (*v, i)).collect();
     for (i, (id, cam)) in rec.cameras.iter().enumerate() {
         let n = cam.P.norm();
         if !(n > 0.0 && n.is_finite()) {
-            return Err(BundleError::InvalidInput(format!("camera {id} has a zero or non-finite matrix")));
+            return Err(BundleError::InvalidInput(format!(
+                "camera {id} has a zero or non-finite matrix"
+            )));
         }
         let mut b = [0.0; 12];
         for r in 0..3 {
@@ -48,7 +54,8 @@ pub fn bundle_adjust_projective(
             }
         }
         p.cameras.push(b);
-        p.camera_constant.push((config.fix_first_camera && i == 0) || config.constant_cameras.contains(id));
+        p.camera_constant
+            .push((config.fix_first_camera && i == 0) || config.constant_cameras.contains(id));
     }
     let mut point_ids = Vec::new();
     for (pid, (x, track)) in &rec.points {
@@ -58,17 +65,27 @@ pub fn bundle_adjust_projective(
         }
         let idx = point_ids.len() as u32;
         for el in &track.elements {
-            let vi = *view_of
-                .get(&el.image_id)
-                .ok_or_else(|| BundleError::InvalidInput(format!("point {pid} is seen by unregistered view {}", el.image_id)))?;
-            let xy = keypoints.get(&el.image_id).and_then(|k| k.get(el.point2d_idx as usize)).ok_or_else(|| {
-                BundleError::InvalidInput(format!("point {pid}: view {} has no keypoint {}", el.image_id, el.point2d_idx))
+            let vi = *view_of.get(&el.image_id).ok_or_else(|| {
+                BundleError::InvalidInput(format!(
+                    "point {pid} is seen by unregistered view {}",
+                    el.image_id
+                ))
             })?;
+            let xy = keypoints
+                .get(&el.image_id)
+                .and_then(|k| k.get(el.point2d_idx as usize))
+                .ok_or_else(|| {
+                    BundleError::InvalidInput(format!(
+                        "point {pid}: view {} has no keypoint {}",
+                        el.image_id, el.point2d_idx
+                    ))
+                })?;
             p.obs_camera.push(vi as u32);
             p.obs_point.push(idx);
             p.obs_xy.push([xy.x, xy.y]);
         }
-        p.points.push([x.X[0] / n, x.X[1] / n, x.X[2] / n, x.X[3] / n]);
+        p.points
+            .push([x.X[0] / n, x.X[1] / n, x.X[2] / n, x.X[3] / n]);
         point_ids.push(*pid);
     }
     let summary = crate::solve(&mut p, options)?;

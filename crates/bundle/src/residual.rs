@@ -22,18 +22,28 @@ pub type PoseBlock = [f64; 12];
 
 #[inline]
 fn rot(cam: &PoseBlock) -> Matrix3<f64> {
-    Matrix3::new(cam[0], cam[1], cam[2], cam[3], cam[4], cam[5], cam[6], cam[7], cam[8])
+    Matrix3::new(
+        cam[0], cam[1], cam[2], cam[3], cam[4], cam[5], cam[6], cam[7], cam[8],
+    )
 }
 
 /// Residual of the metric model.
 #[inline]
-pub fn metric_residual(cam: &PoseBlock, intr: &[f64; NUM_INTRINSICS], x: &[f64; 4], obs: [f64; 2]) -> [f64; 2] {
+pub fn metric_residual(
+    cam: &PoseBlock,
+    intr: &[f64; NUM_INTRINSICS],
+    x: &[f64; 4],
+    obs: [f64; 2],
+) -> [f64; 2] {
     let xc = rot(cam) * Vector3::new(x[0], x[1], x[2]) + Vector3::new(cam[9], cam[10], cam[11]);
     let (nx, ny) = (xc.x / xc.z, xc.y / xc.z);
     let r2 = nx * nx + ny * ny;
     let d = 1.0 + intr[5] * r2 + intr[6] * r2 * r2;
     let (xd, yd) = (nx * d, ny * d);
-    [intr[0] * xd + intr[2] * yd + intr[3] - obs[0], intr[1] * intr[0] * yd + intr[4] - obs[1]]
+    [
+        intr[0] * xd + intr[2] * yd + intr[3] - obs[0],
+        intr[1] * intr[0] * yd + intr[4] - obs[1],
+    ]
 }
 
 /// Residual of the metric model and its Jacobians: `jpose` w.r.t. (local rotation δ, t), `jintr` w.r.t.
@@ -59,7 +69,10 @@ pub fn metric_jacobian(
     let (xd, yd) = (nx * d, ny * d);
     let (f, a, s) = (intr[0], intr[1], intr[2]);
     let fy = a * f;
-    let res = [f * xd + s * yd + intr[3] - obs[0], fy * yd + intr[4] - obs[1]];
+    let res = [
+        f * xd + s * yd + intr[3] - obs[0],
+        fy * yd + intr[4] - obs[1],
+    ];
     // ∂(xd, yd)/∂(x, y) = d I + 2 (k1 + 2 k2 r²) [x y]ᵀ[x y].
     let c = 2.0 * (k1 + 2.0 * k2 * r2);
     let (b00, b01, b11) = (d + c * nx * nx, c * nx * ny, d + c * ny * ny);
@@ -102,7 +115,9 @@ pub fn metric_jacobian(
 /// Residual of the projective model (`P` row-major).
 #[inline]
 pub fn projective_residual(p: &[f64; 12], x: &[f64; 4], obs: [f64; 2]) -> [f64; 2] {
-    let m = |i: usize| p[4 * i] * x[0] + p[4 * i + 1] * x[1] + p[4 * i + 2] * x[2] + p[4 * i + 3] * x[3];
+    let m = |i: usize| {
+        p[4 * i] * x[0] + p[4 * i + 1] * x[1] + p[4 * i + 2] * x[2] + p[4 * i + 3] * x[3]
+    };
     let (m0, m1, m2) = (m(0), m(1), m(2));
     [m0 / m2 - obs[0], m1 / m2 - obs[1]]
 }
@@ -117,7 +132,9 @@ pub fn projective_jacobian(
     jcam: &mut [[f64; 2]; 11],
     jpt: &mut [[f64; 2]; 3],
 ) -> [f64; 2] {
-    let m = |i: usize| p[4 * i] * x[0] + p[4 * i + 1] * x[1] + p[4 * i + 2] * x[2] + p[4 * i + 3] * x[3];
+    let m = |i: usize| {
+        p[4 * i] * x[0] + p[4 * i + 1] * x[1] + p[4 * i + 2] * x[2] + p[4 * i + 3] * x[3]
+    };
     let (m0, m1, m2) = (m(0), m(1), m(2));
     let iw = 1.0 / m2;
     let (u, v) = (m0 * iw, m1 * iw);
@@ -155,7 +172,10 @@ impl<const N: usize> Householder<N> {
         let mut u = *v;
         u[N - 1] += if v[N - 1] >= 0.0 { n } else { -n };
         let uu: f64 = u.iter().map(|a| a * a).sum();
-        Self { u, beta: if uu > 0.0 { 2.0 / uu } else { 0.0 } }
+        Self {
+            u,
+            beta: if uu > 0.0 { 2.0 / uu } else { 0.0 },
+        }
     }
 
     /// `B δ` for a tangent vector `δ` of length `N − 1`.
@@ -177,7 +197,10 @@ impl<const N: usize> Householder<N> {
             ju[1] += c[1] * ui;
         }
         for k in 0..N - 1 {
-            out[k] = [j[k][0] - self.beta * ju[0] * self.u[k], j[k][1] - self.beta * ju[1] * self.u[k]];
+            out[k] = [
+                j[k][0] - self.beta * ju[0] * self.u[k],
+                j[k][1] - self.beta * ju[1] * self.u[k],
+            ];
         }
     }
 }

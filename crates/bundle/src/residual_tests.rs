@@ -31,16 +31,25 @@ const OBS: [f64; 2] = [300.0, 200.0];
 fn metric_dual(params: &[D; 16], base: &PoseBlock) -> [D; 2] {
     let r = |i: usize, j: usize| c(base[3 * i + j]);
     let x = [params[13], params[14], params[15]];
-    let rx: Vec<D> = (0..3).map(|i| r(i, 0) * x[0] + r(i, 1) * x[1] + r(i, 2) * x[2]).collect();
+    let rx: Vec<D> = (0..3)
+        .map(|i| r(i, 0) * x[0] + r(i, 1) * x[1] + r(i, 2) * x[2])
+        .collect();
     let w = [params[0], params[1], params[2]];
-    let cross = [w[1] * rx[2] - w[2] * rx[1], w[2] * rx[0] - w[0] * rx[2], w[0] * rx[1] - w[1] * rx[0]];
+    let cross = [
+        w[1] * rx[2] - w[2] * rx[1],
+        w[2] * rx[0] - w[0] * rx[2],
+        w[0] * rx[1] - w[1] * rx[0],
+    ];
     let xc: Vec<D> = (0..3).map(|i| rx[i] + cross[i] + params[3 + i]).collect();
     let (nx, ny) = (xc[0] / xc[2], xc[1] / xc[2]);
     let k = &params[6..13];
     let r2 = nx * nx + ny * ny;
     let d = c(1.0) + k[5] * r2 + k[6] * r2 * r2;
     let (xd, yd) = (nx * d, ny * d);
-    [k[0] * xd + k[2] * yd + k[3] - OBS[0], k[1] * k[0] * yd + k[4] - OBS[1]]
+    [
+        k[0] * xd + k[2] * yd + k[3] - OBS[0],
+        k[1] * k[0] * yd + k[4] - OBS[1],
+    ]
 }
 
 #[test]
@@ -54,21 +63,33 @@ fn metric_jacobian_matches_num_dual() {
     analytic.extend_from_slice(&jpose);
     analytic.extend_from_slice(&jintr);
     analytic.extend_from_slice(&jpt);
-    let base: [f64; 16] = [0.0, 0.0, 0.0, cam[9], cam[10], cam[11], INTR[0], INTR[1], INTR[2], INTR[3], INTR[4], INTR[5], INTR[6], X[0], X[1], X[2]];
+    let base: [f64; 16] = [
+        0.0, 0.0, 0.0, cam[9], cam[10], cam[11], INTR[0], INTR[1], INTR[2], INTR[3], INTR[4],
+        INTR[5], INTR[6], X[0], X[1], X[2],
+    ];
     for k in 0..16 {
-        let params: [D; 16] = std::array::from_fn(|i| D::new(base[i], if i == k { 1.0 } else { 0.0 }));
+        let params: [D; 16] =
+            std::array::from_fn(|i| D::new(base[i], if i == k { 1.0 } else { 0.0 }));
         let out = metric_dual(&params, &cam);
         assert!((out[0].re - r[0]).abs() < 1e-9 && (out[1].re - r[1]).abs() < 1e-9);
         for a in 0..2 {
             let (want, got) = (out[a].eps, analytic[k][a]);
-            assert!((want - got).abs() <= 1e-9 * (1.0 + want.abs()), "param {k} row {a}: dual {want} analytic {got}");
+            assert!(
+                (want - got).abs() <= 1e-9 * (1.0 + want.abs()),
+                "param {k} row {a}: dual {want} analytic {got}"
+            );
         }
     }
 }
 
 fn assert_close(fd: [f64; 2], an: [f64; 2], what: &str) {
     for a in 0..2 {
-        assert!((fd[a] - an[a]).abs() <= 1e-5 * (1.0 + an[a].abs()), "{what} row {a}: fd {} analytic {}", fd[a], an[a]);
+        assert!(
+            (fd[a] - an[a]).abs() <= 1e-5 * (1.0 + an[a].abs()),
+            "{what} row {a}: fd {} analytic {}",
+            fd[a],
+            an[a]
+        );
     }
 }
 
@@ -84,13 +105,19 @@ fn metric_jacobian_matches_finite_differences_through_pose_plus() {
         let rp = metric_residual(&pose_plus(&cam, &d), &INTR, &X, OBS);
         d[k] = -h;
         let rm = metric_residual(&pose_plus(&cam, &d), &INTR, &X, OBS);
-        assert_close([(rp[0] - rm[0]) / (2.0 * h), (rp[1] - rm[1]) / (2.0 * h)], jpose[k], &format!("pose {k}"));
+        assert_close(
+            [(rp[0] - rm[0]) / (2.0 * h), (rp[1] - rm[1]) / (2.0 * h)],
+            jpose[k],
+            &format!("pose {k}"),
+        );
     }
 }
 
 #[test]
 fn projective_jacobian_matches_finite_differences_on_the_spheres() {
-    let mut p = [500.0, 2.0, 320.0, 10.0, -1.0, 505.0, 240.0, -30.0, 0.01, -0.02, 1.0, 4.0];
+    let mut p = [
+        500.0, 2.0, 320.0, 10.0, -1.0, 505.0, 240.0, -30.0, 0.01, -0.02, 1.0, 4.0,
+    ];
     let n = p.iter().map(|v| v * v).sum::<f64>().sqrt();
     p.iter_mut().for_each(|v| *v /= n);
     let xn = X.iter().map(|v| v * v).sum::<f64>().sqrt();
@@ -106,7 +133,11 @@ fn projective_jacobian_matches_finite_differences_on_the_spheres() {
         let rp = projective_residual(&sphere_plus(&p, &d), &x, OBS);
         d[k] = -h;
         let rm = projective_residual(&sphere_plus(&p, &d), &x, OBS);
-        assert_close([(rp[0] - rm[0]) / (2.0 * h), (rp[1] - rm[1]) / (2.0 * h)], jcam[k], &format!("P {k}"));
+        assert_close(
+            [(rp[0] - rm[0]) / (2.0 * h), (rp[1] - rm[1]) / (2.0 * h)],
+            jcam[k],
+            &format!("P {k}"),
+        );
     }
     for k in 0..3 {
         let mut d = [0.0; 3];
@@ -114,7 +145,11 @@ fn projective_jacobian_matches_finite_differences_on_the_spheres() {
         let rp = projective_residual(&p, &sphere_plus(&x, &d), OBS);
         d[k] = -h;
         let rm = projective_residual(&p, &sphere_plus(&x, &d), OBS);
-        assert_close([(rp[0] - rm[0]) / (2.0 * h), (rp[1] - rm[1]) / (2.0 * h)], jpt[k], &format!("X {k}"));
+        assert_close(
+            [(rp[0] - rm[0]) / (2.0 * h), (rp[1] - rm[1]) / (2.0 * h)],
+            jpt[k],
+            &format!("X {k}"),
+        );
     }
 }
 
@@ -122,9 +157,19 @@ fn projective_jacobian_matches_finite_differences_on_the_spheres() {
 fn householder_basis_is_orthonormal_and_tangent() {
     let v = [0.3, -0.5, 0.1, -0.8];
     let h = Householder::new(&v);
-    let cols: Vec<[f64; 4]> = (0..3).map(|k| h.apply(&[0, 1, 2].map(|i| if i == k { 1.0 } else { 0.0 }))).collect();
+    let cols: Vec<[f64; 4]> = (0..3)
+        .map(|k| h.apply(&[0, 1, 2].map(|i| if i == k { 1.0 } else { 0.0 })))
+        .collect();
     for a in 0..3 {
-        assert!(cols[a].iter().zip(&v).map(|(x, y)| x * y).sum::<f64>().abs() < 1e-12);
+        assert!(
+            cols[a]
+                .iter()
+                .zip(&v)
+                .map(|(x, y)| x * y)
+                .sum::<f64>()
+                .abs()
+                < 1e-12
+        );
         for b in 0..3 {
             let dot: f64 = cols[a].iter().zip(&cols[b]).map(|(x, y)| x * y).sum();
             assert!((dot - if a == b { 1.0 } else { 0.0 }).abs() < 1e-12);

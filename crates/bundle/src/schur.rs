@@ -65,7 +65,15 @@ pub(crate) fn linearize(p: &Problem, st: &Structure, loss: &RobustLoss) -> Linea
                 CameraModel::Metric => {
                     let mut jpose = [[0.0; 2]; 6];
                     let mut jintr = [[0.0; 2]; NUM_INTRINSICS];
-                    let r = metric_jacobian(&p.cameras[c], &p.groups[p.camera_group[c]], x, p.obs_xy[o], &mut jpose, &mut jintr, jp_out);
+                    let r = metric_jacobian(
+                        &p.cameras[c],
+                        &p.groups[p.camera_group[c]],
+                        x,
+                        p.obs_xy[o],
+                        &mut jpose,
+                        &mut jintr,
+                        jp_out,
+                    );
                     full[..6].copy_from_slice(&jpose);
                     full[6..].copy_from_slice(&jintr);
                     r
@@ -110,8 +118,12 @@ pub(crate) fn linearize(p: &Problem, st: &Structure, loss: &RobustLoss) -> Linea
         }
     });
     let w_parts = split_by(&mut w, w_lens);
-    v.par_iter_mut().zip(bp.par_iter_mut()).zip(w_parts.into_par_iter()).enumerate().with_min_len(64).for_each(
-        |(pt, ((v, bp), wpt))| {
+    v.par_iter_mut()
+        .zip(bp.par_iter_mut())
+        .zip(w_parts.into_par_iter())
+        .enumerate()
+        .with_min_len(64)
+        .for_each(|(pt, ((v, bp), wpt))| {
             let base = st.inc_woff.get(pi.ptr[pt]).copied().unwrap_or(0);
             for &o in st.point_obs.row(pt) {
                 let o = o as usize;
@@ -144,8 +156,7 @@ pub(crate) fn linearize(p: &Problem, st: &Structure, loss: &RobustLoss) -> Linea
                     v[(a, b)] = v[(b, a)];
                 }
             }
-        },
-    );
+        });
 
     // Camera side: gradient and diagonal, block by block.
     let n = st.num_reduced;
@@ -153,21 +164,29 @@ pub(crate) fn linearize(p: &Problem, st: &Structure, loss: &RobustLoss) -> Linea
     let mut dc = vec![0.0; n];
     let bc_parts = split_by(&mut bc, st.block_dim.iter().copied());
     let dc_parts = split_by(&mut dc, st.block_dim.iter().copied());
-    bc_parts.into_par_iter().zip(dc_parts.into_par_iter()).enumerate().for_each(|(b, (bcb, dcb))| {
-        for &o in st.block_obs.row(b) {
-            let o = o as usize;
-            let c = p.obs_camera[o] as usize;
-            let (own, sh) = st.cam_ncols[c];
-            let lo = if st.cam_block[c] as usize == b { 0 } else { own };
-            let d = if lo == 0 { own } else { sh };
-            let r = res[o];
-            for k in 0..d {
-                let col = jc[o * js + lo + k];
-                bcb[k] -= col[0] * r[0] + col[1] * r[1];
-                dcb[k] += col[0] * col[0] + col[1] * col[1];
+    bc_parts
+        .into_par_iter()
+        .zip(dc_parts.into_par_iter())
+        .enumerate()
+        .for_each(|(b, (bcb, dcb))| {
+            for &o in st.block_obs.row(b) {
+                let o = o as usize;
+                let c = p.obs_camera[o] as usize;
+                let (own, sh) = st.cam_ncols[c];
+                let lo = if st.cam_block[c] as usize == b {
+                    0
+                } else {
+                    own
+                };
+                let d = if lo == 0 { own } else { sh };
+                let r = res[o];
+                for k in 0..d {
+                    let col = jc[o * js + lo + k];
+                    bcb[k] -= col[0] * r[0] + col[1] * r[1];
+                    dcb[k] += col[0] * col[0] + col[1] * col[1];
+                }
             }
-        }
-    });
+        });
     let mut prior_h = vec![0.0; n];
     if p.model == CameraModel::Metric {
         for g in 0..p.groups.len() {
@@ -181,7 +200,17 @@ pub(crate) fn linearize(p: &Problem, st: &Structure, loss: &RobustLoss) -> Linea
             }
         }
     }
-    Linearization { cost: 0.5 * data_cost + p.prior_cost(), jc, jp, v, bp, w, bc, dc, prior_h }
+    Linearization {
+        cost: 0.5 * data_cost + p.prior_cost(),
+        jc,
+        jp,
+        v,
+        bp,
+        w,
+        bc,
+        dc,
+        prior_h,
+    }
 }
 
 /// Storage of the reduced matrix (lower triangle, column-major), dense or compressed sparse columns.
@@ -248,7 +277,17 @@ impl ReducedMatrix {
             chunk_start.push(row_idx.len());
         }
         let len = *chunk_start.last().unwrap_or(&0);
-        Self { dense, n, col_ptr, row_idx, values: vec![0.0; len], chunk_start, cb_off, cb_diag, rowoff }
+        Self {
+            dense,
+            n,
+            col_ptr,
+            row_idx,
+            values: vec![0.0; len],
+            chunk_start,
+            cb_off,
+            cb_diag,
+            rowoff,
+        }
     }
 }
 
@@ -284,91 +323,110 @@ pub(crate) fn assemble(
     let chunks = split_by(&mut m.values, chunk_lens);
     let rhs_parts = split_by(rhs, st.block_dim.iter().copied());
     let (cb_off, cb_diag, rowoff) = (&m.cb_off, &m.cb_diag, &m.rowoff);
-    chunks.into_par_iter().zip(rhs_parts.into_par_iter()).enumerate().for_each_init(
-        || (vec![0usize; nb], Vec::<f64>::new()),
-        |(pos, y), (b, (vals, rb))| {
-            let (off, d) = (st.block_offset[b], st.block_dim[b]);
-            for (q, b2) in st.block_cols.row(b).iter().enumerate() {
-                pos[*b2 as usize] = rowoff[st.block_cols.ptr[b] + q];
-            }
-            let cbo = &cb_off[off..off + d];
-            let cbd = &cb_diag[off..off + d];
-            vals.fill(0.0);
-            rb.copy_from_slice(&lin.bc[off..off + d]);
-            // U = Σ Jcᵀ Jc over the observations touching this block row.
-            for &o in st.block_obs.row(b) {
-                let o = o as usize;
-                let c = p.obs_camera[o] as usize;
-                let (own, sh) = st.cam_ncols[c];
-                let cols = &lin.jc[o * js..o * js + own + sh];
-                let own_row = st.cam_block[c] as usize == b;
-                let (lo, hi) = if own_row { (0, own) } else { (own, own + sh) };
-                for jj in lo..hi {
-                    let cj = cols[jj];
-                    let base = cbd[jj - lo];
-                    for ii in jj..hi {
-                        vals[base + ii - lo] += cj[0] * cols[ii][0] + cj[1] * cols[ii][1];
-                    }
+    chunks
+        .into_par_iter()
+        .zip(rhs_parts.into_par_iter())
+        .enumerate()
+        .for_each_init(
+            || (vec![0usize; nb], Vec::<f64>::new()),
+            |(pos, y), (b, (vals, rb))| {
+                let (off, d) = (st.block_offset[b], st.block_dim[b]);
+                for (q, b2) in st.block_cols.row(b).iter().enumerate() {
+                    pos[*b2 as usize] = rowoff[st.block_cols.ptr[b] + q];
                 }
-                if own_row && sh > 0 {
-                    let ro = pos[st.cam_shared[c] as usize];
-                    for jj in 0..own {
+                let cbo = &cb_off[off..off + d];
+                let cbd = &cb_diag[off..off + d];
+                vals.fill(0.0);
+                rb.copy_from_slice(&lin.bc[off..off + d]);
+                // U = Σ Jcᵀ Jc over the observations touching this block row.
+                for &o in st.block_obs.row(b) {
+                    let o = o as usize;
+                    let c = p.obs_camera[o] as usize;
+                    let (own, sh) = st.cam_ncols[c];
+                    let cols = &lin.jc[o * js..o * js + own + sh];
+                    let own_row = st.cam_block[c] as usize == b;
+                    let (lo, hi) = if own_row { (0, own) } else { (own, own + sh) };
+                    for jj in lo..hi {
                         let cj = cols[jj];
-                        let base = cbo[jj] + ro;
-                        for ii in 0..sh {
-                            vals[base + ii] += cj[0] * cols[own + ii][0] + cj[1] * cols[own + ii][1];
+                        let base = cbd[jj - lo];
+                        for ii in jj..hi {
+                            vals[base + ii - lo] += cj[0] * cols[ii][0] + cj[1] * cols[ii][1];
                         }
                     }
-                }
-            }
-            // − W V⁻¹ Wᵀ and − W V⁻¹ bp over the points seen through this block. W blocks are stored
-            // column-major (`d × 3`), so each row of the update is three contiguous AXPYs.
-            y.resize(3 * d, 0.0);
-            for &i in st.block_inc.row(b) {
-                let i = i as usize;
-                let pt = st.inc_point[i] as usize;
-                let vi = &vinv[pt];
-                let wi = &lin.w[st.inc_woff[i]..st.inc_woff[i] + 3 * d];
-                let (w0, w1, w2) = (&wi[..d], &wi[d..2 * d], &wi[2 * d..]);
-                let bpp = &lin.bp[pt];
-                for jj in 0..d {
-                    for t in 0..3 {
-                        y[3 * jj + t] = w0[jj] * vi[(0, t)] + w1[jj] * vi[(1, t)] + w2[jj] * vi[(2, t)];
-                    }
-                    rb[jj] -= y[3 * jj] * bpp[0] + y[3 * jj + 1] * bpp[1] + y[3 * jj + 2] * bpp[2];
-                }
-                for i2 in i..st.point_inc.ptr[pt + 1] {
-                    let b2 = st.point_inc.idx[i2] as usize;
-                    let d2 = st.block_dim[b2];
-                    let wj = &lin.w[st.inc_woff[i2]..st.inc_woff[i2] + 3 * d2];
-                    let (v0, v1, v2) = (&wj[..d2], &wj[d2..2 * d2], &wj[2 * d2..]);
-                    if b2 != b {
-                        let ro = pos[b2];
-                        match d2 {
-                            3 => sub_rows::<3>(vals, cbo, ro, &y[..3 * d], wj),
-                            6 => sub_rows::<6>(vals, cbo, ro, &y[..3 * d], wj),
-                            9 => sub_rows::<9>(vals, cbo, ro, &y[..3 * d], wj),
-                            11 => sub_rows::<11>(vals, cbo, ro, &y[..3 * d], wj),
-                            _ => {
-                                for jj in 0..d {
-                                    let start = cbo[jj] + ro;
-                                    axpy3(&mut vals[start..start + d2], &y[3 * jj..3 * jj + 3], v0, v1, v2);
-                                }
+                    if own_row && sh > 0 {
+                        let ro = pos[st.cam_shared[c] as usize];
+                        for jj in 0..own {
+                            let cj = cols[jj];
+                            let base = cbo[jj] + ro;
+                            for ii in 0..sh {
+                                vals[base + ii] +=
+                                    cj[0] * cols[own + ii][0] + cj[1] * cols[own + ii][1];
                             }
                         }
-                        continue;
-                    }
-                    for jj in 0..d {
-                        let start = cbd[jj] + jj;
-                        axpy3(&mut vals[start..start + d2 - jj], &y[3 * jj..3 * jj + 3], &v0[jj..], &v1[jj..], &v2[jj..]);
                     }
                 }
-            }
-            for jj in 0..d {
-                vals[cbd[jj] + jj] += extra_diag[off + jj];
-            }
-        },
-    );
+                // − W V⁻¹ Wᵀ and − W V⁻¹ bp over the points seen through this block. W blocks are stored
+                // column-major (`d × 3`), so each row of the update is three contiguous AXPYs.
+                y.resize(3 * d, 0.0);
+                for &i in st.block_inc.row(b) {
+                    let i = i as usize;
+                    let pt = st.inc_point[i] as usize;
+                    let vi = &vinv[pt];
+                    let wi = &lin.w[st.inc_woff[i]..st.inc_woff[i] + 3 * d];
+                    let (w0, w1, w2) = (&wi[..d], &wi[d..2 * d], &wi[2 * d..]);
+                    let bpp = &lin.bp[pt];
+                    for jj in 0..d {
+                        for t in 0..3 {
+                            y[3 * jj + t] =
+                                w0[jj] * vi[(0, t)] + w1[jj] * vi[(1, t)] + w2[jj] * vi[(2, t)];
+                        }
+                        rb[jj] -=
+                            y[3 * jj] * bpp[0] + y[3 * jj + 1] * bpp[1] + y[3 * jj + 2] * bpp[2];
+                    }
+                    for i2 in i..st.point_inc.ptr[pt + 1] {
+                        let b2 = st.point_inc.idx[i2] as usize;
+                        let d2 = st.block_dim[b2];
+                        let wj = &lin.w[st.inc_woff[i2]..st.inc_woff[i2] + 3 * d2];
+                        let (v0, v1, v2) = (&wj[..d2], &wj[d2..2 * d2], &wj[2 * d2..]);
+                        if b2 != b {
+                            let ro = pos[b2];
+                            match d2 {
+                                3 => sub_rows::<3>(vals, cbo, ro, &y[..3 * d], wj),
+                                6 => sub_rows::<6>(vals, cbo, ro, &y[..3 * d], wj),
+                                9 => sub_rows::<9>(vals, cbo, ro, &y[..3 * d], wj),
+                                11 => sub_rows::<11>(vals, cbo, ro, &y[..3 * d], wj),
+                                _ => {
+                                    for jj in 0..d {
+                                        let start = cbo[jj] + ro;
+                                        axpy3(
+                                            &mut vals[start..start + d2],
+                                            &y[3 * jj..3 * jj + 3],
+                                            v0,
+                                            v1,
+                                            v2,
+                                        );
+                                    }
+                                }
+                            }
+                            continue;
+                        }
+                        for jj in 0..d {
+                            let start = cbd[jj] + jj;
+                            axpy3(
+                                &mut vals[start..start + d2 - jj],
+                                &y[3 * jj..3 * jj + 3],
+                                &v0[jj..],
+                                &v1[jj..],
+                                &v2[jj..],
+                            );
+                        }
+                    }
+                }
+                for jj in 0..d {
+                    vals[cbd[jj] + jj] += extra_diag[off + jj];
+                }
+            },
+        );
 }
 
 /// `dst −= y₀ v₀ + y₁ v₁ + y₂ v₂` (one row of `−Y Wᵀ`).
@@ -393,7 +451,9 @@ fn sub_rows<const D2: usize>(vals: &mut [f64], cbo: &[usize], ro: usize, y: &[f6
     };
     for (jj, yr) in y.chunks_exact(3).enumerate() {
         let start = cbo[jj] + ro;
-        let Some(dst) = vals.get_mut(start..start + D2) else { continue };
+        let Some(dst) = vals.get_mut(start..start + D2) else {
+            continue;
+        };
         let (y0, y1, y2) = (yr[0], yr[1], yr[2]);
         for ii in 0..D2 {
             dst[ii] -= y0 * v0[ii] + y1 * v1[ii] + y2 * v2[ii];
@@ -402,27 +462,45 @@ fn sub_rows<const D2: usize>(vals: &mut [f64], cbo: &[usize], ro: usize, y: &[f6
 }
 
 /// Back-substitution `δp = V⁻¹ (bp − Wᵀ δc)` for every point.
-pub(crate) fn back_substitute(st: &Structure, lin: &Linearization, vinv: &[Matrix3<f64>], dc: &[f64]) -> Vec<f64> {
+pub(crate) fn back_substitute(
+    st: &Structure,
+    lin: &Linearization,
+    vinv: &[Matrix3<f64>],
+    dc: &[f64],
+) -> Vec<f64> {
     let np = lin.v.len();
     let mut dp = vec![0.0; 3 * np];
-    dp.par_chunks_mut(3).enumerate().with_min_len(256).for_each(|(pt, out)| {
-        let mut r = lin.bp[pt];
-        for i in st.point_inc.ptr[pt]..st.point_inc.ptr[pt + 1] {
-            let b = st.point_inc.idx[i] as usize;
-            let (off, d) = (st.block_offset[b], st.block_dim[b]);
-            let w = &lin.w[st.inc_woff[i]..st.inc_woff[i] + 3 * d];
-            for t in 0..3 {
-                r[t] -= w[t * d..(t + 1) * d].iter().zip(&dc[off..off + d]).map(|(a, b)| a * b).sum::<f64>();
+    dp.par_chunks_mut(3)
+        .enumerate()
+        .with_min_len(256)
+        .for_each(|(pt, out)| {
+            let mut r = lin.bp[pt];
+            for i in st.point_inc.ptr[pt]..st.point_inc.ptr[pt + 1] {
+                let b = st.point_inc.idx[i] as usize;
+                let (off, d) = (st.block_offset[b], st.block_dim[b]);
+                let w = &lin.w[st.inc_woff[i]..st.inc_woff[i] + 3 * d];
+                for t in 0..3 {
+                    r[t] -= w[t * d..(t + 1) * d]
+                        .iter()
+                        .zip(&dc[off..off + d])
+                        .map(|(a, b)| a * b)
+                        .sum::<f64>();
+                }
             }
-        }
-        let x = vinv[pt] * r;
-        out.copy_from_slice(x.as_slice());
-    });
+            let x = vinv[pt] * r;
+            out.copy_from_slice(x.as_slice());
+        });
     dp
 }
 
 /// `‖J δ‖²` over all observations plus the prior terms (for the model cost decrease).
-pub(crate) fn jacobian_step_norm2(p: &Problem, st: &Structure, lin: &Linearization, dc: &[f64], dp: &[f64]) -> f64 {
+pub(crate) fn jacobian_step_norm2(
+    p: &Problem,
+    st: &Structure,
+    lin: &Linearization,
+    dc: &[f64],
+    dp: &[f64],
+) -> f64 {
     let js = js(st);
     let data: f64 = (0..p.num_observations())
         .into_par_iter()
@@ -445,5 +523,10 @@ pub(crate) fn jacobian_step_norm2(p: &Problem, st: &Structure, lin: &Linearizati
             e[0] * e[0] + e[1] * e[1]
         })
         .sum();
-    data + lin.prior_h.iter().zip(dc).map(|(h, x)| h * x * x).sum::<f64>()
+    data + lin
+        .prior_h
+        .iter()
+        .zip(dc)
+        .map(|(h, x)| h * x * x)
+        .sum::<f64>()
 }

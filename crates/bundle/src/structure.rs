@@ -214,13 +214,26 @@ impl Structure {
             inc_woff.push(w_len);
             w_len += 3 * block_dim[b as usize];
         }
-        let point_inc = Csr { ptr: inc_ptr, idx: inc_idx };
-        let block_inc = Csr::from_pairs(nb, point_inc.idx.iter().enumerate().map(|(i, b)| (*b as usize, i as u32)));
+        let point_inc = Csr {
+            ptr: inc_ptr,
+            idx: inc_idx,
+        };
+        let block_inc = Csr::from_pairs(
+            nb,
+            point_inc
+                .idx
+                .iter()
+                .enumerate()
+                .map(|(i, b)| (*b as usize, i as u32)),
+        );
         let block_obs = Csr::from_pairs(
             nb,
             (0..no).flat_map(|o| {
                 let c = p.obs_camera[o] as usize;
-                [cam_block[c], cam_shared[c]].into_iter().filter(|b| *b != NONE).map(move |b| (b as usize, o as u32))
+                [cam_block[c], cam_shared[c]]
+                    .into_iter()
+                    .filter(|b| *b != NONE)
+                    .map(move |b| (b as usize, o as u32))
             }),
         );
         // Coupled blocks b' > b of each block row.
@@ -260,7 +273,10 @@ impl Structure {
             obs_inc,
             block_inc,
             block_obs,
-            block_cols: Csr { ptr: cols_ptr, idx: cols_idx },
+            block_cols: Csr {
+                ptr: cols_ptr,
+                idx: cols_idx,
+            },
         }
     }
 

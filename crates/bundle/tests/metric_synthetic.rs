@@ -2,8 +2,8 @@
 //! after a similarity alignment (COLMAP-style `ReconstructionNear`).
 
 use handheld_bundle::{
-    bundle_adjust_metric, metric_uncertainty, BundleOptions, GaussianPrior, IntrinsicParam, IntrinsicsMask, LinearSolverKind,
-    MetricBundleConfig, RobustLoss,
+    bundle_adjust_metric, metric_uncertainty, BundleOptions, GaussianPrior, IntrinsicParam,
+    IntrinsicsMask, LinearSolverKind, MetricBundleConfig, RobustLoss,
 };
 use handheld_core::{pose::rotation_angle_deg, MetricReconstruction, Sim3};
 use handheld_testkit::multiview::{multi_view_set, MultiViewOptions};
@@ -13,9 +13,12 @@ use nalgebra::{Point3, UnitQuaternion, Vector3};
 fn perturb(rec: &mut MetricReconstruction, f_scale: f64) {
     for (i, v) in rec.views.values_mut().enumerate().skip(1) {
         let s = i as f64;
-        let dq = UnitQuaternion::from_scaled_axis(Vector3::new((s * 1.3).sin(), (s * 2.1).cos(), (s * 0.7).sin()) * 0.01);
+        let dq = UnitQuaternion::from_scaled_axis(
+            Vector3::new((s * 1.3).sin(), (s * 2.1).cos(), (s * 0.7).sin()) * 0.01,
+        );
         v.cam_from_world.rotation = dq * v.cam_from_world.rotation;
-        v.cam_from_world.translation.vector += Vector3::new((s * 0.9).cos(), (s * 1.7).sin(), (s * 0.3).cos()) * 0.05;
+        v.cam_from_world.translation.vector +=
+            Vector3::new((s * 0.9).cos(), (s * 1.7).sin(), (s * 0.3).cos()) * 0.05;
     }
     for (i, p) in rec.points.values_mut().enumerate() {
         let s = i as f64;
@@ -37,13 +40,20 @@ fn errors(est: &MetricReconstruction, gt: &MetricReconstruction) -> (f64, f64, f
     let mut rot: f64 = 0.0;
     for (id, v) in &gt.views {
         let aligned = sim.transform_pose(&est.views[id].cam_from_world);
-        rot = rot.max(rotation_angle_deg(&(aligned.rotation * v.cam_from_world.rotation.inverse())));
+        rot = rot.max(rotation_angle_deg(
+            &(aligned.rotation * v.cam_from_world.rotation.inverse()),
+        ));
     }
     let mut f_err: f64 = 0.0;
     for (id, c) in &gt.cameras {
         f_err = f_err.max((est.cameras[id].intrinsics.f / c.intrinsics.f - 1.0).abs());
     }
-    let pts = src.iter().zip(&dst).map(|(a, b)| (sim.transform_point(a) - b).norm()).sum::<f64>() / src.len() as f64;
+    let pts = src
+        .iter()
+        .zip(&dst)
+        .map(|(a, b)| (sim.transform_point(a) - b).norm())
+        .sum::<f64>()
+        / src.len() as f64;
     (rot, f_err, pts)
 }
 
@@ -77,18 +87,33 @@ fn metric_ba_with_shared_intrinsics_recovers_truth() {
     let (r0, f0, _) = errors(&rec, &gt);
     perturb(&mut rec, 1.04);
     let (r1, f1, _) = errors(&rec, &gt);
-    assert!(r1 > 0.3 && f1 > 0.03, "perturbation too small: {r1} {f1} (exact {r0} {f0})");
+    assert!(
+        r1 > 0.3 && f1 > 0.03,
+        "perturbation too small: {r1} {f1} (exact {r0} {f0})"
+    );
     for solver in [LinearSolverKind::DenseSchur, LinearSolverKind::SparseSchur] {
         let mut r = rec.clone();
-        let opts = BundleOptions { linear_solver: solver, num_threads: 2, function_tolerance: 1e-12, ..Default::default() };
+        let opts = BundleOptions {
+            linear_solver: solver,
+            num_threads: 2,
+            function_tolerance: 1e-12,
+            ..Default::default()
+        };
         let s = bundle_adjust_metric(&mut r, &config(), &opts).expect("runs");
         let (rot, f_err, pts) = errors(&r, &gt);
-        println!("{solver:?}: {s:?}\nrotation error {rot:.5}°, focal error {:.4}%, point error {pts:.5}", 100.0 * f_err);
+        println!(
+            "{solver:?}: {s:?}\nrotation error {rot:.5}°, focal error {:.4}%, point error {pts:.5}",
+            100.0 * f_err
+        );
         assert!(s.termination.converged(), "{:?}", s.termination);
         assert!(rot < 0.01, "rotation error {rot}°");
         assert!(f_err < 1e-3, "focal error {f_err}");
         // Noise level: RMS of 2D Gaussian noise σ = 0.1 px is ≈ 0.141 px, slightly less after fitting.
-        assert!(s.final_rms_px < 0.145 && s.final_rms_px > 0.12, "rms {}", s.final_rms_px);
+        assert!(
+            s.final_rms_px < 0.145 && s.final_rms_px > 0.12,
+            "rms {}",
+            s.final_rms_px
+        );
         assert!((r.cameras.values().next().expect("one camera").intrinsics.k1 + 0.08).abs() < 0.01);
     }
 }
@@ -98,9 +123,15 @@ fn robust_loss_resists_outliers_and_priors_pull() {
     let (mut rec, gt) = scene(0.1, 0.05);
     perturb(&mut rec, 1.02);
     let mut plain = rec.clone();
-    let base = BundleOptions { num_threads: 2, ..Default::default() };
+    let base = BundleOptions {
+        num_threads: 2,
+        ..Default::default()
+    };
     bundle_adjust_metric(&mut plain, &config(), &base).expect("runs");
-    let robust = BundleOptions { loss: RobustLoss::Cauchy(1.0), ..base.clone() };
+    let robust = BundleOptions {
+        loss: RobustLoss::Cauchy(1.0),
+        ..base.clone()
+    };
     let s = bundle_adjust_metric(&mut rec, &config(), &robust).expect("runs");
     let (rot_plain, f_plain, _) = errors(&plain, &gt);
     let (rot, f_err, _) = errors(&rec, &gt);
@@ -116,9 +147,27 @@ fn robust_loss_resists_outliers_and_priors_pull() {
     cfg.priors.insert(
         cam,
         vec![
-            (IntrinsicParam::F, GaussianPrior { mean: 600.0, sigma: 1e-3 }),
-            (IntrinsicParam::Ppx, GaussianPrior { mean: pp.x, sigma: 5.0 }),
-            (IntrinsicParam::Ppy, GaussianPrior { mean: pp.y, sigma: 5.0 }),
+            (
+                IntrinsicParam::F,
+                GaussianPrior {
+                    mean: 600.0,
+                    sigma: 1e-3,
+                },
+            ),
+            (
+                IntrinsicParam::Ppx,
+                GaussianPrior {
+                    mean: pp.x,
+                    sigma: 5.0,
+                },
+            ),
+            (
+                IntrinsicParam::Ppy,
+                GaussianPrior {
+                    mean: pp.y,
+                    sigma: 5.0,
+                },
+            ),
         ],
     );
     let mut held = rec.clone();
@@ -131,21 +180,39 @@ fn robust_loss_resists_outliers_and_priors_pull() {
 fn uncertainty_predicts_the_actual_point_error() {
     let (mut rec, gt) = scene(0.5, 0.0);
     perturb(&mut rec, 1.01);
-    let opts = BundleOptions { num_threads: 2, ..Default::default() };
+    let opts = BundleOptions {
+        num_threads: 2,
+        ..Default::default()
+    };
     bundle_adjust_metric(&mut rec, &config(), &opts).expect("runs");
     let u = metric_uncertainty(&rec, &config(), &opts).expect("small problem");
     assert_eq!(u.points.len(), rec.points.len());
     assert_eq!(u.centers.len(), rec.views.len() - 1);
-    assert!((u.variance_factor.sqrt() - 0.5).abs() < 0.05, "σ̂ = {}", u.variance_factor.sqrt());
+    assert!(
+        (u.variance_factor.sqrt() - 0.5).abs() < 0.05,
+        "σ̂ = {}",
+        u.variance_factor.sqrt()
+    );
     // Compare with the actual error in the gauge of the estimate (first view fixed; scale from GT).
     let ids: Vec<_> = gt.points.keys().copied().collect();
     let src: Vec<Point3<f64>> = ids.iter().map(|i| rec.points[i].xyz).collect();
     let dst: Vec<Point3<f64>> = ids.iter().map(|i| gt.points[i].xyz).collect();
     let sim = Sim3::align(&dst, &src).expect("alignable");
-    let actual = (src.iter().zip(&dst).map(|(a, b)| (a - sim.transform_point(b)).norm_squared()).sum::<f64>() / src.len() as f64 / 3.0).sqrt();
-    let predicted = (u.points.values().map(|p| p.sigma * p.sigma).sum::<f64>() / u.points.len() as f64).sqrt();
+    let actual = (src
+        .iter()
+        .zip(&dst)
+        .map(|(a, b)| (a - sim.transform_point(b)).norm_squared())
+        .sum::<f64>()
+        / src.len() as f64
+        / 3.0)
+        .sqrt();
+    let predicted =
+        (u.points.values().map(|p| p.sigma * p.sigma).sum::<f64>() / u.points.len() as f64).sqrt();
     let centre = u.centers.values().map(|c| c.sigma).fold(0.0, f64::max);
     println!("point sigma predicted {predicted:.5}, actual {actual:.5}; max centre sigma {centre:.5}; dropped {}", u.dropped_directions);
-    assert!(predicted > 0.3 * actual && predicted < 3.0 * actual, "{predicted} vs {actual}");
+    assert!(
+        predicted > 0.3 * actual && predicted < 3.0 * actual,
+        "{predicted} vs {actual}"
+    );
     assert!(u.dropped_directions >= 1);
 }

@@ -150,6 +150,10 @@ pub struct InputArgs {
     /// Sparse: keep the principal point at the image centre instead of estimating it.
     #[arg(long)]
     pub fixed_principal_point: bool,
+    /// Sparse: standard deviation of the principal point's prior at the image centre, as a fraction
+    /// of width + height (eq. 25's u ≈ v ≈ 0 in K_N units).
+    #[arg(long, default_value_t = 0.005)]
+    pub principal_point_prior: f64,
 }
 
 /// Radial distortion model of the sparse stage.

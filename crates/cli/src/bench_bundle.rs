@@ -32,7 +32,11 @@ pub enum SolverArg {
 #[derive(Debug, Args)]
 pub struct BenchBundleArgs {
     /// A BAL problem file (`problem-49-7776-pre.txt`).
-    #[arg(long, required_unless_present = "synthetic", conflicts_with = "synthetic")]
+    #[arg(
+        long,
+        required_unless_present = "synthetic",
+        conflicts_with = "synthetic"
+    )]
     pub bal: Option<PathBuf>,
     /// A synthetic problem `CAMERASxPOINTS` instead, e.g. `1000x200000`.
     #[arg(long)]
@@ -78,23 +82,45 @@ pub fn run(a: &BenchBundleArgs, g: &GlobalArgs, bars: &Bars) -> anyhow::Result<(
         let bal = handheld_io::bal::read_bal(path)?;
         let mut rec = bal.to_metric_reconstruction();
         let counts = (bal.cameras.len(), bal.points.len(), bal.observations.len());
-        let config = MetricBundleConfig { refine: IntrinsicsMask::focal_and_radial(), fix_first_view: false, ..Default::default() };
+        let config = MetricBundleConfig {
+            refine: IntrinsicsMask::focal_and_radial(),
+            fix_first_view: false,
+            ..Default::default()
+        };
         let load = t_load.elapsed().as_secs_f64();
         tracing::info!(load_seconds = load, "loaded {}", path.display());
-        let s = bundle_adjust_metric(&mut rec, &config, &options).with_context(|| format!("bundle adjustment of {}", path.display()))?;
+        let s = bundle_adjust_metric(&mut rec, &config, &options)
+            .with_context(|| format!("bundle adjustment of {}", path.display()))?;
         (path.display().to_string(), s, counts)
     } else {
         let spec = a.synthetic.as_deref().unwrap_or_default();
         let (nc, np) = parse_size(spec)?;
-        let set = handheld_testkit::ring_set(&handheld_testkit::RingOptions { num_views: nc, num_points: np, seed: a.seed, ..Default::default() })
-            .map_err(anyhow::Error::msg)?;
+        let set = handheld_testkit::ring_set(&handheld_testkit::RingOptions {
+            num_views: nc,
+            num_points: np,
+            seed: a.seed,
+            ..Default::default()
+        })
+        .map_err(anyhow::Error::msg)?;
         let mut rec = set.initial;
-        let counts = (nc, rec.points.len(), rec.views.values().map(|v| v.observations.len()).sum());
-        tracing::info!(load_seconds = t_load.elapsed().as_secs_f64(), "generated the testkit ring scene");
-        let config = MetricBundleConfig { refine: IntrinsicsMask::focal_and_radial(), fix_first_view: false, ..Default::default() };
+        let counts = (
+            nc,
+            rec.points.len(),
+            rec.views.values().map(|v| v.observations.len()).sum(),
+        );
+        tracing::info!(
+            load_seconds = t_load.elapsed().as_secs_f64(),
+            "generated the testkit ring scene"
+        );
+        let config = MetricBundleConfig {
+            refine: IntrinsicsMask::focal_and_radial(),
+            fix_first_view: false,
+            ..Default::default()
+        };
         use handheld_core::Progress;
         bars.start("bundle adjustment", 0);
-        let s = bundle_adjust_metric(&mut rec, &config, &options).context("bundle adjustment of the synthetic ring");
+        let s = bundle_adjust_metric(&mut rec, &config, &options)
+            .context("bundle adjustment of the synthetic ring");
         bars.finish();
         let s = s?;
         (format!("synthetic {spec}"), s, counts)
@@ -103,9 +129,19 @@ pub fn run(a: &BenchBundleArgs, g: &GlobalArgs, bars: &Bars) -> anyhow::Result<(
     Ok(())
 }
 
-fn report(g: &GlobalArgs, name: &str, s: &BundleSummary, (nc, np, no): (usize, usize, usize), o: &BundleOptions) {
+fn report(
+    g: &GlobalArgs,
+    name: &str,
+    s: &BundleSummary,
+    (nc, np, no): (usize, usize, usize),
+    o: &BundleOptions,
+) {
     let per_iter = s.total_seconds / s.iterations.max(1) as f64;
-    let threads = if o.num_threads == 0 { rayon::current_num_threads() } else { o.num_threads };
+    let threads = if o.num_threads == 0 {
+        rayon::current_num_threads()
+    } else {
+        o.num_threads
+    };
     let value = serde_json::json!({
         "problem": name,
         "cameras": nc,
@@ -142,12 +178,15 @@ fn report(g: &GlobalArgs, name: &str, s: &BundleSummary, (nc, np, no): (usize, u
 }
 
 fn parse_size(spec: &str) -> anyhow::Result<(usize, usize)> {
-    let bad = || anyhow::anyhow!("--synthetic expects CAMERASxPOINTS (e.g. 1000x200000), got `{spec}`");
+    let bad =
+        || anyhow::anyhow!("--synthetic expects CAMERASxPOINTS (e.g. 1000x200000), got `{spec}`");
     let (c, p) = spec.split_once(['x', 'X']).ok_or_else(bad)?;
-    let (c, p): (usize, usize) = (c.trim().parse().map_err(|_| bad())?, p.trim().parse().map_err(|_| bad())?);
+    let (c, p): (usize, usize) = (
+        c.trim().parse().map_err(|_| bad())?,
+        p.trim().parse().map_err(|_| bad())?,
+    );
     if c < 2 || p < 1 {
         return Err(bad());
     }
     Ok((c, p))
 }
-

@@ -66,7 +66,10 @@ fn gt_pair_stats(f_gt: &Matrix3<f64>, v: &VerifiedPair, feats: &[Features]) -> (
     for &(a, b) in &v.inliers {
         let k1 = f1.keypoints[a as usize];
         let k2 = f2.keypoints[b as usize];
-        let (x1, x2) = (Vector2::new(k1.x as f64, k1.y as f64), Vector2::new(k2.x as f64, k2.y as f64));
+        let (x1, x2) = (
+            Vector2::new(k1.x as f64, k1.y as f64),
+            Vector2::new(k2.x as f64, k2.y as f64),
+        );
         let [d2, d1] = epipolar_residuals(f_gt, &x1, &x2);
         if d2.abs() <= 1.0 && d1.abs() <= 1.0 {
             within += 1;
@@ -91,22 +94,46 @@ fn run_colmap(images: &Path, threads: usize) -> Result<serde_json::Value> {
         .arg(&db)
         .arg("--image_path")
         .arg(images)
-        .args(["--ImageReader.single_camera", "1", "--SiftExtraction.use_gpu", "0", "--SiftExtraction.num_threads", &threads.to_string()])
+        .args([
+            "--ImageReader.single_camera",
+            "1",
+            "--SiftExtraction.use_gpu",
+            "0",
+            "--SiftExtraction.num_threads",
+            &threads.to_string(),
+        ])
         .output()
         .context("cannot run `colmap` (install it with `apt-get install colmap`)")?;
     if !st.status.success() {
-        anyhow::bail!("colmap feature_extractor failed: {}", String::from_utf8_lossy(&st.stderr).lines().last().unwrap_or(""));
+        anyhow::bail!(
+            "colmap feature_extractor failed: {}",
+            String::from_utf8_lossy(&st.stderr)
+                .lines()
+                .last()
+                .unwrap_or("")
+        );
     }
     let extract_s = t0.elapsed().as_secs_f64();
     let t1 = Instant::now();
     let st = Command::new("colmap")
         .args(["exhaustive_matcher", "--database_path"])
         .arg(&db)
-        .args(["--SiftMatching.use_gpu", "0", "--SiftMatching.num_threads", &threads.to_string()])
+        .args([
+            "--SiftMatching.use_gpu",
+            "0",
+            "--SiftMatching.num_threads",
+            &threads.to_string(),
+        ])
         .output()
         .context("cannot run `colmap exhaustive_matcher`")?;
     if !st.status.success() {
-        anyhow::bail!("colmap exhaustive_matcher failed: {}", String::from_utf8_lossy(&st.stderr).lines().last().unwrap_or(""));
+        anyhow::bail!(
+            "colmap exhaustive_matcher failed: {}",
+            String::from_utf8_lossy(&st.stderr)
+                .lines()
+                .last()
+                .unwrap_or("")
+        );
     }
     let match_s = t1.elapsed().as_secs_f64();
     let database = handheld_io::database::Database::open(&db)?;
@@ -121,7 +148,9 @@ fn run_colmap(images: &Path, threads: usize) -> Result<serde_json::Value> {
         features.push(database.read_keypoints(*id)?.len());
     }
     let _ = std::fs::remove_dir_all(&dir);
-    Ok(json!({ "extraction_seconds_total": extract_s, "matching_seconds_total": match_s, "adjacent_inliers": adjacent, "features_per_image": features }))
+    Ok(
+        json!({ "extraction_seconds_total": extract_s, "matching_seconds_total": match_s, "adjacent_inliers": adjacent, "features_per_image": features }),
+    )
 }
 
 fn tempfile_dir() -> Result<PathBuf> {
@@ -133,10 +162,23 @@ fn tempfile_dir() -> Result<PathBuf> {
 
 pub fn run(a: &BenchMatchingArgs, g: &GlobalArgs, bars: &Bars) -> Result<()> {
     let threads = a.threads.unwrap_or_else(rayon::current_num_threads);
-    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build()?;
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()?;
     let listing = list_image_folder(&a.images, &ImageIngestOptions::default())?;
-    let names: Vec<String> = listing.images.iter().map(|p| p.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default()).collect();
-    let mut opts = ExtractionOptions { max_image_size: a.max_image_size, ..Default::default() };
+    let names: Vec<String> = listing
+        .images
+        .iter()
+        .map(|p| {
+            p.file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default()
+        })
+        .collect();
+    let mut opts = ExtractionOptions {
+        max_image_size: a.max_image_size,
+        ..Default::default()
+    };
     if let Some(c) = a.contrast_threshold {
         opts.sift.contrast_threshold = c;
     }
@@ -145,7 +187,11 @@ pub fn run(a: &BenchMatchingArgs, g: &GlobalArgs, bars: &Bars) -> Result<()> {
     }
     opts.sift.upsample_first_octave = a.upsample;
     opts.validate().map_err(anyhow::Error::msg)?;
-    let images: Vec<_> = listing.images.iter().map(|p| load_image(p, &ImageIngestOptions::default()).map(|l| l.image)).collect::<std::result::Result<_, _>>()?;
+    let images: Vec<_> = listing
+        .images
+        .iter()
+        .map(|p| load_image(p, &ImageIngestOptions::default()).map(|l| l.image))
+        .collect::<std::result::Result<_, _>>()?;
     // Extraction: per-image latency (one at a time, all threads inside SIFT) and throughput.
     use handheld_core::Progress;
     bars.start("extracting", images.len() as u64);
@@ -165,9 +211,14 @@ pub fn run(a: &BenchMatchingArgs, g: &GlobalArgs, bars: &Bars) -> Result<()> {
     bars.finish();
     let mut per_image: Vec<f64> = timed.iter().map(|t| t.1).collect();
     let feats: Vec<Features> = timed.into_iter().map(|t| t.0).collect();
-    let pairs = if a.exhaustive { exhaustive_pairs(feats.len()) } else { sequential_pairs(feats.len(), 1) };
+    let pairs = if a.exhaustive {
+        exhaustive_pairs(feats.len())
+    } else {
+        sequential_pairs(feats.len(), 1)
+    };
     let t1 = Instant::now();
-    let verified = pool.install(|| verify_pairs(&feats, &pairs, &PairVerificationOptions::default(), bars));
+    let verified =
+        pool.install(|| verify_pairs(&feats, &pairs, &PairVerificationOptions::default(), bars));
     let match_total = t1.elapsed().as_secs_f64();
     let adjacent: Vec<&VerifiedPair> = verified.iter().filter(|v| v.j == v.i + 1).collect();
     let mut inl: Vec<f64> = adjacent.iter().map(|v| v.inliers.len() as f64).collect();
@@ -187,10 +238,17 @@ pub fn run(a: &BenchMatchingArgs, g: &GlobalArgs, bars: &Bars) -> Result<()> {
     if let Some(ds) = &a.gt_cameras {
         let gt = handheld_io::gt::read_gt_cameras(ds)?;
         let stem = |n: &str| n.split('.').next().unwrap_or_default().to_string();
-        let (mut within, mut total, mut errs, mut per_pair_median) = (0usize, 0usize, Vec::new(), Vec::new());
+        let (mut within, mut total, mut errs, mut per_pair_median) =
+            (0usize, 0usize, Vec::new(), Vec::new());
         for v in &adjacent {
-            let (Some(ci), Some(cj)) = (gt.get(&stem(&names[v.i])), gt.get(&stem(&names[v.j]))) else { continue };
-            let f_gt = fundamental_from_cameras(&handheld_core::ProjectiveCamera { P: ci.projection() }, &handheld_core::ProjectiveCamera { P: cj.projection() })?;
+            let (Some(ci), Some(cj)) = (gt.get(&stem(&names[v.i])), gt.get(&stem(&names[v.j])))
+            else {
+                continue;
+            };
+            let f_gt = fundamental_from_cameras(
+                &handheld_core::ProjectiveCamera { P: ci.projection() },
+                &handheld_core::ProjectiveCamera { P: cj.projection() },
+            )?;
             let (w, mut e) = gt_pair_stats(&f_gt, v, &feats);
             within += w;
             total += v.inliers.len();
@@ -207,8 +265,10 @@ pub fn run(a: &BenchMatchingArgs, g: &GlobalArgs, bars: &Bars) -> Result<()> {
         let colmap_pairs = (feats.len() * feats.len().saturating_sub(1) / 2).max(1) as f64;
         let ours_extract = extract_total / n;
         let ours_match = match_total / pairs.len().max(1) as f64;
-        result["colmap_extraction_speed_ratio"] = json!(c["extraction_seconds_total"].as_f64().unwrap_or(0.0) / n / ours_extract);
-        result["colmap_matching_speed_ratio_per_pair"] = json!(c["matching_seconds_total"].as_f64().unwrap_or(0.0) / colmap_pairs / ours_match);
+        result["colmap_extraction_speed_ratio"] =
+            json!(c["extraction_seconds_total"].as_f64().unwrap_or(0.0) / n / ours_extract);
+        result["colmap_matching_speed_ratio_per_pair"] =
+            json!(c["matching_seconds_total"].as_f64().unwrap_or(0.0) / colmap_pairs / ours_match);
         result["colmap"] = c;
     }
     let human = serde_json::to_string_pretty(&result)?;

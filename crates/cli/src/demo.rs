@@ -23,8 +23,18 @@ fn sequence_options(a: &DemoArgs) -> SequenceOptions {
         PathKind::Walk => PathOptions::walk_through(n),
         PathKind::Forward => PathOptions::forward(n),
     };
-    let path = PathOptions { seed: a.seed, ..path };
-    SequenceOptions { seed: a.seed, width: a.width, height: a.height, num_frames: n, path, ..Default::default() }
+    let path = PathOptions {
+        seed: a.seed,
+        ..path
+    };
+    SequenceOptions {
+        seed: a.seed,
+        width: a.width,
+        height: a.height,
+        num_frames: n,
+        path,
+        ..Default::default()
+    }
 }
 
 /// Writes the rendered images and all ground truth; returns the image folder.
@@ -33,15 +43,27 @@ fn write_sequence(dir: &Path, seq: &SyntheticSequence, bars: &Bars) -> Result<()
     let images = dir.join("images");
     let gt = dir.join("ground_truth");
     bars.start("writing frames", seq.images.len() as u64);
-    for (view, (img, depth)) in seq.gt.views.values().zip(seq.images.iter().zip(&seq.depths)) {
+    for (view, (img, depth)) in seq
+        .gt
+        .views
+        .values()
+        .zip(seq.images.iter().zip(&seq.depths))
+    {
         write_png(&images.join(&view.name), img)?;
-        let stem = Path::new(&view.name).file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+        let stem = Path::new(&view.name)
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
         handheld_io::pfm::write_pfm(&gt.join("depth").join(format!("{stem}.pfm")), depth)?;
         bars.inc(1);
     }
     bars.finish();
     handheld_io::colmap::write_reconstruction(&gt.join("sparse"), &seq.gt, true, true)?;
-    handheld_io::ply::write_mesh(&gt.join("mesh.ply"), &seq.mesh, handheld_io::ply::PlyFormat::BinaryLittleEndian)?;
+    handheld_io::ply::write_mesh(
+        &gt.join("mesh.ply"),
+        &seq.mesh,
+        handheld_io::ply::PlyFormat::BinaryLittleEndian,
+    )?;
     Ok(())
 }
 
@@ -55,10 +77,15 @@ fn sparse_accuracy(out: &Path) -> Result<serde_json::Value> {
     let gt = handheld_io::colmap::read_reconstruction(&out.join("ground_truth").join("sparse"))?;
     let sparse = out.join("workspace").join("sparse");
     let est = handheld_io::colmap::read_reconstruction(&sparse)?;
-    let summary: serde_json::Value = serde_json::from_slice(&std::fs::read(sparse.join("summary.json"))?)?;
-    let by_name: std::collections::HashMap<&str, &handheld_core::View> = gt.views.values().map(|v| (v.name.as_str(), v)).collect();
-    let pairs: Vec<(&handheld_core::View, &handheld_core::View)> =
-        est.views.values().filter_map(|v| by_name.get(v.name.as_str()).map(|g| (v, *g))).collect();
+    let summary: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(sparse.join("summary.json"))?)?;
+    let by_name: std::collections::HashMap<&str, &handheld_core::View> =
+        gt.views.values().map(|v| (v.name.as_str(), v)).collect();
+    let pairs: Vec<(&handheld_core::View, &handheld_core::View)> = est
+        .views
+        .values()
+        .filter_map(|v| by_name.get(v.name.as_str()).map(|g| (v, *g)))
+        .collect();
     if pairs.len() < 3 {
         anyhow::bail!("only {} views registered", pairs.len());
     }
@@ -69,7 +96,11 @@ fn sparse_accuracy(out: &Path) -> Result<serde_json::Value> {
     let mut cen: Vec<f64> = Vec::new();
     for (e, g) in &pairs {
         let pose = sim.transform_pose(&e.cam_from_world);
-        rot.push((pose.rotation * g.cam_from_world.rotation.inverse()).angle().to_degrees());
+        rot.push(
+            (pose.rotation * g.cam_from_world.rotation.inverse())
+                .angle()
+                .to_degrees(),
+        );
         cen.push((handheld_core::pose::center_of(&pose) - g.center()).norm());
     }
     let med = |v: &mut Vec<f64>| {
@@ -87,10 +118,27 @@ fn sparse_accuracy(out: &Path) -> Result<serde_json::Value> {
         }
     }
     let rel_max = rel.iter().fold(0.0f64, |a, b| a.max(*b));
-    let f_true = gt.cameras.values().next().map(|c| c.intrinsics.f).unwrap_or(f64::NAN);
-    let f_est = est.cameras.values().next().map(|c| c.intrinsics.f).unwrap_or(f64::NAN);
-    let f_selfcal = summary["self_calibration"]["focal_before_ba_px"].as_object().and_then(|m| m.values().next()).and_then(|v| v.as_f64()).unwrap_or(f64::NAN);
-    let extent = dst.iter().map(|c| (c - dst[0]).norm()).fold(0.0f64, f64::max);
+    let f_true = gt
+        .cameras
+        .values()
+        .next()
+        .map(|c| c.intrinsics.f)
+        .unwrap_or(f64::NAN);
+    let f_est = est
+        .cameras
+        .values()
+        .next()
+        .map(|c| c.intrinsics.f)
+        .unwrap_or(f64::NAN);
+    let f_selfcal = summary["self_calibration"]["focal_before_ba_px"]
+        .as_object()
+        .and_then(|m| m.values().next())
+        .and_then(|v| v.as_f64())
+        .unwrap_or(f64::NAN);
+    let extent = dst
+        .iter()
+        .map(|c| (c - dst[0]).norm())
+        .fold(0.0f64, f64::max);
     Ok(json!({
         "registered": pairs.len(),
         "total": gt.views.len(),
@@ -110,23 +158,32 @@ fn sparse_accuracy(out: &Path) -> Result<serde_json::Value> {
 
 fn matching_accuracy(out: &Path) -> Result<serde_json::Value> {
     let gt = handheld_io::colmap::read_reconstruction(&out.join("ground_truth").join("sparse"))?;
-    let db = handheld_io::database::Database::open(&out.join("workspace").join("matches").join("database.db"))?;
+    let db = handheld_io::database::Database::open(
+        &out.join("workspace").join("matches").join("database.db"),
+    )?;
     let images = db.images()?;
-    let views: std::collections::HashMap<&str, &handheld_core::View> = gt.views.values().map(|v| (v.name.as_str(), v)).collect();
+    let views: std::collections::HashMap<&str, &handheld_core::View> =
+        gt.views.values().map(|v| (v.name.as_str(), v)).collect();
     let mut errors = Vec::new();
     let mut verified = 0;
     let mut keypoints = std::collections::HashMap::new();
     for (ia, (a, name_a, _)) in images.iter().enumerate() {
         for (b, name_b, _) in &images[ia + 1..] {
-            let Some(g) = db.read_two_view_geometry(*a, *b)? else { continue };
+            let Some(g) = db.read_two_view_geometry(*a, *b)? else {
+                continue;
+            };
             if g.config != handheld_io::database::TwoViewConfig::Uncalibrated as i64 {
                 continue;
             }
-            let (Some(va), Some(vb)) = (views.get(name_a.as_str()), views.get(name_b.as_str())) else { continue };
+            let (Some(va), Some(vb)) = (views.get(name_a.as_str()), views.get(name_b.as_str()))
+            else {
+                continue;
+            };
             verified += 1;
             let (ca, cb) = (&gt.cameras[&va.camera_id], &gt.cameras[&vb.camera_id]);
             let rel = vb.cam_from_world * va.cam_from_world.inverse();
-            let e = handheld_geometry::skew(&rel.translation.vector) * rel.rotation.to_rotation_matrix().matrix();
+            let e = handheld_geometry::skew(&rel.translation.vector)
+                * rel.rotation.to_rotation_matrix().matrix();
             for id in [*a, *b] {
                 if let std::collections::hash_map::Entry::Vacant(slot) = keypoints.entry(id) {
                     slot.insert(db.read_keypoints(id)?);
@@ -135,8 +192,12 @@ fn matching_accuracy(out: &Path) -> Result<serde_json::Value> {
             let (ka, kb) = (&keypoints[a], &keypoints[b]);
             for &(i, j) in &g.inliers {
                 let (pa, pb) = (ka[i as usize], kb[j as usize]);
-                let na = ca.intrinsics.pixel_to_normalized(nalgebra::Vector2::new(pa[0] as f64, pa[1] as f64));
-                let nb = cb.intrinsics.pixel_to_normalized(nalgebra::Vector2::new(pb[0] as f64, pb[1] as f64));
+                let na = ca
+                    .intrinsics
+                    .pixel_to_normalized(nalgebra::Vector2::new(pa[0] as f64, pa[1] as f64));
+                let nb = cb
+                    .intrinsics
+                    .pixel_to_normalized(nalgebra::Vector2::new(pb[0] as f64, pb[1] as f64));
                 let l = e * nalgebra::Vector3::new(na.x, na.y, 1.0);
                 let d = (l.x * nb.x + l.y * nb.y + l.z).abs() / (l.x * l.x + l.y * l.y).sqrt();
                 errors.push(d * cb.intrinsics.f);
@@ -156,11 +217,16 @@ fn matching_accuracy(out: &Path) -> Result<serde_json::Value> {
 pub fn run(a: &DemoArgs, g: &GlobalArgs, bars: &Bars) -> Result<()> {
     let opts = sequence_options(a);
     opts.validate().map_err(anyhow::Error::msg)?;
-    std::fs::create_dir_all(&a.output).with_context(|| format!("{}: cannot create the demo folder", a.output.display()))?;
+    std::fs::create_dir_all(&a.output)
+        .with_context(|| format!("{}: cannot create the demo folder", a.output.display()))?;
     let stamp_path = a.output.join("ground_truth").join("demo.json");
     let stamp = json!({ "version": handheld_io::workspace::HANDHELD_VERSION, "frames": a.frames, "width": a.width,
         "height": a.height, "seed": a.seed, "path": format!("{:?}", a.path) });
-    let fresh = !a.force && std::fs::read_to_string(&stamp_path).ok().and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok()) == Some(stamp.clone());
+    let fresh = !a.force
+        && std::fs::read_to_string(&stamp_path)
+            .ok()
+            .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+            == Some(stamp.clone());
 
     let t0 = Instant::now();
     let mut gt_summary = json!(null);
@@ -168,12 +234,22 @@ pub fn run(a: &DemoArgs, g: &GlobalArgs, bars: &Bars) -> Result<()> {
         tracing::info!("synthetic sequence in {} is up to date", a.output.display());
     } else {
         use handheld_core::Progress;
-        tracing::info!("rendering {} frames of {}×{} ({:?} path, seed {})", a.frames, a.width, a.height, a.path, a.seed);
+        tracing::info!(
+            "rendering {} frames of {}×{} ({:?} path, seed {})",
+            a.frames,
+            a.width,
+            a.height,
+            a.path,
+            a.seed
+        );
         bars.start("rendering", 0);
         let seq = render_sequence(&opts).map_err(anyhow::Error::msg)?;
         bars.finish();
         write_sequence(&a.output, &seq, bars)?;
-        write_bytes_atomic(&stamp_path, serde_json::to_string_pretty(&stamp)?.as_bytes())?;
+        write_bytes_atomic(
+            &stamp_path,
+            serde_json::to_string_pretty(&stamp)?.as_bytes(),
+        )?;
         gt_summary = json!({
             "views": seq.gt.views.len(),
             "landmarks": seq.gt.points.len(),
@@ -202,10 +278,13 @@ pub fn run(a: &DemoArgs, g: &GlobalArgs, bars: &Bars) -> Result<()> {
         seed: a.seed,
         distortion: crate::args::DistortionArg::K1,
         fixed_principal_point: false,
+        principal_point_prior: 0.005,
     };
     let reports = pipeline::run(&input, pipeline::Stage::LAST, bars)?;
-    let matching = matching_accuracy(&a.output).unwrap_or_else(|e| json!({ "error": format!("{e:#}") }));
-    let sparse = sparse_accuracy(&a.output).unwrap_or_else(|e| json!({ "error": format!("{e:#}") }));
+    let matching =
+        matching_accuracy(&a.output).unwrap_or_else(|e| json!({ "error": format!("{e:#}") }));
+    let sparse =
+        sparse_accuracy(&a.output).unwrap_or_else(|e| json!({ "error": format!("{e:#}") }));
     let summary = json!({
         "demo": a.output,
         "frames": a.frames,

@@ -20,13 +20,21 @@ fn main() -> ExitCode {
         Ok(cli) => cli,
         Err(e) => {
             use clap::error::ErrorKind;
-            if matches!(e.kind(), ErrorKind::DisplayHelp | ErrorKind::DisplayVersion | ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand) {
+            if matches!(
+                e.kind(),
+                ErrorKind::DisplayHelp
+                    | ErrorKind::DisplayVersion
+                    | ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand
+            ) {
                 let _ = e.print();
                 return ExitCode::SUCCESS;
             }
             // One clear line naming the option, not a page of usage.
             let text = e.to_string();
-            let line = text.lines().find(|l| !l.trim().is_empty()).unwrap_or("invalid arguments");
+            let line = text
+                .lines()
+                .find(|l| !l.trim().is_empty())
+                .unwrap_or("invalid arguments");
             eprintln!("{line}");
             eprintln!("(run `handheld --help` for usage)");
             return ExitCode::from(2);
@@ -66,7 +74,12 @@ fn run(cmd: &Command, g: &GlobalArgs) -> anyhow::Result<()> {
 }
 
 /// Runs the pipeline up to one stage (the per-stage subcommands).
-fn run_until(g: &GlobalArgs, a: &args::IngestArgs, stage: pipeline::Stage, bars: &ui::Bars) -> anyhow::Result<()> {
+fn run_until(
+    g: &GlobalArgs,
+    a: &args::IngestArgs,
+    stage: pipeline::Stage,
+    bars: &ui::Bars,
+) -> anyhow::Result<()> {
     let reports = pipeline::run(&a.input, stage, bars)?;
     report_stages(g, &a.input.output, &reports);
     Ok(())
@@ -76,7 +89,13 @@ fn report_stages(g: &GlobalArgs, workspace: &std::path::Path, reports: &[pipelin
     let value = serde_json::json!({ "workspace": workspace, "stages": reports });
     let mut human = format!("workspace: {}", workspace.display());
     for r in reports {
-        human.push_str(&format!("\n  {:<10} {:<11} {:>7.2} s  {}", r.stage.dir_name(), r.status, r.seconds, r.summary));
+        human.push_str(&format!(
+            "\n  {:<10} {:<11} {:>7.2} s  {}",
+            r.stage.dir_name(),
+            r.status,
+            r.seconds,
+            r.summary
+        ));
     }
     ui::print_result(g, &value, &human);
 }

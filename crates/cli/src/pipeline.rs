@@ -34,7 +34,12 @@ pub enum Stage {
 impl Stage {
     /// The last implemented stage: what `reconstruct` runs up to by default.
     pub const LAST: Stage = Stage::Sparse;
-    pub const ALL: [Stage; 4] = [Stage::Ingest, Stage::Features, Stage::Matches, Stage::Sparse];
+    pub const ALL: [Stage; 4] = [
+        Stage::Ingest,
+        Stage::Features,
+        Stage::Matches,
+        Stage::Sparse,
+    ];
 
     /// The stage's folder name in the workspace.
     pub fn dir_name(self) -> &'static str {
@@ -66,8 +71,16 @@ pub struct StageOutput {
 /// Builds the ingest options from the command line, naming the option that is out of range.
 pub fn ingest_options(a: &InputArgs) -> Result<IngestOptions> {
     let opts = IngestOptions {
-        images: ImageIngestOptions { skip_unreadable: a.skip_bad_images, ..Default::default() },
-        video: VideoOptions { stride: a.stride, start_s: a.start, end_s: a.end, max_frames: a.max_frames },
+        images: ImageIngestOptions {
+            skip_unreadable: a.skip_bad_images,
+            ..Default::default()
+        },
+        video: VideoOptions {
+            stride: a.stride,
+            start_s: a.start,
+            end_s: a.end,
+            max_frames: a.max_frames,
+        },
     };
     opts.validate().map_err(anyhow::Error::msg)?;
     Ok(opts)
@@ -83,15 +96,24 @@ pub fn run_stage(
     force: bool,
     body: impl FnOnce(&Path) -> Result<StageOutput>,
 ) -> Result<StageReport> {
-    fingerprint.add_str("stage", stage.dir_name()).add_json("options", &options);
+    fingerprint
+        .add_str("stage", stage.dir_name())
+        .add_json("options", &options);
     for up in Stage::ALL.into_iter().filter(|s| *s < stage) {
-        let m = ws.manifest(up.dir_name()).with_context(|| format!("stage {} has not run", up.dir_name()))?;
+        let m = ws
+            .manifest(up.dir_name())
+            .with_context(|| format!("stage {} has not run", up.dir_name()))?;
         fingerprint.add_str(up.dir_name(), &m.input_hash);
     }
     let hash = fingerprint.hex();
     if !force && ws.is_up_to_date(stage.dir_name(), &hash) {
         let m = ws.manifest(stage.dir_name()).context("manifest vanished")?;
-        return Ok(StageReport { stage, status: "up_to_date", seconds: m.seconds, summary: m.summary });
+        return Ok(StageReport {
+            stage,
+            status: "up_to_date",
+            seconds: m.seconds,
+            summary: m.summary,
+        });
     }
     let started = now_unix_s();
     let t0 = Instant::now();
@@ -108,7 +130,12 @@ pub fn run_stage(
         outputs: out.outputs,
         summary: out.summary.clone(),
     })?;
-    Ok(StageReport { stage, status: "ran", seconds, summary: out.summary })
+    Ok(StageReport {
+        stage,
+        status: "ran",
+        seconds,
+        summary: out.summary,
+    })
 }
 
 /// Runs the stages up to `until` on the workspace.
@@ -131,7 +158,10 @@ pub fn run(a: &InputArgs, until: Stage, bars: &Bars) -> Result<Vec<StageReport>>
         };
         match report.status {
             "ran" => tracing::info!("{}: done in {:.2} s", stage.dir_name(), report.seconds),
-            _ => tracing::info!("{}: up to date, skipped (use --force to redo)", stage.dir_name()),
+            _ => tracing::info!(
+                "{}: up to date, skipped (use --force to redo)",
+                stage.dir_name()
+            ),
         }
         reports.push(report);
     }

@@ -20,7 +20,8 @@ pub fn init_logging(g: &GlobalArgs) {
             _ => "trace",
         }
     };
-    let filter = tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(level));
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(level));
     let _ = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
@@ -37,7 +38,10 @@ pub struct Bars {
 
 impl Bars {
     pub fn new(g: &GlobalArgs) -> Self {
-        Self { enabled: !g.quiet && !g.json && std::io::stderr().is_terminal(), bar: Mutex::new(None) }
+        Self {
+            enabled: !g.quiet && !g.json && std::io::stderr().is_terminal(),
+            bar: Mutex::new(None),
+        }
     }
 }
 
@@ -46,7 +50,11 @@ impl Progress for Bars {
         if !self.enabled {
             return;
         }
-        let bar = if len > 0 { ProgressBar::new(len) } else { ProgressBar::new_spinner() };
+        let bar = if len > 0 {
+            ProgressBar::new(len)
+        } else {
+            ProgressBar::new_spinner()
+        };
         bar.set_draw_target(ProgressDrawTarget::stderr());
         let template = if len > 0 {
             "{msg:>18} [{bar:40.cyan/blue}] {pos}/{len} ({eta})"
@@ -85,7 +93,10 @@ impl Progress for Bars {
 /// Prints a command's result: pretty JSON with `--json`, else the human summary unless `--quiet`.
 pub fn print_result(g: &GlobalArgs, value: &serde_json::Value, human: &str) {
     if g.json {
-        println!("{}", serde_json::to_string_pretty(value).unwrap_or_default());
+        println!(
+            "{}",
+            serde_json::to_string_pretty(value).unwrap_or_default()
+        );
     } else if !g.quiet {
         println!("{human}");
     }

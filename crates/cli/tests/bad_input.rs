@@ -8,11 +8,20 @@ fn assert_clean_failure(o: &std::process::Output, must_contain: &[&str], ws: &st
     let err = stderr(o);
     assert!(!o.status.success(), "should fail: {err}");
     assert!(!err.contains("panicked"), "panic: {err}");
-    let first = err.lines().find(|l| l.starts_with("error")).unwrap_or_default();
+    let first = err
+        .lines()
+        .find(|l| l.starts_with("error"))
+        .unwrap_or_default();
     for s in must_contain {
-        assert!(first.contains(s), "error line {first:?} should contain {s:?}\nfull stderr:\n{err}");
+        assert!(
+            first.contains(s),
+            "error line {first:?} should contain {s:?}\nfull stderr:\n{err}"
+        );
     }
-    assert!(!ws.join("ingest").join("manifest.json").exists(), "a failed stage must not look finished");
+    assert!(
+        !ws.join("ingest").join("manifest.json").exists(),
+        "a failed stage must not look finished"
+    );
     assert!(no_temp_files(ws), "temporary files left behind");
 }
 
@@ -20,7 +29,12 @@ fn assert_clean_failure(o: &std::process::Output, must_contain: &[&str], ws: &st
 fn missing_path() {
     let dir = tempfile::tempdir().unwrap();
     let ws = dir.path().join("ws");
-    let o = handheld(&["reconstruct", dir.path().join("no_such_folder").to_str().unwrap(), "-o", ws.to_str().unwrap()]);
+    let o = handheld(&[
+        "reconstruct",
+        dir.path().join("no_such_folder").to_str().unwrap(),
+        "-o",
+        ws.to_str().unwrap(),
+    ]);
     assert_clean_failure(&o, &["no_such_folder", "does not exist"], &ws);
 }
 
@@ -30,7 +44,12 @@ fn empty_folder() {
     let input = dir.path().join("empty");
     std::fs::create_dir(&input).unwrap();
     let ws = dir.path().join("ws");
-    let o = handheld(&["reconstruct", input.to_str().unwrap(), "-o", ws.to_str().unwrap()]);
+    let o = handheld(&[
+        "reconstruct",
+        input.to_str().unwrap(),
+        "-o",
+        ws.to_str().unwrap(),
+    ]);
     assert_clean_failure(&o, &["empty", "no images"], &ws);
 }
 
@@ -40,16 +59,31 @@ fn non_image_file_is_skipped_with_a_warning() {
     let input = photo_folder(dir.path(), 2);
     std::fs::write(input.join("notes.txt"), "not an image").unwrap();
     let ws = dir.path().join("ws");
-    let o = handheld(&["ingest", input.to_str().unwrap(), "-o", ws.to_str().unwrap(), "--json"]);
+    let o = handheld(&[
+        "ingest",
+        input.to_str().unwrap(),
+        "-o",
+        ws.to_str().unwrap(),
+        "--json",
+    ]);
     assert!(o.status.success(), "{}", stderr(&o));
-    assert!(stderr(&o).contains("notes.txt"), "warning names the file: {}", stderr(&o));
+    assert!(
+        stderr(&o).contains("notes.txt"),
+        "warning names the file: {}",
+        stderr(&o)
+    );
     let v: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
     assert_eq!(v["stages"][0]["summary"]["images"], 2);
     assert_eq!(v["stages"][0]["summary"]["skipped"], 1);
 
     // With only one image left, the same folder is refused.
     std::fs::remove_file(input.join("1.png")).unwrap();
-    let o = handheld(&["ingest", input.to_str().unwrap(), "-o", ws.to_str().unwrap()]);
+    let o = handheld(&[
+        "ingest",
+        input.to_str().unwrap(),
+        "-o",
+        ws.to_str().unwrap(),
+    ]);
     assert_clean_failure(&o, &["photos", "need at least 2"], &ws);
 }
 
@@ -61,10 +95,23 @@ fn truncated_jpeg() {
     let bytes = std::fs::read(input.join("c.jpg")).unwrap();
     std::fs::write(input.join("c.jpg"), &bytes[..bytes.len() / 2]).unwrap();
     let ws = dir.path().join("ws");
-    let o = handheld(&["reconstruct", input.to_str().unwrap(), "-o", ws.to_str().unwrap()]);
+    let o = handheld(&[
+        "reconstruct",
+        input.to_str().unwrap(),
+        "-o",
+        ws.to_str().unwrap(),
+    ]);
     assert_clean_failure(&o, &["c.jpg", "truncated"], &ws);
     // The user can choose to skip it (the blank test photos cannot give a model, so stop after matching).
-    let o = handheld(&["reconstruct", input.to_str().unwrap(), "-o", ws.to_str().unwrap(), "--skip-bad-images", "--until", "matches"]);
+    let o = handheld(&[
+        "reconstruct",
+        input.to_str().unwrap(),
+        "-o",
+        ws.to_str().unwrap(),
+        "--skip-bad-images",
+        "--until",
+        "matches",
+    ]);
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(stderr(&o).contains("c.jpg"));
 }
@@ -73,9 +120,16 @@ fn truncated_jpeg() {
 fn one_pixel_image() {
     let dir = tempfile::tempdir().unwrap();
     let input = photo_folder(dir.path(), 2);
-    image::RgbImage::new(1, 1).save(input.join("tiny.png")).unwrap();
+    image::RgbImage::new(1, 1)
+        .save(input.join("tiny.png"))
+        .unwrap();
     let ws = dir.path().join("ws");
-    let o = handheld(&["reconstruct", input.to_str().unwrap(), "-o", ws.to_str().unwrap()]);
+    let o = handheld(&[
+        "reconstruct",
+        input.to_str().unwrap(),
+        "-o",
+        ws.to_str().unwrap(),
+    ]);
     assert_clean_failure(&o, &["tiny.png", "1×1"], &ws);
 }
 
@@ -88,7 +142,12 @@ fn video_that_is_not_one() {
     let input = dir.path().join("holiday.mp4");
     std::fs::write(&input, b"this is a text file pretending to be a movie").unwrap();
     let ws = dir.path().join("ws");
-    let o = handheld(&["reconstruct", input.to_str().unwrap(), "-o", ws.to_str().unwrap()]);
+    let o = handheld(&[
+        "reconstruct",
+        input.to_str().unwrap(),
+        "-o",
+        ws.to_str().unwrap(),
+    ]);
     assert_clean_failure(&o, &["holiday.mp4", "cannot read this video"], &ws);
 }
 
@@ -96,13 +155,32 @@ fn video_that_is_not_one() {
 fn option_out_of_range() {
     let dir = tempfile::tempdir().unwrap();
     let ws = dir.path().join("ws");
-    let o = handheld(&["reconstruct", dir.path().to_str().unwrap(), "-o", ws.to_str().unwrap(), "--stride", "0"]);
+    let o = handheld(&[
+        "reconstruct",
+        dir.path().to_str().unwrap(),
+        "-o",
+        ws.to_str().unwrap(),
+        "--stride",
+        "0",
+    ]);
     assert_eq!(o.status.code(), Some(2));
     let err = stderr(&o);
-    assert!(err.lines().next().unwrap_or_default().contains("--stride"), "{err}");
+    assert!(
+        err.lines().next().unwrap_or_default().contains("--stride"),
+        "{err}"
+    );
     assert!(!err.contains("panicked"));
 
-    let o = handheld(&["reconstruct", dir.path().to_str().unwrap(), "-o", ws.to_str().unwrap(), "--start", "5", "--end", "2"]);
+    let o = handheld(&[
+        "reconstruct",
+        dir.path().to_str().unwrap(),
+        "-o",
+        ws.to_str().unwrap(),
+        "--start",
+        "5",
+        "--end",
+        "2",
+    ]);
     assert!(!o.status.success());
     assert!(stderr(&o).contains("--end"), "{}", stderr(&o));
 
@@ -117,6 +195,14 @@ fn missing_ffmpeg_says_how_to_install_it() {
     let input = dir.path().join("clip.mp4");
     std::fs::write(&input, b"whatever").unwrap();
     let ws = dir.path().join("ws");
-    let o = handheld_env(&["reconstruct", input.to_str().unwrap(), "-o", ws.to_str().unwrap()], &[("HANDHELD_FFMPEG", "/nonexistent/bin/ffmpeg")]);
+    let o = handheld_env(
+        &[
+            "reconstruct",
+            input.to_str().unwrap(),
+            "-o",
+            ws.to_str().unwrap(),
+        ],
+        &[("HANDHELD_FFMPEG", "/nonexistent/bin/ffmpeg")],
+    );
     assert_clean_failure(&o, &["ffmpeg was not found", "apt-get install ffmpeg"], &ws);
 }

@@ -23,7 +23,10 @@ fn video_ingest_of_a_real_mp4() {
     let dir = tempfile::tempdir().unwrap();
     let video = dir.path().join("walk.mp4");
     let mut ff = Command::new("ffmpeg")
-        .args(["-v", "error", "-y", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", "160x120", "-r", "25", "-i", "-"])
+        .args([
+            "-v", "error", "-y", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", "160x120", "-r",
+            "25", "-i", "-",
+        ])
         .args(["-c:v", "libx264", "-crf", "12", "-pix_fmt", "yuv420p"])
         .arg(&video)
         .stdin(Stdio::piped())
@@ -37,22 +40,41 @@ fn video_ingest_of_a_real_mp4() {
     assert!(ff.wait().unwrap().success());
 
     let ws = dir.path().join("ws");
-    let o = handheld(&["ingest", video.to_str().unwrap(), "-o", ws.to_str().unwrap(), "--stride", "3", "--json"]);
+    let o = handheld(&[
+        "ingest",
+        video.to_str().unwrap(),
+        "-o",
+        ws.to_str().unwrap(),
+        "--stride",
+        "3",
+        "--json",
+    ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let v: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
     assert_eq!(v["stages"][0]["summary"]["kind"], "video");
     assert_eq!(v["stages"][0]["summary"]["images"], 4);
 
-    let listing: serde_json::Value = serde_json::from_slice(&std::fs::read(ws.join("ingest/images.json")).unwrap()).unwrap();
+    let listing: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(ws.join("ingest/images.json")).unwrap()).unwrap();
     let images = listing["images"].as_array().unwrap();
-    let indices: Vec<u64> = images.iter().map(|i| i["frame"]["index"].as_u64().unwrap()).collect();
+    let indices: Vec<u64> = images
+        .iter()
+        .map(|i| i["frame"]["index"].as_u64().unwrap())
+        .collect();
     assert_eq!(indices, vec![0, 3, 6, 9]);
     // Each stored frame matches the synthetic frame it was encoded from (lossy codec: small mean error).
     for (img, &k) in images.iter().zip(&indices) {
-        let stored = image::open(img["info"]["path"].as_str().unwrap()).unwrap().to_rgb8();
+        let stored = image::open(img["info"]["path"].as_str().unwrap())
+            .unwrap()
+            .to_rgb8();
         assert_eq!(stored.dimensions(), (160, 120));
         let truth = &seq.images[k as usize];
-        let mad: f64 = stored.as_raw().iter().zip(truth.as_raw()).map(|(a, b)| (*a as f64 - *b as f64).abs()).sum::<f64>()
+        let mad: f64 = stored
+            .as_raw()
+            .iter()
+            .zip(truth.as_raw())
+            .map(|(a, b)| (*a as f64 - *b as f64).abs())
+            .sum::<f64>()
             / truth.as_raw().len() as f64;
         assert!(mad < 6.0, "frame {k}: mean abs difference {mad}");
         let t = img["frame"]["time_s"].as_f64().unwrap();
@@ -64,7 +86,18 @@ fn video_ingest_of_a_real_mp4() {
 fn demo_writes_sequence_ground_truth_and_workspace() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("demo");
-    let args = ["demo", "-o", out.to_str().unwrap(), "--frames", "4", "--width", "320", "--height", "240", "--json"];
+    let args = [
+        "demo",
+        "-o",
+        out.to_str().unwrap(),
+        "--frames",
+        "4",
+        "--width",
+        "320",
+        "--height",
+        "240",
+        "--json",
+    ];
     let o = handheld(&args);
     assert!(o.status.success(), "{}", stderr(&o));
     let v: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
@@ -74,8 +107,18 @@ fn demo_writes_sequence_ground_truth_and_workspace() {
     // Matching is scored against the exact relative poses.
     let m = &v["accuracy"]["matching"];
     assert!(m["verified_pairs"].as_u64().unwrap() >= 1, "{m}");
-    assert!(m["inlier_epipolar_error_median_px"].as_f64().unwrap() < 0.5, "{m}");
-    for f in ["images/frame_0000.png", "ground_truth/sparse/cameras.txt", "ground_truth/sparse/images.bin", "ground_truth/mesh.ply", "ground_truth/depth/frame_0003.pfm", "workspace/ingest/manifest.json"] {
+    assert!(
+        m["inlier_epipolar_error_median_px"].as_f64().unwrap() < 0.5,
+        "{m}"
+    );
+    for f in [
+        "images/frame_0000.png",
+        "ground_truth/sparse/cameras.txt",
+        "ground_truth/sparse/images.bin",
+        "ground_truth/mesh.ply",
+        "ground_truth/depth/frame_0003.pfm",
+        "workspace/ingest/manifest.json",
+    ] {
         assert!(out.join(f).exists(), "{f} missing");
     }
     // The written ground truth reads back and is self-consistent.

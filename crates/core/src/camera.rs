@@ -28,12 +28,29 @@ pub struct Intrinsics {
 impl Intrinsics {
     /// A pinhole camera with square pixels, no skew and no distortion.
     pub fn pinhole(f: f64, u: f64, v: f64) -> Self {
-        Self { f, aspect: 1.0, skew: 0.0, pp: Vector2::new(u, v), k1: 0.0, k2: 0.0 }
+        Self {
+            f,
+            aspect: 1.0,
+            skew: 0.0,
+            pp: Vector2::new(u, v),
+            k1: 0.0,
+            k2: 0.0,
+        }
     }
 
     /// The calibration matrix `K` of eq. 2.
     pub fn k_matrix(&self) -> Matrix3<f64> {
-        Matrix3::new(self.f, self.skew, self.pp.x, 0.0, self.aspect * self.f, self.pp.y, 0.0, 0.0, 1.0)
+        Matrix3::new(
+            self.f,
+            self.skew,
+            self.pp.x,
+            0.0,
+            self.aspect * self.f,
+            self.pp.y,
+            0.0,
+            0.0,
+            1.0,
+        )
     }
 
     /// Builds intrinsics (without distortion) from an upper-triangular `K` with `K[2,2] ≠ 0`.
@@ -91,7 +108,10 @@ impl Intrinsics {
     /// Normalised (undistorted) image coordinates → pixel: distortion, then `K`.
     pub fn normalized_to_pixel(&self, xn: Vector2<f64>) -> Vector2<f64> {
         let d = self.distort(xn);
-        Vector2::new(self.f * d.x + self.skew * d.y + self.pp.x, self.aspect * self.f * d.y + self.pp.y)
+        Vector2::new(
+            self.f * d.x + self.skew * d.y + self.pp.x,
+            self.aspect * self.f * d.y + self.pp.y,
+        )
     }
 
     /// Pixel → normalised (undistorted) image coordinates: `K⁻¹`, then undistortion.
@@ -104,7 +124,15 @@ impl Intrinsics {
 
     /// Checks that the parameters describe a usable camera.
     pub fn validate(&self) -> Result<(), String> {
-        let finite = [self.f, self.aspect, self.skew, self.pp.x, self.pp.y, self.k1, self.k2];
+        let finite = [
+            self.f,
+            self.aspect,
+            self.skew,
+            self.pp.x,
+            self.pp.y,
+            self.k1,
+            self.k2,
+        ];
         if finite.iter().any(|v| !v.is_finite()) {
             return Err("intrinsics contain a non-finite value".into());
         }
@@ -112,7 +140,10 @@ impl Intrinsics {
             return Err(format!("focal length must be positive, got {}", self.f));
         }
         if self.aspect <= 0.0 {
-            return Err(format!("aspect ratio must be positive, got {}", self.aspect));
+            return Err(format!(
+                "aspect ratio must be positive, got {}",
+                self.aspect
+            ));
         }
         Ok(())
     }
@@ -131,12 +162,19 @@ pub struct Camera {
 
 impl Camera {
     /// Projects a world point seen from `cam_from_world`; `None` when it lies behind the camera.
-    pub fn project(&self, cam_from_world: &Rigid3, p_in_world: &Point3<f64>) -> Option<Vector2<f64>> {
+    pub fn project(
+        &self,
+        cam_from_world: &Rigid3,
+        p_in_world: &Point3<f64>,
+    ) -> Option<Vector2<f64>> {
         let p_in_cam = cam_from_world.transform_point(p_in_world);
         if p_in_cam.z <= 0.0 {
             return None;
         }
-        Some(self.intrinsics.normalized_to_pixel(Vector2::new(p_in_cam.x / p_in_cam.z, p_in_cam.y / p_in_cam.z)))
+        Some(self.intrinsics.normalized_to_pixel(Vector2::new(
+            p_in_cam.x / p_in_cam.z,
+            p_in_cam.y / p_in_cam.z,
+        )))
     }
 
     /// The viewing ray (unit, camera frame) through a pixel.
@@ -147,7 +185,10 @@ impl Camera {
 
     /// True when a pixel position lies inside the image (pixel-centre convention).
     pub fn contains(&self, px: &Vector2<f64>) -> bool {
-        px.x >= -0.5 && px.y >= -0.5 && px.x < self.width as f64 - 0.5 && px.y < self.height as f64 - 0.5
+        px.x >= -0.5
+            && px.y >= -0.5
+            && px.x < self.width as f64 - 0.5
+            && px.y < self.height as f64 - 0.5
     }
 }
 
@@ -156,7 +197,14 @@ mod tests {
     use super::*;
 
     fn cam() -> Intrinsics {
-        Intrinsics { f: 520.0, aspect: 1.09, skew: 0.3, pp: Vector2::new(321.0, 238.5), k1: -0.21, k2: 0.05 }
+        Intrinsics {
+            f: 520.0,
+            aspect: 1.09,
+            skew: 0.3,
+            pp: Vector2::new(321.0, 238.5),
+            k1: -0.21,
+            k2: 0.05,
+        }
     }
 
     #[test]

@@ -51,9 +51,17 @@ impl TriMesh {
         self.vertices.validate()?;
         let n = self.vertices.len();
         if !self.uvs.is_empty() && self.uvs.len() != n {
-            return Err(format!("{} texture coordinates for {} vertices", self.uvs.len(), n));
+            return Err(format!(
+                "{} texture coordinates for {} vertices",
+                self.uvs.len(),
+                n
+            ));
         }
-        if let Some(f) = self.faces.iter().find(|f| f.iter().any(|&i| i as usize >= n)) {
+        if let Some(f) = self
+            .faces
+            .iter()
+            .find(|f| f.iter().any(|&i| i as usize >= n))
+        {
             return Err(format!("face {f:?} indexes past the {n} vertices"));
         }
         Ok(())
@@ -68,7 +76,11 @@ impl TriMesh {
             let [a, b, c] = f.map(|i| p[i as usize].map(|v| v as f64));
             let e1 = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
             let e2 = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
-            let cr = [e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2], e1[0] * e2[1] - e1[1] * e2[0]];
+            let cr = [
+                e1[1] * e2[2] - e1[2] * e2[1],
+                e1[2] * e2[0] - e1[0] * e2[2],
+                e1[0] * e2[1] - e1[1] * e2[0],
+            ];
             for &i in f {
                 for k in 0..3 {
                     acc[i as usize][k] += cr[k];

@@ -26,7 +26,9 @@ pub use maps::FloatMap;
 pub use pose::{Rigid3, Sim3};
 pub use progress::{NoProgress, Progress};
 pub use projective::{ProjectiveCamera, ProjectivePoint, ProjectiveReconstruction};
-pub use reconstruction::{FrameInfo, MetricReconstruction, Observation, Point3D, Track, TrackElement, View};
+pub use reconstruction::{
+    FrameInfo, MetricReconstruction, Observation, Point3D, Track, TrackElement, View,
+};
 
 /// Pixel convention used everywhere inside Handheld: the centre of the top-left pixel is `(0, 0)`,
 /// `x` grows to the right and `y` downwards (Hartley & Zisserman, OpenCV). COLMAP puts that centre at

@@ -15,7 +15,12 @@ pub struct FloatMap {
 impl FloatMap {
     /// A map filled with `value`.
     pub fn filled(width: usize, height: usize, channels: usize, value: f32) -> Self {
-        Self { width, height, channels, data: vec![value; width * height * channels] }
+        Self {
+            width,
+            height,
+            channels,
+            data: vec![value; width * height * channels],
+        }
     }
 
     /// Value of channel `c` at pixel `(x, y)`.
@@ -32,6 +37,10 @@ impl FloatMap {
         if self.data.is_empty() {
             return 0.0;
         }
-        self.data.iter().filter(|v| v.is_finite() && **v > 0.0).count() as f64 / self.data.len() as f64
+        self.data
+            .iter()
+            .filter(|v| v.is_finite() && **v > 0.0)
+            .count() as f64
+            / self.data.len() as f64
     }
 }

@@ -2,17 +2,25 @@
 //! `p_in_cam = cam_from_world · p_in_world`). The paper's `R, t` of eq. 2 are the camera orientation and
 //! position in the world, so `cam_from_world = (Rᵀ, −Rᵀ t)`.
 
-use nalgebra::{Isometry3, Matrix3, Matrix3x4, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{
+    Isometry3, Matrix3, Matrix3x4, Point3, Rotation3, Translation3, UnitQuaternion, Vector3,
+};
 use serde::{Deserialize, Serialize};
 
 /// A rigid transform `b_from_a`; a thin alias of nalgebra's isometry.
 pub type Rigid3 = Isometry3<f64>;
 
 /// Builds `cam_from_world` from the paper's camera orientation `R` (camera to world) and centre `t`.
-pub fn cam_from_world_from_center(r_world_from_cam: &Rotation3<f64>, center: &Point3<f64>) -> Rigid3 {
+pub fn cam_from_world_from_center(
+    r_world_from_cam: &Rotation3<f64>,
+    center: &Point3<f64>,
+) -> Rigid3 {
     let r = r_world_from_cam.inverse();
     let t = -(r * center.coords);
-    Isometry3::from_parts(Translation3::from(t), UnitQuaternion::from_rotation_matrix(&r))
+    Isometry3::from_parts(
+        Translation3::from(t),
+        UnitQuaternion::from_rotation_matrix(&r),
+    )
 }
 
 /// The camera centre in world coordinates.
@@ -23,8 +31,10 @@ pub fn center_of(cam_from_world: &Rigid3) -> Point3<f64> {
 /// `[R | t]` as a 3×4 matrix.
 pub fn to_matrix3x4(cam_from_world: &Rigid3) -> Matrix3x4<f64> {
     let mut m = Matrix3x4::zeros();
-    m.fixed_view_mut::<3, 3>(0, 0).copy_from(cam_from_world.rotation.to_rotation_matrix().matrix());
-    m.fixed_view_mut::<3, 1>(0, 3).copy_from(&cam_from_world.translation.vector);
+    m.fixed_view_mut::<3, 3>(0, 0)
+        .copy_from(cam_from_world.rotation.to_rotation_matrix().matrix());
+    m.fixed_view_mut::<3, 1>(0, 3)
+        .copy_from(&cam_from_world.translation.vector);
     m
 }
 
@@ -38,7 +48,11 @@ pub struct Sim3 {
 
 impl Sim3 {
     pub fn identity() -> Self {
-        Self { scale: 1.0, rotation: UnitQuaternion::identity(), translation: Vector3::zeros() }
+        Self {
+            scale: 1.0,
+            rotation: UnitQuaternion::identity(),
+            translation: Vector3::zeros(),
+        }
     }
 
     pub fn transform_point(&self, p: &Point3<f64>) -> Point3<f64> {
@@ -84,7 +98,11 @@ impl Sim3 {
         let scale = trace / var;
         let rotation = UnitQuaternion::from_matrix(&r);
         let translation = mu_d - scale * (rotation * mu_s);
-        Some(Self { scale, rotation, translation })
+        Some(Self {
+            scale,
+            rotation,
+            translation,
+        })
     }
 }
 
@@ -113,7 +131,9 @@ mod tests {
             rotation: UnitQuaternion::from_euler_angles(0.3, 0.2, -1.0),
             translation: Vector3::new(1.0, 2.0, -3.0),
         };
-        let src: Vec<_> = (0..10).map(|i| Point3::new(i as f64, (i * i) as f64 * 0.1, (i as f64).sin())).collect();
+        let src: Vec<_> = (0..10)
+            .map(|i| Point3::new(i as f64, (i * i) as f64 * 0.1, (i as f64).sin()))
+            .collect();
         let dst: Vec<_> = src.iter().map(|p| truth.transform_point(p)).collect();
         let est = Sim3::align(&src, &dst).expect("well-posed");
         assert!((est.scale - 2.5).abs() < 1e-10);
@@ -123,11 +143,20 @@ mod tests {
 
     #[test]
     fn sim3_pose_transform_keeps_projection() {
-        let s = Sim3 { scale: 3.0, rotation: UnitQuaternion::from_euler_angles(0.5, 0.1, 0.2), translation: Vector3::new(0.0, 1.0, 2.0) };
-        let pose = cam_from_world_from_center(&Rotation3::from_euler_angles(0.2, 0.3, 0.1), &Point3::new(0.5, 0.0, -4.0));
+        let s = Sim3 {
+            scale: 3.0,
+            rotation: UnitQuaternion::from_euler_angles(0.5, 0.1, 0.2),
+            translation: Vector3::new(0.0, 1.0, 2.0),
+        };
+        let pose = cam_from_world_from_center(
+            &Rotation3::from_euler_angles(0.2, 0.3, 0.1),
+            &Point3::new(0.5, 0.0, -4.0),
+        );
         let p = Point3::new(0.3, 0.2, 1.0);
         let a = pose.transform_point(&p);
-        let b = s.transform_pose(&pose).transform_point(&s.transform_point(&p));
+        let b = s
+            .transform_pose(&pose)
+            .transform_point(&s.transform_point(&p));
         assert!(((a.coords / a.z) - (b.coords / b.z)).norm() < 1e-12);
     }
 }

@@ -20,7 +20,9 @@ pub struct ProjectiveCamera {
 impl ProjectiveCamera {
     /// The canonical first camera `[I | 0]` (eq. 16).
     pub fn canonical() -> Self {
-        Self { P: Matrix3x4::identity() }
+        Self {
+            P: Matrix3x4::identity(),
+        }
     }
 
     /// Projects a homogeneous point to pixel coordinates; `None` at infinity in the image.
@@ -39,7 +41,9 @@ impl ProjectiveCamera {
 
     /// Scales `P` to unit Frobenius norm (the gauge used by projective bundle adjustment).
     pub fn normalized(&self) -> Self {
-        Self { P: self.P / self.P.norm() }
+        Self {
+            P: self.P / self.P.norm(),
+        }
     }
 }
 
@@ -52,12 +56,16 @@ pub struct ProjectivePoint {
 
 impl ProjectivePoint {
     pub fn new(x: f64, y: f64, z: f64, w: f64) -> Self {
-        Self { X: Vector4::new(x, y, z, w) }
+        Self {
+            X: Vector4::new(x, y, z, w),
+        }
     }
 
     /// Unit-norm representative (the point's local parameterisation on the sphere).
     pub fn normalized(&self) -> Self {
-        Self { X: self.X / self.X.norm() }
+        Self {
+            X: self.X / self.X.norm(),
+        }
     }
 
     /// Euclidean coordinates, `None` for points at infinity.
@@ -97,15 +105,23 @@ mod tests {
 
     #[test]
     fn projective_transform_keeps_projections() {
-        let cam = ProjectiveCamera { P: Matrix3x4::new(500.0, 0.0, 320.0, 10.0, 0.0, 500.0, 240.0, -3.0, 0.0, 0.0, 1.0, 4.0) };
+        let cam = ProjectiveCamera {
+            P: Matrix3x4::new(
+                500.0, 0.0, 320.0, 10.0, 0.0, 500.0, 240.0, -3.0, 0.0, 0.0, 1.0, 4.0,
+            ),
+        };
         let x = ProjectivePoint::new(0.2, -0.1, 3.0, 1.0);
-        let t = Matrix4::new(1.0, 0.2, 0.0, 0.5, 0.0, 1.3, 0.1, 0.0, 0.05, 0.0, 0.9, 0.0, 0.01, 0.02, 0.0, 1.0);
+        let t = Matrix4::new(
+            1.0, 0.2, 0.0, 0.5, 0.0, 1.3, 0.1, 0.0, 0.05, 0.0, 0.9, 0.0, 0.01, 0.02, 0.0, 1.0,
+        );
         let mut rec = ProjectiveReconstruction::default();
         rec.cameras.insert(ImageId(0), cam);
         rec.points.insert(PointId(0), (x, Track::default()));
         let before = cam.project(&x).unwrap();
         rec.transform(&t).unwrap();
-        let after = rec.cameras[&ImageId(0)].project(&rec.points[&PointId(0)].0).unwrap();
+        let after = rec.cameras[&ImageId(0)]
+            .project(&rec.points[&PointId(0)].0)
+            .unwrap();
         assert!((before - after).norm() < 1e-9);
     }
 }

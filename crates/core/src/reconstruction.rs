@@ -93,7 +93,9 @@ impl MetricReconstruction {
     /// Projects a world point into a view; `None` when the view is unknown or the point is behind it.
     pub fn project(&self, image_id: ImageId, p: &Point3<f64>) -> Option<Vector2<f64>> {
         let view = self.views.get(&image_id)?;
-        self.cameras.get(&view.camera_id)?.project(&view.cam_from_world, p)
+        self.cameras
+            .get(&view.camera_id)?
+            .project(&view.cam_from_world, p)
     }
 
     /// Reprojection errors (pixels) of every track element whose point and view exist.
@@ -101,8 +103,12 @@ impl MetricReconstruction {
         let mut out = Vec::new();
         for p in self.points.values() {
             for el in &p.track.elements {
-                let Some(view) = self.views.get(&el.image_id) else { continue };
-                let Some(obs) = view.observations.get(el.point2d_idx as usize) else { continue };
+                let Some(view) = self.views.get(&el.image_id) else {
+                    continue;
+                };
+                let Some(obs) = view.observations.get(el.point2d_idx as usize) else {
+                    continue;
+                };
                 match self.project(el.image_id, &p.xyz) {
                     Some(px) => out.push((px - obs.xy).norm()),
                     None => out.push(f64::INFINITY),
@@ -133,18 +139,30 @@ impl MetricReconstruction {
     pub fn validate(&self) -> Result<(), String> {
         for v in self.views.values() {
             if !self.cameras.contains_key(&v.camera_id) {
-                return Err(format!("view {} ({}) uses unknown camera {}", v.id, v.name, v.camera_id));
+                return Err(format!(
+                    "view {} ({}) uses unknown camera {}",
+                    v.id, v.name, v.camera_id
+                ));
             }
         }
         for (id, p) in &self.points {
             for el in &p.track.elements {
-                let view = self.views.get(&el.image_id).ok_or(format!("point {id} seen by unknown view {}", el.image_id))?;
+                let view = self
+                    .views
+                    .get(&el.image_id)
+                    .ok_or(format!("point {id} seen by unknown view {}", el.image_id))?;
                 let obs = view
                     .observations
                     .get(el.point2d_idx as usize)
-                    .ok_or(format!("point {id}: view {} has no keypoint {}", el.image_id, el.point2d_idx))?;
+                    .ok_or(format!(
+                        "point {id}: view {} has no keypoint {}",
+                        el.image_id, el.point2d_idx
+                    ))?;
                 if obs.point_id != Some(*id) {
-                    return Err(format!("point {id}: keypoint {} of view {} does not refer back", el.point2d_idx, el.image_id));
+                    return Err(format!(
+                        "point {id}: keypoint {} of view {} does not refer back",
+                        el.point2d_idx, el.image_id
+                    ));
                 }
             }
         }
@@ -163,7 +181,12 @@ mod tests {
         let mut rec = MetricReconstruction::default();
         rec.cameras.insert(
             CameraId(1),
-            Camera { id: CameraId(1), width: 640, height: 480, intrinsics: Intrinsics::pinhole(500.0, 319.5, 239.5) },
+            Camera {
+                id: CameraId(1),
+                width: 640,
+                height: 480,
+                intrinsics: Intrinsics::pinhole(500.0, 319.5, 239.5),
+            },
         );
         let pose = cam_from_world_from_center(&Rotation3::identity(), &Point3::new(0.0, 0.0, -5.0));
         let x = Point3::new(0.1, 0.2, 0.0);
@@ -175,13 +198,26 @@ mod tests {
                 name: "a.png".into(),
                 camera_id: CameraId(1),
                 cam_from_world: pose,
-                observations: vec![Observation { xy: px, point_id: Some(PointId(9)) }],
+                observations: vec![Observation {
+                    xy: px,
+                    point_id: Some(PointId(9)),
+                }],
                 frame: None,
             },
         );
         rec.points.insert(
             PointId(9),
-            Point3D { xyz: x, color: [1, 2, 3], error: 0.0, track: Track { elements: vec![TrackElement { image_id: ImageId(1), point2d_idx: 0 }] } },
+            Point3D {
+                xyz: x,
+                color: [1, 2, 3],
+                error: 0.0,
+                track: Track {
+                    elements: vec![TrackElement {
+                        image_id: ImageId(1),
+                        point2d_idx: 0,
+                    }],
+                },
+            },
         );
         rec
     }
@@ -191,7 +227,11 @@ mod tests {
         let mut rec = tiny();
         rec.validate().unwrap();
         assert!(rec.mean_reprojection_error() < 1e-12);
-        rec.transform(&Sim3 { scale: 4.0, rotation: UnitQuaternion::from_euler_angles(0.1, 0.2, 0.3), translation: Vector3::new(1.0, 2.0, 3.0) });
+        rec.transform(&Sim3 {
+            scale: 4.0,
+            rotation: UnitQuaternion::from_euler_angles(0.1, 0.2, 0.3),
+            translation: Vector3::new(1.0, 2.0, 3.0),
+        });
         assert!(rec.mean_reprojection_error() < 1e-9);
     }
 

@@ -9,7 +9,9 @@ fn main() {
     let dim: usize = args.get(2).and_then(|s| s.parse().ok()).unwrap_or(128);
     let mut s = 1u64;
     let mut rnd = || {
-        s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        s = s
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
         ((s >> 40) as f32) / (1u64 << 24) as f32
     };
     let mut make = || {
@@ -44,7 +46,22 @@ pub fn gemm_only(n: usize, dim: usize) {
     let t = Instant::now();
     for i0 in (0..n).step_by(256) {
         unsafe {
-            matrixmultiply::sgemm(256, dim, n, 1.0, a[i0 * dim..].as_ptr(), dim as isize, 1, b.as_ptr(), 1, dim as isize, 0.0, c.as_mut_ptr(), n as isize, 1);
+            matrixmultiply::sgemm(
+                256,
+                dim,
+                n,
+                1.0,
+                a[i0 * dim..].as_ptr(),
+                dim as isize,
+                1,
+                b.as_ptr(),
+                1,
+                dim as isize,
+                0.0,
+                c.as_mut_ptr(),
+                n as isize,
+                1,
+            );
         }
     }
     let mm = t.elapsed().as_secs_f64();

@@ -15,11 +15,18 @@ use nalgebra::{Matrix3, Vector3};
 
 fn camera(path: &Path) -> Option<(Matrix3<f64>, Matrix3<f64>, Vector3<f64>)> {
     let text = std::fs::read_to_string(path).ok()?;
-    let v: Vec<f64> = text.split_whitespace().map(|t| t.parse().ok()).collect::<Option<_>>()?;
+    let v: Vec<f64> = text
+        .split_whitespace()
+        .map(|t| t.parse().ok())
+        .collect::<Option<_>>()?;
     if v.len() < 24 {
         return None;
     }
-    Some((Matrix3::from_row_slice(&v[0..9]), Matrix3::from_row_slice(&v[12..21]), Vector3::new(v[21], v[22], v[23])))
+    Some((
+        Matrix3::from_row_slice(&v[0..9]),
+        Matrix3::from_row_slice(&v[12..21]),
+        Vector3::new(v[21], v[22], v[23]),
+    ))
 }
 
 /// `x₂ᵀ F x₁ = 0` for Strecha cameras `P = K [Rᵀ | −Rᵀ C]`.
@@ -46,17 +53,23 @@ fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let upsample = args.iter().any(|a| a == "--upsample");
     let pos: Vec<&String> = args.iter().filter(|a| !a.starts_with("--")).collect();
-    let root = pos.first().map_or_else(|| PathBuf::from("../shared/datasets"), PathBuf::from);
+    let root = pos
+        .first()
+        .map_or_else(|| PathBuf::from("../shared/datasets"), PathBuf::from);
     let count: usize = pos.get(1).and_then(|s| s.parse().ok()).unwrap_or(2).max(2);
     let dir = root.join("fountain-P11");
     if !dir.is_dir() {
         eprintln!("skipping: {} not found", dir.display());
         return;
     }
-    let sift = Sift::new(SiftOptions { upsample_first_octave: upsample, ..Default::default() });
+    let sift = Sift::new(SiftOptions {
+        upsample_first_octave: upsample,
+        ..Default::default()
+    });
     let threads = rayon::current_num_threads();
     let mut feats = Vec::new();
-    let (mut wall, mut cpu, mut counts, mut size) = (Vec::new(), Vec::new(), Vec::new(), String::new());
+    let (mut wall, mut cpu, mut counts, mut size) =
+        (Vec::new(), Vec::new(), Vec::new(), String::new());
     for i in 0..count {
         let path = dir.join("images").join(format!("{i:04}.jpg"));
         let img = match image::open(&path) {
@@ -75,20 +88,39 @@ fn main() {
         feats.push(f);
     }
     let (t, c) = (Instant::now(), cpu_seconds());
-    let matches = match_descriptors(&feats[0].descriptors, &feats[1].descriptors, &MatchOptions::default());
+    let matches = match_descriptors(
+        &feats[0].descriptors,
+        &feats[1].descriptors,
+        &MatchOptions::default(),
+    );
     let (match_wall, match_cpu) = (t.elapsed().as_secs_f64(), elapsed_cpu(c));
-    let epi = fundamental(&dir.join("gt/0000.jpg.camera"), &dir.join("gt/0001.jpg.camera")).map(|f| {
+    let epi = fundamental(
+        &dir.join("gt/0000.jpg.camera"),
+        &dir.join("gt/0001.jpg.camera"),
+    )
+    .map(|f| {
         let good = matches
             .iter()
             .filter(|m| {
-                let (p, q) = (feats[0].keypoints[m.i as usize], feats[1].keypoints[m.j as usize]);
+                let (p, q) = (
+                    feats[0].keypoints[m.i as usize],
+                    feats[1].keypoints[m.j as usize],
+                );
                 let l = f * Vector3::new(p.x as f64, p.y as f64, 1.0);
                 Vector3::new(q.x as f64, q.y as f64, 1.0).dot(&l).abs() / l.xy().norm() < 2.0
             })
             .count();
         good as f64 / matches.len().max(1) as f64
     });
-    let list = |v: &[f64], digits: usize| format!("[{}]", v.iter().map(|s| format!("{s:.digits$}")).collect::<Vec<_>>().join(", "));
+    let list = |v: &[f64], digits: usize| {
+        format!(
+            "[{}]",
+            v.iter()
+                .map(|s| format!("{s:.digits$}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        )
+    };
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
     let counts: Vec<String> = counts.iter().map(|c| c.to_string()).collect();
     println!(

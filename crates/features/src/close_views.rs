@@ -23,7 +23,11 @@ pub struct CloseViewOptions {
 
 impl Default for CloseViewOptions {
     fn default() -> Self {
-        Self { sample: 256, per_image: 3, min_votes: 20 }
+        Self {
+            sample: 256,
+            per_image: 3,
+            min_votes: 20,
+        }
     }
 }
 
@@ -35,17 +39,37 @@ fn strongest(f: &Features, n: usize) -> Descriptors {
     for i in idx {
         data.extend_from_slice(f.descriptors.row(i));
     }
-    Descriptors { dim: f.descriptors.dim, data }
+    Descriptors {
+        dim: f.descriptors.dim,
+        data,
+    }
 }
 
 /// Pairs `(i, j)`, `i < j`, with `j − i > window`, proposed as close views.
-pub fn propose_close_views(features: &[Features], window: usize, opts: &CloseViewOptions) -> Vec<(usize, usize)> {
+pub fn propose_close_views(
+    features: &[Features],
+    window: usize,
+    opts: &CloseViewOptions,
+) -> Vec<(usize, usize)> {
     let n = features.len();
-    let samples: Vec<Descriptors> = features.par_iter().map(|f| strongest(f, opts.sample)).collect();
-    let candidates: Vec<(usize, usize)> = (0..n).flat_map(|i| (i + window + 1..n).map(move |j| (i, j))).collect();
+    let samples: Vec<Descriptors> = features
+        .par_iter()
+        .map(|f| strongest(f, opts.sample))
+        .collect();
+    let candidates: Vec<(usize, usize)> = (0..n)
+        .flat_map(|i| (i + window + 1..n).map(move |j| (i, j)))
+        .collect();
     let mopts = MatchOptions::default();
-    let votes: Vec<(usize, usize, usize)> =
-        candidates.par_iter().map(|&(i, j)| (i, j, match_descriptors(&samples[i], &samples[j], &mopts).len())).collect();
+    let votes: Vec<(usize, usize, usize)> = candidates
+        .par_iter()
+        .map(|&(i, j)| {
+            (
+                i,
+                j,
+                match_descriptors(&samples[i], &samples[j], &mopts).len(),
+            )
+        })
+        .collect();
     let mut per: Vec<Vec<(usize, usize)>> = vec![Vec::new(); n];
     for &(i, j, v) in &votes {
         if v >= opts.min_votes {
@@ -78,7 +102,9 @@ mod tests {
         let dim = 32;
         let mut s = 7u64;
         let mut rnd = || {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             ((s >> 40) as f32) / (1u64 << 24) as f32
         };
         let places: Vec<Vec<Vec<f32>>> = (0..n)
@@ -99,16 +125,38 @@ mod tests {
                 for p in [(k + n - 1) % n, k, (k + 1) % n] {
                     for d in &places[p] {
                         data.extend_from_slice(d);
-                        keypoints.push(Keypoint { x: 0.0, y: 0.0, scale: 1.0, orientation: 0.0, response: 1.0 });
+                        keypoints.push(Keypoint {
+                            x: 0.0,
+                            y: 0.0,
+                            scale: 1.0,
+                            orientation: 0.0,
+                            response: 1.0,
+                        });
                     }
                 }
-                Features { keypoints, descriptors: Descriptors { dim, data } }
+                Features {
+                    keypoints,
+                    descriptors: Descriptors { dim, data },
+                }
             })
             .collect();
-        let pairs = propose_close_views(&features, 2, &CloseViewOptions { sample: 180, per_image: 2, min_votes: 20 });
+        let pairs = propose_close_views(
+            &features,
+            2,
+            &CloseViewOptions {
+                sample: 180,
+                per_image: 2,
+                min_votes: 20,
+            },
+        );
         assert!(pairs.contains(&(0, n - 1)), "{pairs:?}");
         assert!(pairs.iter().all(|&(i, j)| j - i > 2));
         // Nothing else shares a place outside the window.
-        assert!(pairs.iter().all(|&(i, j)| (i, j) == (0, n - 1) || (i, j) == (0, n - 2) || (i, j) == (1, n - 1)), "{pairs:?}");
+        assert!(
+            pairs.iter().all(|&(i, j)| (i, j) == (0, n - 1)
+                || (i, j) == (0, n - 2)
+                || (i, j) == (1, n - 1)),
+            "{pairs:?}"
+        );
     }
 }

@@ -14,19 +14,34 @@ pub struct GrayImage {
 
 impl GrayImage {
     pub fn new(width: usize, height: usize) -> Self {
-        Self { width, height, data: vec![0.0; width * height] }
+        Self {
+            width,
+            height,
+            data: vec![0.0; width * height],
+        }
     }
 
     /// Luma of any decoded image (8 or 16 bit, grey or colour) scaled to [0, 1].
     pub fn from_dynamic(img: &DynamicImage) -> Self {
         let l = img.to_luma32f();
-        Self { width: l.width() as usize, height: l.height() as usize, data: l.into_raw() }
+        Self {
+            width: l.width() as usize,
+            height: l.height() as usize,
+            data: l.into_raw(),
+        }
     }
 
     /// From an 8-bit RGB image (Rec. 601 luma).
     pub fn from_rgb8(img: &image::RgbImage) -> Self {
-        let data = img.pixels().map(|p| (0.299 * p[0] as f32 + 0.587 * p[1] as f32 + 0.114 * p[2] as f32) / 255.0).collect();
-        Self { width: img.width() as usize, height: img.height() as usize, data }
+        let data = img
+            .pixels()
+            .map(|p| (0.299 * p[0] as f32 + 0.587 * p[1] as f32 + 0.114 * p[2] as f32) / 255.0)
+            .collect();
+        Self {
+            width: img.width() as usize,
+            height: img.height() as usize,
+            data,
+        }
     }
 
     #[inline]
@@ -59,7 +74,10 @@ impl GrayImage {
     /// True when `(x, y)` is at least `margin` pixels inside the image.
     #[inline]
     pub fn inside(&self, x: f32, y: f32, margin: f32) -> bool {
-        x >= margin && y >= margin && x <= self.width as f32 - 1.0 - margin && y <= self.height as f32 - 1.0 - margin
+        x >= margin
+            && y >= margin
+            && x <= self.width as f32 - 1.0 - margin
+            && y <= self.height as f32 - 1.0 - margin
     }
 
     /// Separable Gaussian blur with standard deviation `sigma` (kernel radius ⌈3σ⌉, border clamped).
@@ -93,7 +111,11 @@ impl GrayImage {
                 }
             }
         }
-        Self { width: w, height: h, data: out }
+        Self {
+            width: w,
+            height: h,
+            data: out,
+        }
     }
 
     /// Halves the resolution by averaging 2×2 blocks (pixel (i, j) covers (2i, 2j)…(2i+1, 2j+1), so a
@@ -103,11 +125,18 @@ impl GrayImage {
         let mut out = vec![0f32; w * h];
         for y in 0..h {
             for x in 0..w {
-                let s = self.get(2 * x, 2 * y) + self.get(2 * x + 1, 2 * y) + self.get(2 * x, 2 * y + 1) + self.get(2 * x + 1, 2 * y + 1);
+                let s = self.get(2 * x, 2 * y)
+                    + self.get(2 * x + 1, 2 * y)
+                    + self.get(2 * x, 2 * y + 1)
+                    + self.get(2 * x + 1, 2 * y + 1);
                 out[y * w + x] = 0.25 * s;
             }
         }
-        Self { width: w, height: h, data: out }
+        Self {
+            width: w,
+            height: h,
+            data: out,
+        }
     }
 
     /// Central-difference gradients `(∂I/∂x, ∂I/∂y)` (one-sided at the border).
@@ -132,7 +161,9 @@ impl GrayImage {
 /// Normalised Gaussian kernel of radius ⌈3σ⌉.
 pub fn gaussian_kernel(sigma: f32) -> Vec<f32> {
     let r = (3.0 * sigma).ceil().max(1.0) as isize;
-    let mut k: Vec<f32> = (-r..=r).map(|i| (-(i * i) as f32 / (2.0 * sigma * sigma)).exp()).collect();
+    let mut k: Vec<f32> = (-r..=r)
+        .map(|i| (-(i * i) as f32 / (2.0 * sigma * sigma)).exp())
+        .collect();
     let s: f32 = k.iter().sum();
     k.iter_mut().for_each(|v| *v /= s);
     k
@@ -152,7 +183,11 @@ mod tests {
         let m0: f32 = img.data.iter().sum::<f32>() / img.data.len() as f32;
         let m1: f32 = b.data.iter().sum::<f32>() / b.data.len() as f32;
         assert!((m0 - m1).abs() < 0.02);
-        let ramp = GrayImage { width: 4, height: 1, data: vec![0.0, 1.0, 2.0, 3.0] };
+        let ramp = GrayImage {
+            width: 4,
+            height: 1,
+            data: vec![0.0, 1.0, 2.0, 3.0],
+        };
         assert!((ramp.sample(1.25, 0.0) - 1.25).abs() < 1e-6);
         let (gx, _) = ramp.gradients();
         assert!((gx.get(1, 0) - 1.0).abs() < 1e-6);

@@ -79,25 +79,40 @@ impl HarrisOptions {
             return Err(format!("harris k must be in (0, 0.25), got {}", self.k));
         }
         if !(self.derivative_sigma >= 0.0 && self.derivative_sigma.is_finite()) {
-            return Err(format!("derivative_sigma must be finite and non-negative, got {}", self.derivative_sigma));
+            return Err(format!(
+                "derivative_sigma must be finite and non-negative, got {}",
+                self.derivative_sigma
+            ));
         }
         if !(self.window_sigma > 0.0 && self.window_sigma.is_finite()) {
-            return Err(format!("window_sigma must be finite and positive, got {}", self.window_sigma));
+            return Err(format!(
+                "window_sigma must be finite and positive, got {}",
+                self.window_sigma
+            ));
         }
         if self.nms_radius == 0 {
             return Err("nms_radius must be at least 1".into());
         }
         if !(self.refine_guard >= 0.0 && self.refine_guard.is_finite()) {
-            return Err(format!("refine_guard must be finite and non-negative, got {}", self.refine_guard));
+            return Err(format!(
+                "refine_guard must be finite and non-negative, got {}",
+                self.refine_guard
+            ));
         }
         if self.cell_size == 0 {
             return Err("cell_size must be positive".into());
         }
         if !(0.0..1.0).contains(&self.min_relative_response) {
-            return Err(format!("min_relative_response must be in [0, 1), got {}", self.min_relative_response));
+            return Err(format!(
+                "min_relative_response must be in [0, 1), got {}",
+                self.min_relative_response
+            ));
         }
         if !(self.min_response >= 0.0 && self.min_response.is_finite()) {
-            return Err(format!("min_response must be finite and non-negative, got {}", self.min_response));
+            return Err(format!(
+                "min_response must be finite and non-negative, got {}",
+                self.min_response
+            ));
         }
         Ok(())
     }
@@ -109,7 +124,10 @@ pub fn harris_response(img: &GrayImage, options: &HarrisOptions) -> GrayImage {
 }
 
 /// The response and the gradients of the pre-smoothed image it was computed from.
-fn response_and_gradients(img: &GrayImage, options: &HarrisOptions) -> (GrayImage, GrayImage, GrayImage) {
+fn response_and_gradients(
+    img: &GrayImage,
+    options: &HarrisOptions,
+) -> (GrayImage, GrayImage, GrayImage) {
     let smooth = img.gaussian_blur(options.derivative_sigma);
     let (gx, gy) = smooth.gradients();
     let n = img.width * img.height;
@@ -123,10 +141,27 @@ fn response_and_gradients(img: &GrayImage, options: &HarrisOptions) -> (GrayImag
         xy.data[i] = a * b;
     }
     let s = options.window_sigma;
-    let (xx, (yy, xy)) = rayon::join(|| xx.gaussian_blur(s), || rayon::join(|| yy.gaussian_blur(s), || xy.gaussian_blur(s)));
+    let (xx, (yy, xy)) = rayon::join(
+        || xx.gaussian_blur(s),
+        || rayon::join(|| yy.gaussian_blur(s), || xy.gaussian_blur(s)),
+    );
     let k = options.k;
-    let data = xx.data.iter().zip(&yy.data).zip(&xy.data).map(|((&a, &b), &c)| a * b - c * c - k * (a + b) * (a + b)).collect();
-    (GrayImage { width: img.width, height: img.height, data }, gx, gy)
+    let data = xx
+        .data
+        .iter()
+        .zip(&yy.data)
+        .zip(&xy.data)
+        .map(|((&a, &b), &c)| a * b - c * c - k * (a + b) * (a + b))
+        .collect();
+    (
+        GrayImage {
+            width: img.width,
+            height: img.height,
+            data,
+        },
+        gx,
+        gy,
+    )
 }
 
 /// Gradient-based sub-pixel corner position (Förstner & Gülch, "A fast operator for detection and
@@ -134,7 +169,13 @@ fn response_and_gradients(img: &GrayImage, options: &HarrisOptions) -> (GrayImag
 /// `q` minimising `Σ w(p) (∇I(p)ᵀ (p − q))²` over a Gaussian-weighted window, i.e. the least-squares
 /// intersection of the edge lines through the window; iterated with the window re-centred. `None` when
 /// the system is singular or the point moves more than `radius` pixels.
-pub fn refine_corner_gradient(gx: &GrayImage, gy: &GrayImage, x: f32, y: f32, radius: usize) -> Option<(f32, f32)> {
+pub fn refine_corner_gradient(
+    gx: &GrayImage,
+    gy: &GrayImage,
+    x: f32,
+    y: f32,
+    radius: usize,
+) -> Option<(f32, f32)> {
     let r = radius as isize;
     let sigma2 = (0.5 * radius as f64 + 0.5).powi(2);
     let (mut qx, mut qy) = (x as f64, y as f64);
@@ -206,7 +247,12 @@ pub fn detect_harris(img: &GrayImage, options: &HarrisOptions) -> Vec<Keypoint> 
     let (resp, gx, gy) = response_and_gradients(img, options);
     let max_r = (margin..h - margin)
         .into_par_iter()
-        .map(|y| resp.data[y * w + margin..y * w + w - margin].iter().copied().fold(f32::MIN, f32::max))
+        .map(|y| {
+            resp.data[y * w + margin..y * w + w - margin]
+                .iter()
+                .copied()
+                .fold(f32::MIN, f32::max)
+        })
         .reduce(|| f32::MIN, f32::max);
     let threshold = (max_r * options.min_relative_response).max(options.min_response);
     let r = options.nms_radius as isize;
@@ -238,18 +284,31 @@ pub fn detect_harris(img: &GrayImage, options: &HarrisOptions) -> Vec<Keypoint> 
                     *o = resp.data[(y + i / 3 - 1) * w + x + i % 3 - 1];
                 }
                 let (ox, oy) = quadratic_peak_offset(&nb).unwrap_or((0.0, 0.0));
-                Some(Keypoint { x: x as f32 + ox, y: y as f32 + oy, scale: 1.0, orientation: 0.0, response: v })
+                Some(Keypoint {
+                    x: x as f32 + ox,
+                    y: y as f32 + oy,
+                    scale: 1.0,
+                    orientation: 0.0,
+                    response: v,
+                })
             })
         })
         .collect();
-    candidates.sort_by(|a, b| b.response.total_cmp(&a.response).then(a.y.total_cmp(&b.y)).then(a.x.total_cmp(&b.x)));
+    candidates.sort_by(|a, b| {
+        b.response
+            .total_cmp(&a.response)
+            .then(a.y.total_cmp(&b.y))
+            .then(a.x.total_cmp(&b.x))
+    });
     let mut corners = bucket(candidates, w, h, options.cell_size, options.max_features);
     if options.gradient_refine_radius == 0 {
         return corners;
     }
     let guard = options.refine_guard;
     corners.par_iter_mut().for_each(|kp| {
-        if let Some((rx, ry)) = refine_corner_gradient(&gx, &gy, kp.x, kp.y, options.gradient_refine_radius) {
+        if let Some((rx, ry)) =
+            refine_corner_gradient(&gx, &gy, kp.x, kp.y, options.gradient_refine_radius)
+        {
             if (rx - kp.x).abs() <= guard && (ry - kp.y).abs() <= guard {
                 (kp.x, kp.y) = (rx, ry);
             }
@@ -264,14 +323,22 @@ fn suppress_duplicates(sorted: Vec<Keypoint>, w: usize, h: usize, d: f32) -> Vec
     let d = d.max(0.5);
     let cols = (w as f32 / d) as usize + 1;
     let rows = (h as f32 / d) as usize + 1;
-    let cell = |x: f32, y: f32| ((x / d).clamp(0.0, (cols - 1) as f32) as usize, (y / d).clamp(0.0, (rows - 1) as f32) as usize);
+    let cell = |x: f32, y: f32| {
+        (
+            (x / d).clamp(0.0, (cols - 1) as f32) as usize,
+            (y / d).clamp(0.0, (rows - 1) as f32) as usize,
+        )
+    };
     let mut grid: Vec<Vec<(f32, f32)>> = vec![Vec::new(); cols * rows];
     let mut out = Vec::with_capacity(sorted.len());
     for kp in sorted {
         let (cx, cy) = cell(kp.x, kp.y);
         let taken = (cy.saturating_sub(1)..=(cy + 1).min(rows - 1)).any(|yy| {
-            (cx.saturating_sub(1)..=(cx + 1).min(cols - 1))
-                .any(|xx| grid[yy * cols + xx].iter().any(|&(px, py)| (px - kp.x).powi(2) + (py - kp.y).powi(2) < d * d))
+            (cx.saturating_sub(1)..=(cx + 1).min(cols - 1)).any(|xx| {
+                grid[yy * cols + xx]
+                    .iter()
+                    .any(|&(px, py)| (px - kp.x).powi(2) + (py - kp.y).powi(2) < d * d)
+            })
         });
         if !taken {
             grid[cy * cols + cx].push((kp.x, kp.y));
@@ -294,7 +361,8 @@ fn bucket(sorted: Vec<Keypoint>, w: usize, h: usize, cell: usize, max: usize) ->
     let mut keep = vec![false; sorted.len()];
     let mut kept = 0;
     for (i, kp) in sorted.iter().enumerate() {
-        let c = ((kp.y.max(0.0) as usize / cell).min(rows - 1)) * cols + (kp.x.max(0.0) as usize / cell).min(cols - 1);
+        let c = ((kp.y.max(0.0) as usize / cell).min(rows - 1)) * cols
+            + (kp.x.max(0.0) as usize / cell).min(cols - 1);
         if count[c] < quota && kept < max {
             count[c] += 1;
             keep[i] = true;
@@ -310,7 +378,11 @@ fn bucket(sorted: Vec<Keypoint>, w: usize, h: usize, cell: usize, max: usize) ->
             kept += 1;
         }
     }
-    sorted.into_iter().zip(keep).filter_map(|(kp, k)| k.then_some(kp)).collect()
+    sorted
+        .into_iter()
+        .zip(keep)
+        .filter_map(|(kp, k)| k.then_some(kp))
+        .collect()
 }
 
 /// Harris corners described by their `(2·patch_radius+1)²` patches normalised to zero mean and unit
@@ -325,7 +397,10 @@ pub struct HarrisZncc {
 
 impl Default for HarrisZncc {
     fn default() -> Self {
-        Self { options: HarrisOptions::default(), patch_radius: 3 }
+        Self {
+            options: HarrisOptions::default(),
+            patch_radius: 3,
+        }
     }
 }
 
@@ -353,7 +428,10 @@ impl FeatureDetector for HarrisZncc {
             keypoints.push(kp);
             data.extend_from_slice(&d);
         }
-        Features { keypoints, descriptors: Descriptors { dim, data } }
+        Features {
+            keypoints,
+            descriptors: Descriptors { dim, data },
+        }
     }
 }
 
@@ -370,15 +448,28 @@ mod tests {
             *o = 5.0 - 2.0 * (x - px).powi(2) - 1.5 * (y - py).powi(2) + 0.5 * (x - px) * (y - py);
         }
         let (ox, oy) = quadratic_peak_offset(&v).expect("has a maximum");
-        assert!((ox - px).abs() < 1e-5 && (oy - py).abs() < 1e-5, "{ox} {oy}");
+        assert!(
+            (ox - px).abs() < 1e-5 && (oy - py).abs() < 1e-5,
+            "{ox} {oy}"
+        );
         assert!(quadratic_peak_offset(&[0.0; 9]).is_none());
     }
 
     #[test]
     fn options_validate_and_tiny_images_give_nothing() {
         assert!(HarrisOptions::default().validate().is_ok());
-        assert!(HarrisOptions { k: 0.0, ..Default::default() }.validate().is_err());
-        assert!(HarrisOptions { cell_size: 0, ..Default::default() }.validate().is_err());
+        assert!(HarrisOptions {
+            k: 0.0,
+            ..Default::default()
+        }
+        .validate()
+        .is_err());
+        assert!(HarrisOptions {
+            cell_size: 0,
+            ..Default::default()
+        }
+        .validate()
+        .is_err());
         assert!(detect_harris(&GrayImage::new(10, 10), &HarrisOptions::default()).is_empty());
     }
 }

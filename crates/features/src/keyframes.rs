@@ -5,7 +5,9 @@
 //! for which `nᵢ ≥ 0.9·nₑ`, where `nᵢ` is the number of valid tracks shared with the previous
 //! key-frame and `nₑ` that number when F first overtook H. In-between frames get their poses later.
 
-use handheld_robust::{estimate_two_view_geometry, Match2d2d, TwoViewConfiguration, TwoViewOptions};
+use handheld_robust::{
+    estimate_two_view_geometry, Match2d2d, TwoViewConfiguration, TwoViewOptions,
+};
 use nalgebra::Vector2;
 
 use crate::klt::Track2d;
@@ -27,7 +29,12 @@ impl Default for KeyframeOptions {
         Self {
             track_ratio: 0.9,
             min_tracks: 30,
-            two_view: TwoViewOptions { refine: false, f_threshold_px: 1.0, h_threshold_px: 2.5, ..Default::default() },
+            two_view: TwoViewOptions {
+                refine: false,
+                f_threshold_px: 1.0,
+                h_threshold_px: 2.5,
+                ..Default::default()
+            },
         }
     }
 }
@@ -40,7 +47,10 @@ fn position(t: &Track2d, frame: usize) -> Option<Vector2<f64>> {
 }
 
 fn shared(tracks: &[Track2d], a: usize, b: usize) -> Vec<Match2d2d> {
-    tracks.iter().filter_map(|t| Some(Match2d2d::new(position(t, a)?, position(t, b)?))).collect()
+    tracks
+        .iter()
+        .filter_map(|t| Some(Match2d2d::new(position(t, a)?, position(t, b)?)))
+        .collect()
 }
 
 /// Why a key-frame was chosen.
@@ -56,7 +66,11 @@ pub enum KeyframeReason {
 }
 
 /// Selects key-frames among `num_frames` frames from KLT tracks. Returns `(frame, reason)` in order.
-pub fn select_keyframes(tracks: &[Track2d], num_frames: usize, opts: &KeyframeOptions) -> Vec<(usize, KeyframeReason)> {
+pub fn select_keyframes(
+    tracks: &[Track2d],
+    num_frames: usize,
+    opts: &KeyframeOptions,
+) -> Vec<(usize, KeyframeReason)> {
     let mut keys = Vec::new();
     if num_frames == 0 {
         return keys;

@@ -102,7 +102,10 @@ impl KltOptions {
     /// Checks that every field is in range.
     pub fn validate(&self) -> Result<(), String> {
         if !(1..=32).contains(&self.window_radius) {
-            return Err(format!("window_radius must be in 1..=32, got {}", self.window_radius));
+            return Err(format!(
+                "window_radius must be in 1..=32, got {}",
+                self.window_radius
+            ));
         }
         if !(1..=8).contains(&self.levels) {
             return Err(format!("levels must be in 1..=8, got {}", self.levels));
@@ -111,12 +114,21 @@ impl KltOptions {
             return Err("max_iterations must be positive".into());
         }
         if !(self.epsilon > 0.0 && self.epsilon.is_finite()) {
-            return Err(format!("epsilon must be finite and positive, got {}", self.epsilon));
+            return Err(format!(
+                "epsilon must be finite and positive, got {}",
+                self.epsilon
+            ));
         }
         if !(self.min_eigenvalue >= 0.0 && self.min_eigenvalue.is_finite()) {
-            return Err(format!("min_eigenvalue must be finite and non-negative, got {}", self.min_eigenvalue));
+            return Err(format!(
+                "min_eigenvalue must be finite and non-negative, got {}",
+                self.min_eigenvalue
+            ));
         }
-        for (name, v) in [("forward_backward_max", self.forward_backward_max), ("affine_max_residual", self.affine_max_residual)] {
+        for (name, v) in [
+            ("forward_backward_max", self.forward_backward_max),
+            ("affine_max_residual", self.affine_max_residual),
+        ] {
             if let Some(v) = v {
                 if !(v > 0.0 && v.is_finite()) {
                     return Err(format!("{name} must be finite and positive, got {v}"));
@@ -124,13 +136,22 @@ impl KltOptions {
             }
         }
         if !(self.affine_max_shift > 0.0 && self.affine_max_shift.is_finite()) {
-            return Err(format!("affine_max_shift must be finite and positive, got {}", self.affine_max_shift));
+            return Err(format!(
+                "affine_max_shift must be finite and positive, got {}",
+                self.affine_max_shift
+            ));
         }
         if !(self.image_sigma >= 0.0 && self.image_sigma <= 10.0) {
-            return Err(format!("image_sigma must be in [0, 10], got {}", self.image_sigma));
+            return Err(format!(
+                "image_sigma must be in [0, 10], got {}",
+                self.image_sigma
+            ));
         }
         if !(self.redetect_min_distance >= 0.0 && self.redetect_min_distance.is_finite()) {
-            return Err(format!("redetect_min_distance must be finite and non-negative, got {}", self.redetect_min_distance));
+            return Err(format!(
+                "redetect_min_distance must be finite and non-negative, got {}",
+                self.redetect_min_distance
+            ));
         }
         self.detector.validate()
     }
@@ -199,7 +220,14 @@ impl KltTracker {
     /// A tracker with validated options.
     pub fn new(options: KltOptions) -> Result<Self, String> {
         options.validate()?;
-        Ok(Self { options, frame: 0, prev: None, tracks: Vec::new(), live: Vec::new(), next_id: 0 })
+        Ok(Self {
+            options,
+            frame: 0,
+            prev: None,
+            tracks: Vec::new(),
+            live: Vec::new(),
+            next_id: 0,
+        })
     }
 
     pub fn options(&self) -> &KltOptions {
@@ -245,7 +273,12 @@ impl KltTracker {
     pub fn process(&mut self, image: &GrayImage) -> &[Track2d] {
         let frame = self.frame;
         self.frame += 1;
-        let pyr = build_pyramid(image, self.options.image_sigma, self.options.levels, 2 * self.options.window_radius + 1);
+        let pyr = build_pyramid(
+            image,
+            self.options.image_sigma,
+            self.options.levels,
+            2 * self.options.window_radius + 1,
+        );
         if let Some(prev) = self.prev.take() {
             if prev[0].img.width == image.width && prev[0].img.height == image.height {
                 self.track(&prev, &pyr, frame);
@@ -266,7 +299,11 @@ impl KltTracker {
 
     fn track(&mut self, prev: &[Level], next: &[Level], frame: usize) {
         let opts = &self.options;
-        let results: Vec<Option<(f32, f32, [f32; 4])>> = self.live.par_iter().map(|l| track_one(opts, prev, next, l)).collect();
+        let results: Vec<Option<(f32, f32, [f32; 4])>> = self
+            .live
+            .par_iter()
+            .map(|l| track_one(opts, prev, next, l))
+            .collect();
         let mut kept = Vec::with_capacity(self.live.len());
         for (mut l, res) in std::mem::take(&mut self.live).into_iter().zip(results) {
             match res {
@@ -296,7 +333,12 @@ impl KltTracker {
         let cols = (img.width as f32 / d) as usize + 1;
         let rows = (img.height as f32 / d) as usize + 1;
         let mut grid: Vec<Vec<(f32, f32)>> = vec![Vec::new(); cols * rows];
-        let cell = |x: f32, y: f32| ((x / d).clamp(0.0, (cols - 1) as f32) as usize, (y / d).clamp(0.0, (rows - 1) as f32) as usize);
+        let cell = |x: f32, y: f32| {
+            (
+                (x / d).clamp(0.0, (cols - 1) as f32) as usize,
+                (y / d).clamp(0.0, (rows - 1) as f32) as usize,
+            )
+        };
         for l in &self.live {
             let (cx, cy) = cell(l.x, l.y);
             grid[cy * cols + cx].push((l.x, l.y));
@@ -309,8 +351,11 @@ impl KltTracker {
             }
             let (cx, cy) = cell(kp.x, kp.y);
             let near = (cy.saturating_sub(1)..=(cy + 1).min(rows - 1)).any(|yy| {
-                (cx.saturating_sub(1)..=(cx + 1).min(cols - 1))
-                    .any(|xx| grid[yy * cols + xx].iter().any(|&(px, py)| (px - kp.x).powi(2) + (py - kp.y).powi(2) < d * d))
+                (cx.saturating_sub(1)..=(cx + 1).min(cols - 1)).any(|xx| {
+                    grid[yy * cols + xx]
+                        .iter()
+                        .any(|&(px, py)| (px - kp.x).powi(2) + (py - kp.y).powi(2) < d * d)
+                })
             });
             if near {
                 continue;
@@ -319,16 +364,31 @@ impl KltTracker {
             let mut template = vec![0f32; side * side];
             sample_patch(img, kp.x, kp.y, r, &mut template);
             let index = self.tracks.len();
-            self.tracks.push(Track2d { id: self.next_id, positions: vec![(frame, kp.x, kp.y)], alive: true });
+            self.tracks.push(Track2d {
+                id: self.next_id,
+                positions: vec![(frame, kp.x, kp.y)],
+                alive: true,
+            });
             self.next_id += 1;
-            self.live.push(Live { index, x: kp.x, y: kp.y, template, affine: [1.0, 0.0, 0.0, 1.0] });
+            self.live.push(Live {
+                index,
+                x: kp.x,
+                y: kp.y,
+                template,
+                affine: [1.0, 0.0, 0.0, 1.0],
+            });
             added += 1;
         }
     }
 }
 
 /// Tracks one live feature from `prev` to `next`: translation LK, forward–backward and affine checks.
-fn track_one(opts: &KltOptions, prev: &[Level], next: &[Level], l: &Live) -> Option<(f32, f32, [f32; 4])> {
+fn track_one(
+    opts: &KltOptions,
+    prev: &[Level],
+    next: &[Level],
+    l: &Live,
+) -> Option<(f32, f32, [f32; 4])> {
     let margin = opts.window_radius as f32 + 1.0;
     let (x, y) = lk_translation(opts, prev, next, l.x, l.y)?;
     if !next[0].img.inside(x, y, margin) {
@@ -340,8 +400,18 @@ fn track_one(opts: &KltOptions, prev: &[Level], next: &[Level], l: &Live) -> Opt
             return None;
         }
     }
-    let Some(max_res) = opts.affine_max_residual else { return Some((x, y, l.affine)) };
-    let (ax, ay, a, residual) = affine_register(&next[0], &l.template, opts.window_radius, x, y, l.affine, opts)?;
+    let Some(max_res) = opts.affine_max_residual else {
+        return Some((x, y, l.affine));
+    };
+    let (ax, ay, a, residual) = affine_register(
+        &next[0],
+        &l.template,
+        opts.window_radius,
+        x,
+        y,
+        l.affine,
+        opts,
+    )?;
     if residual > max_res || (ax - x).powi(2) + (ay - y).powi(2) > opts.affine_max_shift.powi(2) {
         return None;
     }
@@ -354,7 +424,13 @@ fn track_one(opts: &KltOptions, prev: &[Level], next: &[Level], l: &Live) -> Opt
 
 /// Bouguet's pyramidal Lucas–Kanade: the position in `next` of the feature at `(x, y)` in `prev`, or
 /// `None` when the gradient matrix is too weak or the iteration diverges.
-fn lk_translation(opts: &KltOptions, prev: &[Level], next: &[Level], x: f32, y: f32) -> Option<(f32, f32)> {
+fn lk_translation(
+    opts: &KltOptions,
+    prev: &[Level],
+    next: &[Level],
+    x: f32,
+    y: f32,
+) -> Option<(f32, f32)> {
     let r = opts.window_radius;
     let n = (2 * r + 1) * (2 * r + 1);
     let mut buf = vec![0f32; 4 * n];
@@ -377,7 +453,8 @@ fn lk_translation(opts: &KltOptions, prev: &[Level], next: &[Level], x: f32, y: 
             gyy += b * b;
         }
         let det = gxx * gyy - gxy * gxy;
-        let min_eig = 0.5 * ((gxx + gyy) - ((gxx - gyy).powi(2) + 4.0 * gxy * gxy).sqrt()) / n as f32;
+        let min_eig =
+            0.5 * ((gxx + gyy) - ((gxx - gyy).powi(2) + 4.0 * gxy * gxy).sqrt()) / n as f32;
         let singular = det.is_nan() || det <= f32::EPSILON * (gxx + gyy).powi(2);
         if singular || (lvl == 0 && min_eig < opts.min_eigenvalue) {
             return None;
@@ -395,7 +472,10 @@ fn lk_translation(opts: &KltOptions, prev: &[Level], next: &[Level], x: f32, y: 
             let (ex, ey) = ((gyy * bx - gxy * by) / det, (gxx * by - gxy * bx) / det);
             vx += ex;
             vy += ey;
-            if !(vx.is_finite() && vy.is_finite()) || (gx + vx).abs() > limit || (gy + vy).abs() > limit {
+            if !(vx.is_finite() && vy.is_finite())
+                || (gx + vx).abs() > limit
+                || (gy + vy).abs() > limit
+            {
                 return None;
             }
             if ex * ex + ey * ey < opts.epsilon * opts.epsilon {
@@ -420,12 +500,21 @@ fn sample3(level: &Level, x: f32, y: f32) -> (f32, f32, f32) {
     let w = level.img.width;
     if xi >= 0 && yi >= 0 && ((xi + 1) as usize) < w && ((yi + 1) as usize) < level.img.height {
         let (fx, fy) = (x - x0, y - y0);
-        let (w00, w10, w01, w11) = ((1.0 - fx) * (1.0 - fy), fx * (1.0 - fy), (1.0 - fx) * fy, fx * fy);
+        let (w00, w10, w01, w11) = (
+            (1.0 - fx) * (1.0 - fy),
+            fx * (1.0 - fy),
+            (1.0 - fx) * fy,
+            fx * fy,
+        );
         let i = yi as usize * w + xi as usize;
         let s = |d: &[f32]| w00 * d[i] + w10 * d[i + 1] + w01 * d[i + w] + w11 * d[i + w + 1];
         (s(&level.img.data), s(&level.gx.data), s(&level.gy.data))
     } else {
-        (level.img.sample(x, y), level.gx.sample(x, y), level.gy.sample(x, y))
+        (
+            level.img.sample(x, y),
+            level.gx.sample(x, y),
+            level.gy.sample(x, y),
+        )
     }
 }
 
@@ -446,10 +535,26 @@ fn affine_register(
     let ri = r as isize;
     let side = 2 * r + 1;
     let template = template.get(..side * side)?;
-    let mut p = [a0[0] as f64, a0[1] as f64, a0[2] as f64, a0[3] as f64, x as f64, y as f64, 0.0];
+    let mut p = [
+        a0[0] as f64,
+        a0[1] as f64,
+        a0[2] as f64,
+        a0[3] as f64,
+        x as f64,
+        y as f64,
+        0.0,
+    ];
     let warp = |p: &[f64; 7], k: usize| {
-        let (u, v) = (((k % side) as isize - ri) as f64, ((k / side) as isize - ri) as f64);
-        (u, v, (p[4] + p[0] * u + p[1] * v) as f32, (p[5] + p[2] * u + p[3] * v) as f32)
+        let (u, v) = (
+            ((k % side) as isize - ri) as f64,
+            ((k / side) as isize - ri) as f64,
+        );
+        (
+            u,
+            v,
+            (p[4] + p[0] * u + p[1] * v) as f32,
+            (p[5] + p[2] * u + p[3] * v) as f32,
+        )
     };
     for _ in 0..opts.affine_max_iterations {
         // Upper triangle of JᵀJ (row-major over the 7 parameters) and Jᵀr.
@@ -494,7 +599,12 @@ fn affine_register(
         for (pk, sk) in p.iter_mut().zip(step.iter()) {
             *pk += sk;
         }
-        let da = step[0].abs().max(step[1].abs()).max(step[2].abs()).max(step[3].abs()) * r as f64;
+        let da = step[0]
+            .abs()
+            .max(step[1].abs())
+            .max(step[2].abs())
+            .max(step[3].abs())
+            * r as f64;
         if step[4].hypot(step[5]) < opts.epsilon as f64 && da < opts.epsilon as f64 {
             break;
         }
@@ -509,5 +619,10 @@ fn affine_register(
         let (_, _, wx, wy) = warp(&p, k);
         sum += (level.img.sample(wx, wy) as f64 - p[6] - tv as f64).abs();
     }
-    Some((p[4] as f32, p[5] as f32, a, (sum / (side * side) as f64) as f32))
+    Some((
+        p[4] as f32,
+        p[5] as f32,
+        a,
+        (sum / (side * side) as f64) as f32,
+    ))
 }

@@ -38,14 +38,21 @@ pub struct MatchOptions {
 
 impl Default for MatchOptions {
     fn default() -> Self {
-        Self { ratio: 0.8, mutual: true, max_distance: None }
+        Self {
+            ratio: 0.8,
+            mutual: true,
+            max_distance: None,
+        }
     }
 }
 
 impl MatchOptions {
     pub fn validate(&self) -> Result<(), String> {
         if !(self.ratio.is_finite() && self.ratio > 0.0) {
-            return Err(format!("ratio must be positive and finite, got {}", self.ratio));
+            return Err(format!(
+                "ratio must be positive and finite, got {}",
+                self.ratio
+            ));
         }
         if let Some(d) = self.max_distance {
             if !(d.is_finite() && d >= 0.0) {
@@ -98,13 +105,27 @@ pub fn match_descriptors(a: &Descriptors, b: &Descriptors, opts: &MatchOptions) 
         .map(|blk| {
             let i0 = blk * ROW_BLOCK;
             let rows = ROW_BLOCK.min(n - i0);
-            let mut best = vec![Best2 { s1: f32::NEG_INFINITY, j1: u32::MAX, s2: f32::NEG_INFINITY }; rows];
+            let mut best = vec![
+                Best2 {
+                    s1: f32::NEG_INFINITY,
+                    j1: u32::MAX,
+                    s2: f32::NEG_INFINITY
+                };
+                rows
+            ];
             let mut col_best = vec![(f32::NEG_INFINITY, u32::MAX); if opts.mutual { m } else { 0 }];
             let mut scores = vec![0f32; rows * COL_BLOCK.min(m)];
             for j0 in (0..m).step_by(COL_BLOCK) {
                 let cols = COL_BLOCK.min(m - j0);
                 let s = &mut scores[..rows * cols];
-                gemm_abt(&adata[i0 * d..(i0 + rows) * d], &bdata[j0 * d..(j0 + cols) * d], rows, cols, d, s);
+                gemm_abt(
+                    &adata[i0 * d..(i0 + rows) * d],
+                    &bdata[j0 * d..(j0 + cols) * d],
+                    rows,
+                    cols,
+                    d,
+                    s,
+                );
                 let nbb = &nb[j0..j0 + cols];
                 for (r, srow) in s.chunks_exact(cols).enumerate() {
                     let bst = &mut best[r];
@@ -167,7 +188,11 @@ pub fn match_descriptors(a: &Descriptors, b: &Descriptors, opts: &MatchOptions) 
             if opts.max_distance.is_some_and(|t| distance > t) {
                 continue;
             }
-            out.push(Match { i: i as u32, j: bst.j1, distance });
+            out.push(Match {
+                i: i as u32,
+                j: bst.j1,
+                distance,
+            });
         }
     }
     out
@@ -201,7 +226,11 @@ fn gemm_abt(a: &[f32], b: &[f32], rows: usize, cols: usize, d: usize, c: &mut [f
 
 /// Matches the descriptors of each `(first, second)` pair of images, in parallel over pairs.
 /// A pair naming a missing image gets no matches.
-pub fn match_pairs(features: &[Features], pairs: &[(usize, usize)], opts: &MatchOptions) -> Vec<Vec<Match>> {
+pub fn match_pairs(
+    features: &[Features],
+    pairs: &[(usize, usize)],
+    opts: &MatchOptions,
+) -> Vec<Vec<Match>> {
     pairs
         .par_iter()
         .map(|&(p, q)| match (features.get(p), features.get(q)) {
@@ -213,7 +242,11 @@ pub fn match_pairs(features: &[Features], pairs: &[(usize, usize)], opts: &Match
 
 /// Pairs `(i, j)` with `i < j ≤ i + window` among `n` images in sequence order.
 pub fn sequential_pairs(n: usize, window: usize) -> Vec<(usize, usize)> {
-    (0..n).flat_map(|i| (i + 1..n.min(i.saturating_add(window).saturating_add(1))).map(move |j| (i, j))).collect()
+    (0..n)
+        .flat_map(|i| {
+            (i + 1..n.min(i.saturating_add(window).saturating_add(1))).map(move |j| (i, j))
+        })
+        .collect()
 }
 
 /// All pairs `(i, j)` with `i < j < n`.
@@ -227,7 +260,10 @@ mod tests {
 
     #[test]
     fn pair_helpers() {
-        assert_eq!(sequential_pairs(4, 2), vec![(0, 1), (0, 2), (1, 2), (1, 3), (2, 3)]);
+        assert_eq!(
+            sequential_pairs(4, 2),
+            vec![(0, 1), (0, 2), (1, 2), (1, 3), (2, 3)]
+        );
         assert_eq!(exhaustive_pairs(3), vec![(0, 1), (0, 2), (1, 2)]);
         assert!(sequential_pairs(1, 5).is_empty());
         assert_eq!(sequential_pairs(3, usize::MAX).len(), 3);
@@ -236,7 +272,17 @@ mod tests {
     #[test]
     fn options_validate() {
         assert!(MatchOptions::default().validate().is_ok());
-        assert!(MatchOptions { ratio: 0.0, ..Default::default() }.validate().is_err());
-        assert!(MatchOptions { max_distance: Some(-1.0), ..Default::default() }.validate().is_err());
+        assert!(MatchOptions {
+            ratio: 0.0,
+            ..Default::default()
+        }
+        .validate()
+        .is_err());
+        assert!(MatchOptions {
+            max_distance: Some(-1.0),
+            ..Default::default()
+        }
+        .validate()
+        .is_err());
     }
 }

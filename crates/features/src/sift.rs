@@ -91,16 +91,40 @@ impl Default for SiftOptions {
 impl SiftOptions {
     pub fn validate(&self) -> Result<(), String> {
         let check = |ok: bool, msg: &dyn Fn() -> String| if ok { Ok(()) } else { Err(msg()) };
-        check(self.num_octaves != Some(0), &|| "num_octaves must be at least 1".into())?;
-        check((1..=16).contains(&self.octave_layers), &|| format!("octave_layers must be in 1..=16, got {}", self.octave_layers))?;
-        for (name, v) in [("contrast_threshold", self.contrast_threshold), ("sigma", self.sigma)] {
-            check(v.is_finite() && v > 0.0, &|| format!("{name} must be positive and finite, got {v}"))?;
+        check(self.num_octaves != Some(0), &|| {
+            "num_octaves must be at least 1".into()
+        })?;
+        check((1..=16).contains(&self.octave_layers), &|| {
+            format!(
+                "octave_layers must be in 1..=16, got {}",
+                self.octave_layers
+            )
+        })?;
+        for (name, v) in [
+            ("contrast_threshold", self.contrast_threshold),
+            ("sigma", self.sigma),
+        ] {
+            check(v.is_finite() && v > 0.0, &|| {
+                format!("{name} must be positive and finite, got {v}")
+            })?;
         }
-        let (e, i, p) = (self.edge_threshold, self.input_sigma, self.orientation_peak_ratio);
-        check(e.is_finite() && e >= 1.0, &|| format!("edge_threshold must be ≥ 1, got {e}"))?;
-        check(i.is_finite() && i >= 0.0, &|| format!("input_sigma must be ≥ 0, got {i}"))?;
-        check(p > 0.0 && p <= 1.0, &|| format!("orientation_peak_ratio must be in (0, 1], got {p}"))?;
-        check(self.max_features != Some(0), &|| "max_features must be at least 1 (use None for no limit)".into())
+        let (e, i, p) = (
+            self.edge_threshold,
+            self.input_sigma,
+            self.orientation_peak_ratio,
+        );
+        check(e.is_finite() && e >= 1.0, &|| {
+            format!("edge_threshold must be ≥ 1, got {e}")
+        })?;
+        check(i.is_finite() && i >= 0.0, &|| {
+            format!("input_sigma must be ≥ 0, got {i}")
+        })?;
+        check(p > 0.0 && p <= 1.0, &|| {
+            format!("orientation_peak_ratio must be in (0, 1], got {p}")
+        })?;
+        check(self.max_features != Some(0), &|| {
+            "max_features must be at least 1 (use None for no limit)".into()
+        })
     }
 }
 
@@ -158,9 +182,19 @@ struct Candidate {
 }
 
 fn sift_detect(image: &GrayImage, o: &SiftOptions) -> Features {
-    let (first_octave, mut base) = if o.upsample_first_octave { (-1, upsample2(image)) } else { (0, image.clone()) };
+    let (first_octave, mut base) = if o.upsample_first_octave {
+        (-1, upsample2(image))
+    } else {
+        (0, image.clone())
+    };
     if base.width < MIN_OCTAVE_SIZE || base.height < MIN_OCTAVE_SIZE {
-        return Features { keypoints: Vec::new(), descriptors: Descriptors { dim: SIFT_DIM, data: Vec::new() } };
+        return Features {
+            keypoints: Vec::new(),
+            descriptors: Descriptors {
+                dim: SIFT_DIM,
+                data: Vec::new(),
+            },
+        };
     }
     let s = o.octave_layers;
     let mut max_octaves = 1;
@@ -170,9 +204,13 @@ fn sift_detect(image: &GrayImage, o: &SiftOptions) -> Features {
     let num_octaves = o.num_octaves.map_or(max_octaves, |n| n.min(max_octaves));
     // Incremental blurs: level i has total σ₀·k^i, k = 2^{1/s}, reached from level i−1 by σ₀·k^{i−1}·√(k²−1).
     let k = 2f32.powf(1.0 / s as f32);
-    let sig_inc: Vec<f32> = (1..s + 3).map(|i| o.sigma * k.powi(i as i32 - 1) * (k * k - 1.0).sqrt()).collect();
+    let sig_inc: Vec<f32> = (1..s + 3)
+        .map(|i| o.sigma * k.powi(i as i32 - 1) * (k * k - 1.0).sqrt())
+        .collect();
     let input_sigma = o.input_sigma * if o.upsample_first_octave { 2.0 } else { 1.0 };
-    let sig0 = (o.sigma * o.sigma - input_sigma * input_sigma).max(0.01).sqrt();
+    let sig0 = (o.sigma * o.sigma - input_sigma * input_sigma)
+        .max(0.01)
+        .sqrt();
     base.data = blur(&base.data, base.width, base.height, sig0);
 
     let mut grads: Vec<OctaveGrad> = Vec::with_capacity(num_octaves);
@@ -185,18 +223,30 @@ fn sift_detect(image: &GrayImage, o: &SiftOptions) -> Features {
             let next = blur(&gauss[gauss.len() - 1], w, h, si);
             gauss.push(next);
         }
-        let (mag, ori): (Vec<_>, Vec<_>) = (1..=s).into_par_iter().map(|l| gradient_polar(&gauss[l], w, h)).unzip();
+        let (mag, ori): (Vec<_>, Vec<_>) = (1..=s)
+            .into_par_iter()
+            .map(|l| gradient_polar(&gauss[l], w, h))
+            .unzip();
         if oi + 1 < num_octaves {
             base = downsample(&gauss[s], w, h);
         }
         // DoG in place (level i becomes G[i+1] − G[i]; the last level is dropped), saving s+2 buffers.
         for i in 0..s + 2 {
             let (lo, hi) = gauss.split_at_mut(i + 1);
-            lo[i].par_chunks_mut(w).zip(hi[0].par_chunks(w)).for_each(|(a, b)| a.iter_mut().zip(b).for_each(|(a, b)| *a = b - *a));
+            lo[i]
+                .par_chunks_mut(w)
+                .zip(hi[0].par_chunks(w))
+                .for_each(|(a, b)| a.iter_mut().zip(b).for_each(|(a, b)| *a = b - *a));
         }
         gauss.truncate(s + 2);
         cands.extend(detect_octave(&gauss, w, h, grads.len(), o));
-        grads.push(OctaveGrad { octave: first_octave + oi as i32, w, h, mag, ori });
+        grads.push(OctaveGrad {
+            octave: first_octave + oi as i32,
+            w,
+            h,
+            mag,
+            ori,
+        });
     }
 
     // Strongest first; stable sort keeps the deterministic detection order among equals.
@@ -216,19 +266,33 @@ fn sift_detect(image: &GrayImage, o: &SiftOptions) -> Features {
         oriented.truncate(m);
     }
     let mut data = vec![0f32; oriented.len() * SIFT_DIM];
-    data.par_chunks_mut(SIFT_DIM).zip(oriented.par_iter()).for_each(|(out, &(ci, angle))| {
-        let c = &cands[ci];
-        describe(&grads[c.grad], c, angle, o.root_sift, out);
-    });
+    data.par_chunks_mut(SIFT_DIM)
+        .zip(oriented.par_iter())
+        .for_each(|(out, &(ci, angle))| {
+            let c = &cands[ci];
+            describe(&grads[c.grad], c, angle, o.root_sift, out);
+        });
     let keypoints = oriented
         .iter()
         .map(|&(ci, angle)| {
             let c = &cands[ci];
             let f = 2f32.powi(grads[c.grad].octave);
-            Keypoint { x: (c.x + 0.5) * f - 0.5, y: (c.y + 0.5) * f - 0.5, scale: c.scale * f, orientation: angle, response: c.response }
+            Keypoint {
+                x: (c.x + 0.5) * f - 0.5,
+                y: (c.y + 0.5) * f - 0.5,
+                scale: c.scale * f,
+                orientation: angle,
+                response: c.response,
+            }
         })
         .collect();
-    Features { keypoints, descriptors: Descriptors { dim: SIFT_DIM, data } }
+    Features {
+        keypoints,
+        descriptors: Descriptors {
+            dim: SIFT_DIM,
+            data,
+        },
+    }
 }
 
 /// Bilinear 2× upsampling: output pixel `i` samples input position `(i + 0.5)/2 − 0.5`.
@@ -241,20 +305,33 @@ fn upsample2(img: &GrayImage) -> GrayImage {
             *v = img.sample((x as f32 + 0.5) * 0.5 - 0.5, sy);
         }
     });
-    GrayImage { width: w, height: h, data }
+    GrayImage {
+        width: w,
+        height: h,
+        data,
+    }
 }
 
 /// 2×2 block average (the relation of [`GrayImage::downsample2`]), in parallel over rows.
 fn downsample(src: &[f32], w: usize, h: usize) -> GrayImage {
     let (w2, h2) = (w / 2, h / 2);
     let mut data = vec![0f32; w2 * h2];
-    data.par_chunks_mut(w2.max(1)).enumerate().for_each(|(y, row)| {
-        let (r0, r1) = (&src[2 * y * w..2 * y * w + w], &src[(2 * y + 1) * w..(2 * y + 1) * w + w]);
-        for (x, v) in row.iter_mut().enumerate() {
-            *v = 0.25 * (r0[2 * x] + r0[2 * x + 1] + r1[2 * x] + r1[2 * x + 1]);
-        }
-    });
-    GrayImage { width: w2, height: h2, data }
+    data.par_chunks_mut(w2.max(1))
+        .enumerate()
+        .for_each(|(y, row)| {
+            let (r0, r1) = (
+                &src[2 * y * w..2 * y * w + w],
+                &src[(2 * y + 1) * w..(2 * y + 1) * w + w],
+            );
+            for (x, v) in row.iter_mut().enumerate() {
+                *v = 0.25 * (r0[2 * x] + r0[2 * x + 1] + r1[2 * x] + r1[2 * x + 1]);
+            }
+        });
+    GrayImage {
+        width: w2,
+        height: h2,
+        data,
+    }
 }
 
 /// Separable Gaussian blur (border replicated), parallel over output rows: for each row the vertical
@@ -265,12 +342,22 @@ fn blur(src: &[f32], w: usize, h: usize, sigma: f32) -> Vec<f32> {
     let r = kern.len() / 2;
     let half = &kern[r..];
     let mut out = vec![0f32; w * h];
-    out.par_chunks_mut(w).enumerate().for_each_init(|| vec![0f32; w + 2 * r], |buf, (y, dst)| blur_row(src, (w, h), y, half, buf, dst));
+    out.par_chunks_mut(w).enumerate().for_each_init(
+        || vec![0f32; w + 2 * r],
+        |buf, (y, dst)| blur_row(src, (w, h), y, half, buf, dst),
+    );
     out
 }
 
 /// One output row of [`blur`]; `buf` is scratch of `w + 2r` floats.
-fn blur_row(src: &[f32], (w, h): (usize, usize), y: usize, half: &[f32], buf: &mut [f32], dst: &mut [f32]) {
+fn blur_row(
+    src: &[f32],
+    (w, h): (usize, usize),
+    y: usize,
+    half: &[f32],
+    buf: &mut [f32],
+    dst: &mut [f32],
+) {
     let r = half.len() - 1;
     let acc = &mut buf[r..r + w];
     let row = |yy: isize| {
@@ -305,11 +392,14 @@ fn blur_row(src: &[f32], (w, h): (usize, usize), y: usize, half: &[f32], buf: &m
 fn gradient_polar(src: &[f32], w: usize, h: usize) -> (Vec<f32>, Vec<f32>) {
     let mut mag = vec![0f32; w * h];
     let mut ori = vec![0f32; w * h];
-    mag.par_chunks_mut(w).zip(ori.par_chunks_mut(w)).enumerate().for_each(|(y, (m, a))| {
-        if y > 0 && y + 1 < h {
-            gradient_row(&src[(y - 1) * w..(y + 2) * w], m, a);
-        }
-    });
+    mag.par_chunks_mut(w)
+        .zip(ori.par_chunks_mut(w))
+        .enumerate()
+        .for_each(|(y, (m, a))| {
+            if y > 0 && y + 1 < h {
+                gradient_row(&src[(y - 1) * w..(y + 2) * w], m, a);
+            }
+        });
     (mag, ori)
 }
 
@@ -317,7 +407,12 @@ fn gradient_polar(src: &[f32], w: usize, h: usize) -> (Vec<f32>, Vec<f32>) {
 fn gradient_row(rows: &[f32], m: &mut [f32], a: &mut [f32]) {
     let w = m.len();
     let (up, mid, down) = (&rows[..w], &rows[w..2 * w], &rows[2 * w..3 * w]);
-    let it = m[1..w - 1].iter_mut().zip(&mut a[1..w - 1]).zip(mid.windows(3)).zip(&up[1..w - 1]).zip(&down[1..w - 1]);
+    let it = m[1..w - 1]
+        .iter_mut()
+        .zip(&mut a[1..w - 1])
+        .zip(mid.windows(3))
+        .zip(&up[1..w - 1])
+        .zip(&down[1..w - 1]);
     for ((((mv, av), win), &u), &d) in it {
         let dx = win[2] - win[0];
         let dy = d - u;
@@ -344,13 +439,21 @@ pub(crate) fn fast_atan2(y: f32, x: f32) -> f32 {
 }
 
 /// Scale-space extrema of one octave, refined and filtered, in parallel over (layer, row).
-fn detect_octave(dog: &[Vec<f32>], w: usize, h: usize, grad: usize, o: &SiftOptions) -> Vec<Candidate> {
+fn detect_octave(
+    dog: &[Vec<f32>],
+    w: usize,
+    h: usize,
+    grad: usize,
+    o: &SiftOptions,
+) -> Vec<Candidate> {
     let s = o.octave_layers;
     if w <= 2 * IMG_BORDER || h <= 2 * IMG_BORDER {
         return Vec::new();
     }
     let threshold = 0.5 * o.contrast_threshold / s as f32;
-    let rows: Vec<(usize, usize)> = (1..=s).flat_map(|l| (IMG_BORDER..h - IMG_BORDER).map(move |r| (l, r))).collect();
+    let rows: Vec<(usize, usize)> = (1..=s)
+        .flat_map(|l| (IMG_BORDER..h - IMG_BORDER).map(move |r| (l, r)))
+        .collect();
     rows.par_iter()
         .flat_map_iter(|&(l, r)| {
             let mut found = Vec::new();
@@ -375,18 +478,37 @@ fn detect_octave(dog: &[Vec<f32>], w: usize, h: usize, grad: usize, o: &SiftOpti
 #[inline]
 fn is_extremum(prev: &[f32], cur: &[f32], next: &[f32], i: usize, w: usize) -> bool {
     let v = cur[i];
-    let offsets = [i - w - 1, i - w, i - w + 1, i - 1, i + 1, i + w - 1, i + w, i + w + 1];
+    let offsets = [
+        i - w - 1,
+        i - w,
+        i - w + 1,
+        i - 1,
+        i + 1,
+        i + w - 1,
+        i + w,
+        i + w + 1,
+    ];
     if v > 0.0 {
-        offsets.iter().all(|&j| v >= cur[j]) && [prev, next].iter().all(|p| v >= p[i] && offsets.iter().all(|&j| v >= p[j]))
+        offsets.iter().all(|&j| v >= cur[j])
+            && [prev, next]
+                .iter()
+                .all(|p| v >= p[i] && offsets.iter().all(|&j| v >= p[j]))
     } else {
-        offsets.iter().all(|&j| v <= cur[j]) && [prev, next].iter().all(|p| v <= p[i] && offsets.iter().all(|&j| v <= p[j]))
+        offsets.iter().all(|&j| v <= cur[j])
+            && [prev, next]
+                .iter()
+                .all(|p| v <= p[i] && offsets.iter().all(|&j| v <= p[j]))
     }
 }
 
 /// Gradient and Hessian of the DoG at `(layer, i)` by central differences (order x, y, σ).
 fn dog_derivatives(dog: &[Vec<f32>], l: usize, i: usize, w: usize) -> ([f32; 3], [[f32; 3]; 3]) {
     let (p, c, n) = (&dog[l - 1], &dog[l], &dog[l + 1]);
-    let g = [(c[i + 1] - c[i - 1]) * 0.5, (c[i + w] - c[i - w]) * 0.5, (n[i] - p[i]) * 0.5];
+    let g = [
+        (c[i + 1] - c[i - 1]) * 0.5,
+        (c[i + w] - c[i - w]) * 0.5,
+        (n[i] - p[i]) * 0.5,
+    ];
     let v2 = 2.0 * c[i];
     let dxx = c[i + 1] + c[i - 1] - v2;
     let dyy = c[i + w] + c[i - w] - v2;
@@ -399,14 +521,25 @@ fn dog_derivatives(dog: &[Vec<f32>], l: usize, i: usize, w: usize) -> ([f32; 3],
 
 /// Solves `H x = g` (LU with partial pivoting); `None` when `H` is singular.
 fn solve3(hm: &[[f32; 3]; 3], g: &[f32; 3]) -> Option<[f32; 3]> {
-    let x = Matrix3::from_fn(|r, c| hm[r][c]).lu().solve(&Vector3::from(*g))?;
+    let x = Matrix3::from_fn(|r, c| hm[r][c])
+        .lu()
+        .solve(&Vector3::from(*g))?;
     x.iter().all(|v| v.is_finite()).then(|| [x[0], x[1], x[2]])
 }
 
 /// Quadratic sub-pixel/sub-scale refinement (Lowe eq. 3), moving to a neighbour while an offset
 /// exceeds 0.5, then the contrast (|D(x̂)|·s ≥ threshold) and edge (eq. 4) tests.
 #[allow(clippy::too_many_arguments)]
-fn refine(dog: &[Vec<f32>], w: usize, h: usize, layer: usize, r: usize, c: usize, grad: usize, o: &SiftOptions) -> Option<Candidate> {
+fn refine(
+    dog: &[Vec<f32>],
+    w: usize,
+    h: usize,
+    layer: usize,
+    r: usize,
+    c: usize,
+    grad: usize,
+    o: &SiftOptions,
+) -> Option<Candidate> {
     let s = o.octave_layers;
     let (mut l, mut r, mut c) = (layer, r, c);
     let mut step = 0;
@@ -424,16 +557,26 @@ fn refine(dog: &[Vec<f32>], w: usize, h: usize, layer: usize, r: usize, c: usize
         let nr = r as i64 + x[1].round() as i64;
         let nl = l as i64 + x[2].round() as i64;
         let b = IMG_BORDER as i64;
-        if nl < 1 || nl > s as i64 || nc < b || nc >= (w - IMG_BORDER) as i64 || nr < b || nr >= (h - IMG_BORDER) as i64 {
+        if nl < 1
+            || nl > s as i64
+            || nc < b
+            || nc >= (w - IMG_BORDER) as i64
+            || nr < b
+            || nr >= (h - IMG_BORDER) as i64
+        {
             return None;
         }
         (l, r, c) = (nl as usize, nr as usize, nc as usize);
     };
-    let contrast = dog[l][r * w + c] + 0.5 * (g[0] * offset[0] + g[1] * offset[1] + g[2] * offset[2]);
+    let contrast =
+        dog[l][r * w + c] + 0.5 * (g[0] * offset[0] + g[1] * offset[1] + g[2] * offset[2]);
     if contrast.abs() * (s as f32) < o.contrast_threshold {
         return None;
     }
-    let (tr, det) = (hm[0][0] + hm[1][1], hm[0][0] * hm[1][1] - hm[0][1] * hm[0][1]);
+    let (tr, det) = (
+        hm[0][0] + hm[1][1],
+        hm[0][0] * hm[1][1] - hm[0][1] * hm[0][1],
+    );
     let e = o.edge_threshold;
     if det <= 0.0 || tr * tr * e >= (e + 1.0) * (e + 1.0) * det {
         return None;
@@ -469,7 +612,9 @@ mod tests {
         let img = GrayImage {
             width: 37,
             height: 23,
-            data: (0..37 * 23).map(|i| ((i * 7919) % 97) as f32 / 97.0).collect(),
+            data: (0..37 * 23)
+                .map(|i| ((i * 7919) % 97) as f32 / 97.0)
+                .collect(),
         };
         let want = img.gaussian_blur(1.7);
         let got = blur(&img.data, 37, 23, 1.7);

@@ -4,7 +4,10 @@
 //! all correct matches (step 5). Runs in parallel over pairs.
 
 use handheld_core::Progress;
-use handheld_robust::{estimate_two_view_geometry, refine_two_view, Match2d2d, TwoViewConfiguration, TwoViewGeometry, TwoViewOptions};
+use handheld_robust::{
+    estimate_two_view_geometry, refine_two_view, Match2d2d, TwoViewConfiguration, TwoViewGeometry,
+    TwoViewOptions,
+};
 use nalgebra::{Matrix3, Vector2, Vector3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -122,12 +125,20 @@ impl Grid {
         let rows = (h / cell).ceil() as usize + 1;
         let mut cells = vec![Vec::new(); cols * rows];
         for (idx, k) in f.keypoints.iter().enumerate() {
-            let (cx, cy) = ((k.x.max(0.0) as f64 / cell) as usize, (k.y.max(0.0) as f64 / cell) as usize);
+            let (cx, cy) = (
+                (k.x.max(0.0) as f64 / cell) as usize,
+                (k.y.max(0.0) as f64 / cell) as usize,
+            );
             if cx < cols && cy < rows {
                 cells[cy * cols + cx].push(idx as u32);
             }
         }
-        Self { cell, cols, rows, cells }
+        Self {
+            cell,
+            cols,
+            rows,
+            cells,
+        }
     }
 
     /// Keypoints within `band` pixels of the line `l` (`l·(x, y, 1) = 0`): walks only the grid cells
@@ -140,7 +151,11 @@ impl Grid {
         }
         let reach = band + self.cell * std::f64::consts::SQRT_2;
         let steep = l.x.abs() >= l.y.abs();
-        let (outer, inner) = if steep { (self.rows, self.cols) } else { (self.cols, self.rows) };
+        let (outer, inner) = if steep {
+            (self.rows, self.cols)
+        } else {
+            (self.cols, self.rows)
+        };
         // Along the outer axis, the line's inner coordinate is t = −(b·s + c)/a; the band is
         // ±reach·n/|a| wide in t.
         let (a, b) = if steep { (l.x, l.y) } else { (l.y, l.x) };
@@ -154,7 +169,11 @@ impl Grid {
                 continue;
             }
             for i in lo..=hi as usize {
-                let idx = if steep { o * self.cols + i } else { i * self.cols + o };
+                let idx = if steep {
+                    o * self.cols + i
+                } else {
+                    i * self.cols + o
+                };
                 out.extend_from_slice(&self.cells[idx]);
             }
         }
@@ -162,16 +181,30 @@ impl Grid {
 }
 
 fn dist(a: &[f32], b: &[f32]) -> f32 {
-    a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum::<f32>().sqrt()
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y) * (x - y))
+        .sum::<f32>()
+        .sqrt()
 }
 
 /// Table 1 step 4: for every keypoint of image 1 not yet matched, the nearest descriptor among the
 /// keypoints of image 2 within `max_epipolar_px` of its epipolar line `F x1` (ratio test among those
 /// candidates, distance limit, and image-2 keypoints used at most once).
-pub fn guided_matches(f1: &Features, f2: &Features, f: &Matrix3<f64>, existing: &[(u32, u32)], opts: &PairVerificationOptions) -> Vec<(u32, u32)> {
+pub fn guided_matches(
+    f1: &Features,
+    f2: &Features,
+    f: &Matrix3<f64>,
+    existing: &[(u32, u32)],
+    opts: &PairVerificationOptions,
+) -> Vec<(u32, u32)> {
     let d1 = &f1.descriptors;
     let d2 = &f2.descriptors;
-    if d1.dim == 0 || d1.dim != d2.dim || d1.len() != f1.keypoints.len() || d2.len() != f2.keypoints.len() {
+    if d1.dim == 0
+        || d1.dim != d2.dim
+        || d1.len() != f1.keypoints.len()
+        || d2.len() != f2.keypoints.len()
+    {
         return Vec::new();
     }
     let mut used1 = vec![false; f1.keypoints.len()];
@@ -226,26 +259,59 @@ pub fn guided_matches(f1: &Features, f2: &Features, f: &Matrix3<f64>, existing: 
 }
 
 /// Verifies one pair from its putative matches.
-pub fn verify_pair(i: usize, j: usize, f1: &Features, f2: &Features, putative: Vec<Match>, opts: &PairVerificationOptions) -> VerifiedPair {
-    let m: Vec<Match2d2d> = putative.iter().map(|p| Match2d2d::new(point(f1, p.i), point(f2, p.j))).collect();
+pub fn verify_pair(
+    i: usize,
+    j: usize,
+    f1: &Features,
+    f2: &Features,
+    putative: Vec<Match>,
+    opts: &PairVerificationOptions,
+) -> VerifiedPair {
+    let m: Vec<Match2d2d> = putative
+        .iter()
+        .map(|p| Match2d2d::new(point(f1, p.i), point(f2, p.j)))
+        .collect();
     let mut geometry = match estimate_two_view_geometry(&m, &opts.two_view) {
         Ok(g) => g,
         Err(e) => {
             tracing::warn!("pair ({i}, {j}): {e}");
-            return VerifiedPair { i, j, putative, geometry: TwoViewGeometry::too_few(0), inliers: Vec::new(), guided_added: 0 };
+            return VerifiedPair {
+                i,
+                j,
+                putative,
+                geometry: TwoViewGeometry::too_few(0),
+                inliers: Vec::new(),
+                guided_added: 0,
+            };
         }
     };
-    let mut inliers: Vec<(u32, u32)> = putative.iter().zip(&geometry.inlier_mask).filter(|(_, &k)| k).map(|(p, _)| (p.i, p.j)).collect();
+    let mut inliers: Vec<(u32, u32)> = putative
+        .iter()
+        .zip(&geometry.inlier_mask)
+        .filter(|(_, &k)| k)
+        .map(|(p, _)| (p.i, p.j))
+        .collect();
     let mut guided_added = 0;
-    if opts.guided && geometry.configuration == TwoViewConfiguration::General && inliers.len() >= opts.guided_min_inliers {
+    if opts.guided
+        && geometry.configuration == TwoViewConfiguration::General
+        && inliers.len() >= opts.guided_min_inliers
+    {
         if let Some(fm) = geometry.f {
             let extra = guided_matches(f1, f2, &fm, &inliers, opts);
             if !extra.is_empty() {
                 // Step 5: refine F on all correct matches and keep those it explains.
                 let all: Vec<(u32, u32)> = inliers.iter().chain(&extra).copied().collect();
-                let am: Vec<Match2d2d> = all.iter().map(|&(a, b)| Match2d2d::new(point(f1, a), point(f2, b))).collect();
+                let am: Vec<Match2d2d> = all
+                    .iter()
+                    .map(|&(a, b)| Match2d2d::new(point(f1, a), point(f2, b)))
+                    .collect();
                 let (f_ref, mask) = refine_two_view(&fm, &am, opts.two_view.f_threshold_px);
-                let kept: Vec<(u32, u32)> = all.iter().zip(&mask).filter(|(_, &k)| k).map(|(p, _)| *p).collect();
+                let kept: Vec<(u32, u32)> = all
+                    .iter()
+                    .zip(&mask)
+                    .filter(|(_, &k)| k)
+                    .map(|(p, _)| *p)
+                    .collect();
                 if kept.len() >= inliers.len() {
                     guided_added = kept.len().saturating_sub(inliers.len());
                     inliers = kept;
@@ -255,11 +321,23 @@ pub fn verify_pair(i: usize, j: usize, f1: &Features, f2: &Features, putative: V
             }
         }
     }
-    VerifiedPair { i, j, putative, geometry, inliers, guided_added }
+    VerifiedPair {
+        i,
+        j,
+        putative,
+        geometry,
+        inliers,
+        guided_added,
+    }
 }
 
 /// Matches and verifies every pair, in parallel, reporting progress per pair.
-pub fn verify_pairs(features: &[Features], pairs: &[(usize, usize)], opts: &PairVerificationOptions, progress: &dyn Progress) -> Vec<VerifiedPair> {
+pub fn verify_pairs(
+    features: &[Features],
+    pairs: &[(usize, usize)],
+    opts: &PairVerificationOptions,
+    progress: &dyn Progress,
+) -> Vec<VerifiedPair> {
     progress.start("matching pairs", pairs.len() as u64);
     let out = pairs
         .par_iter()
@@ -284,13 +362,24 @@ mod tests {
     fn grid_band_query_finds_every_keypoint_near_the_line() {
         let mut s = 12345u64;
         let mut rnd = || {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             (s >> 11) as f64 / (1u64 << 53) as f64
         };
         let keypoints: Vec<Keypoint> = (0..3000)
-            .map(|_| Keypoint { x: (rnd() * 1000.0) as f32, y: (rnd() * 700.0) as f32, scale: 1.0, orientation: 0.0, response: 1.0 })
+            .map(|_| Keypoint {
+                x: (rnd() * 1000.0) as f32,
+                y: (rnd() * 700.0) as f32,
+                scale: 1.0,
+                orientation: 0.0,
+                response: 1.0,
+            })
             .collect();
-        let f = Features { keypoints, descriptors: Default::default() };
+        let f = Features {
+            keypoints,
+            descriptors: Default::default(),
+        };
         let grid = Grid::new(&f, 32.0);
         let mut out = Vec::new();
         for _ in 0..200 {
@@ -305,7 +394,10 @@ mod tests {
                     assert!(out.contains(&(k as u32)), "keypoint {k} missed");
                 }
             }
-            assert!(out.len() < f.keypoints.len() / 2, "the band query should prune");
+            assert!(
+                out.len() < f.keypoints.len() / 2,
+                "the band query should prune"
+            );
         }
     }
 }

@@ -27,8 +27,19 @@ pub fn sample_patch(img: &GrayImage, x: f32, y: f32, radius: usize, out: &mut [f
     let r = radius as isize;
     let (xs, ys) = (x0 as isize - r, y0 as isize - r);
     let (w, h) = (img.width as isize, img.height as isize);
-    if xs >= 0 && ys >= 0 && xs + (side as isize) < w && ys + (side as isize) < h && x.is_finite() && y.is_finite() {
-        let (w00, w10, w01, w11) = ((1.0 - fx) * (1.0 - fy), fx * (1.0 - fy), (1.0 - fx) * fy, fx * fy);
+    if xs >= 0
+        && ys >= 0
+        && xs + (side as isize) < w
+        && ys + (side as isize) < h
+        && x.is_finite()
+        && y.is_finite()
+    {
+        let (w00, w10, w01, w11) = (
+            (1.0 - fx) * (1.0 - fy),
+            fx * (1.0 - fy),
+            (1.0 - fx) * fy,
+            fx * fy,
+        );
         let (xs, ys, w) = (xs as usize, ys as usize, img.width);
         for (j, row) in out.chunks_exact_mut(side).enumerate() {
             let top = &img.data[(ys + j) * w + xs..(ys + j) * w + xs + side + 1];
@@ -124,18 +135,27 @@ pub struct ZnccMatchOptions {
 
 impl Default for ZnccMatchOptions {
     fn default() -> Self {
-        Self { min_score: 0.8, max_disparity: None, mutual: true }
+        Self {
+            min_score: 0.8,
+            max_disparity: None,
+            mutual: true,
+        }
     }
 }
 
 impl ZnccMatchOptions {
     pub fn validate(&self) -> Result<(), String> {
         if !(-1.0..=1.0).contains(&self.min_score) {
-            return Err(format!("min_score must be in [-1, 1], got {}", self.min_score));
+            return Err(format!(
+                "min_score must be in [-1, 1], got {}",
+                self.min_score
+            ));
         }
         if let Some(r) = self.max_disparity {
             if !(r > 0.0 && r.is_finite()) {
-                return Err(format!("max_disparity must be finite and positive, got {r}"));
+                return Err(format!(
+                    "max_disparity must be finite and positive, got {r}"
+                ));
             }
         }
         Ok(())
@@ -161,9 +181,23 @@ impl Grid {
         let x1 = finite().map(|p| p.0).fold(f32::NEG_INFINITY, f32::max);
         let y1 = finite().map(|p| p.1).fold(f32::NEG_INFINITY, f32::max);
         let (x0, y0) = if x0.is_finite() { (x0, y0) } else { (0.0, 0.0) };
-        let span = |a: f32, b: f32| if b >= a { ((b - a) / cell) as usize + 1 } else { 1 };
+        let span = |a: f32, b: f32| {
+            if b >= a {
+                ((b - a) / cell) as usize + 1
+            } else {
+                1
+            }
+        };
         let (cols, rows) = (span(x0, x1).min(4096), span(y0, y1).min(4096));
-        let mut g = Self { cell, x0, y0, cols, rows, start: vec![0; cols * rows + 1], items: Vec::new() };
+        let mut g = Self {
+            cell,
+            x0,
+            y0,
+            cols,
+            rows,
+            start: vec![0; cols * rows + 1],
+            items: Vec::new(),
+        };
         let cells: Vec<Option<usize>> = pts.iter().map(|&(x, y)| g.cell_of(x, y)).collect();
         for c in cells.iter().flatten() {
             g.start[c + 1] += 1;
@@ -183,7 +217,10 @@ impl Grid {
     }
 
     fn coords(&self, x: f32, y: f32) -> (isize, isize) {
-        (((x - self.x0) / self.cell).floor() as isize, ((y - self.y0) / self.cell).floor() as isize)
+        (
+            ((x - self.x0) / self.cell).floor() as isize,
+            ((y - self.y0) / self.cell).floor() as isize,
+        )
     }
 
     fn cell_of(&self, x: f32, y: f32) -> Option<usize> {
@@ -191,7 +228,10 @@ impl Grid {
             return None;
         }
         let (cx, cy) = self.coords(x, y);
-        let (cx, cy) = (cx.clamp(0, self.cols as isize - 1) as usize, cy.clamp(0, self.rows as isize - 1) as usize);
+        let (cx, cy) = (
+            cx.clamp(0, self.cols as isize - 1) as usize,
+            cy.clamp(0, self.rows as isize - 1) as usize,
+        );
         Some(cy * self.cols + cx)
     }
 
@@ -214,7 +254,12 @@ impl Grid {
 
 /// For every feature of `a`, the index and score of its best partner in `b` (dot product of the
 /// normalised patches), restricted to `radius` pixels when given.
-fn best_partners(a: &Features, b: &Features, radius: Option<f32>, grid: Option<&Grid>) -> Vec<Option<(u32, f32)>> {
+fn best_partners(
+    a: &Features,
+    b: &Features,
+    radius: Option<f32>,
+    grid: Option<&Grid>,
+) -> Vec<Option<(u32, f32)>> {
     let na = a.keypoints.len().min(a.descriptors.len());
     let nb = b.keypoints.len().min(b.descriptors.len());
     (0..na)
@@ -233,7 +278,11 @@ fn best_partners(a: &Features, b: &Features, radius: Option<f32>, grid: Option<&
                         return;
                     }
                 }
-                let s: f32 = da.iter().zip(b.descriptors.row(j)).map(|(p, q)| p * q).sum();
+                let s: f32 = da
+                    .iter()
+                    .zip(b.descriptors.row(j))
+                    .map(|(p, q)| p * q)
+                    .sum();
                 // Ties go to the lower index so the result does not depend on the scan order.
                 let better = match best {
                     None => true,
@@ -256,18 +305,32 @@ fn best_partners(a: &Features, b: &Features, radius: Option<f32>, grid: Option<&
 /// (within `max_disparity` pixels when set), kept when its score reaches `min_score` and, with
 /// `mutual`, when it is also the best partner in the other direction. Returns `(i1, i2, zncc)` sorted by
 /// `i1`; empty when the descriptor sizes differ or the options are invalid.
-pub fn match_zncc(f1: &Features, f2: &Features, options: &ZnccMatchOptions) -> Vec<(u32, u32, f32)> {
-    if options.validate().is_err() || f1.descriptors.dim != f2.descriptors.dim || f1.descriptors.dim == 0 {
+pub fn match_zncc(
+    f1: &Features,
+    f2: &Features,
+    options: &ZnccMatchOptions,
+) -> Vec<(u32, u32, f32)> {
+    if options.validate().is_err()
+        || f1.descriptors.dim != f2.descriptors.dim
+        || f1.descriptors.dim == 0
+    {
         return Vec::new();
     }
     let radius = options.max_disparity;
     let pos = |f: &Features| f.keypoints.iter().map(|k| (k.x, k.y)).collect::<Vec<_>>();
     let (g2, g1) = match radius {
-        Some(r) => (Some(Grid::new(&pos(f2), r)), options.mutual.then(|| Grid::new(&pos(f1), r))),
+        Some(r) => (
+            Some(Grid::new(&pos(f2), r)),
+            options.mutual.then(|| Grid::new(&pos(f1), r)),
+        ),
         None => (None, None),
     };
     let forward = best_partners(f1, f2, radius, g2.as_ref());
-    let backward = if options.mutual { Some(best_partners(f2, f1, radius, g1.as_ref())) } else { None };
+    let backward = if options.mutual {
+        Some(best_partners(f2, f1, radius, g1.as_ref()))
+    } else {
+        None
+    };
     forward
         .iter()
         .enumerate()

@@ -17,23 +17,36 @@ fn keyframes_follow_the_f_versus_h_rule() {
         height: 240,
         num_frames: n,
         samples_per_axis: 2,
-        path: PathOptions { sweep: 10.0, ..PathOptions::orbit(n) },
+        path: PathOptions {
+            sweep: 10.0,
+            ..PathOptions::orbit(n)
+        },
         ..SequenceOptions::default()
     };
     let seq = render_sequence(&opts).unwrap();
-    let mut tracker = KltTracker::new(KltOptions { target_features: 400, ..Default::default() }).unwrap();
+    let mut tracker = KltTracker::new(KltOptions {
+        target_features: 400,
+        ..Default::default()
+    })
+    .unwrap();
     for img in &seq.images {
         tracker.process(&GrayImage::from_rgb8(img));
     }
     let tracks = tracker.tracks().to_vec();
     let keys = select_keyframes(&tracks, n, &KeyframeOptions::default());
     eprintln!("key-frames: {keys:?}");
-    assert!(keys.len() >= 3, "expected several key-frames over a 10° orbit: {keys:?}");
+    assert!(
+        keys.len() >= 3,
+        "expected several key-frames over a 10° orbit: {keys:?}"
+    );
     assert_eq!(keys[0], (0, KeyframeReason::First));
     // Consecutive frames are too close (the reason for key-frames): most gaps span several frames.
     let mut gaps: Vec<usize> = keys.windows(2).map(|w| w[1].0 - w[0].0).collect();
     gaps.sort_unstable();
-    assert!(gaps[gaps.len() / 2] >= 3, "key-frames should be spaced: {keys:?}");
+    assert!(
+        gaps[gaps.len() / 2] >= 3,
+        "key-frames should be spaced: {keys:?}"
+    );
     for w in keys.windows(2) {
         assert!(w[1].0 > w[0].0, "{keys:?}");
         assert_eq!(w[1].1, KeyframeReason::EpipolarGeometry, "{keys:?}");
@@ -44,10 +57,18 @@ fn keyframes_follow_the_f_versus_h_rule() {
                 let birth = t.positions.first()?.0;
                 let a = t.positions.get(w[0].0.checked_sub(birth)?)?;
                 let b = t.positions.get(w[1].0.checked_sub(birth)?)?;
-                Some(Match2d2d::new(Vector2::new(a.1 as f64, a.2 as f64), Vector2::new(b.1 as f64, b.2 as f64)))
+                Some(Match2d2d::new(
+                    Vector2::new(a.1 as f64, a.2 as f64),
+                    Vector2::new(b.1 as f64, b.2 as f64),
+                ))
             })
             .collect();
         let g = estimate_two_view_geometry(&m, &KeyframeOptions::default().two_view).unwrap();
-        assert_eq!(g.configuration, TwoViewConfiguration::General, "pair {:?}", (w[0].0, w[1].0));
+        assert_eq!(
+            g.configuration,
+            TwoViewConfiguration::General,
+            "pair {:?}",
+            (w[0].0, w[1].0)
+        );
     }
 }

@@ -41,7 +41,10 @@ fn klt_tracks_stay_within_0_3_px_of_ground_truth() {
         height: 360,
         num_frames: 13,
         samples_per_axis: 3,
-        path: PathOptions { sweep: 12.0, ..PathOptions::orbit(13) },
+        path: PathOptions {
+            sweep: 12.0,
+            ..PathOptions::orbit(13)
+        },
         ..SequenceOptions::default()
     };
     let seq = render_sequence(&opts).expect("valid options");
@@ -56,7 +59,10 @@ fn klt_tracks_stay_within_0_3_px_of_ground_truth() {
     let tracks = tracker.tracks();
     assert!(tracks.windows(2).all(|w| w[0].id < w[1].id), "ids increase");
     for t in tracks {
-        assert!(t.positions.windows(2).all(|w| w[1].0 == w[0].0 + 1), "consecutive frames");
+        assert!(
+            t.positions.windows(2).all(|w| w[1].0 == w[0].0 + 1),
+            "consecutive frames"
+        );
     }
     let long: Vec<&Track2d> = tracks.iter().filter(|t| t.positions.len() > SPAN).collect();
     let mut errors: Vec<f64> = long.iter().filter_map(|t| track_error(&seq, t)).collect();
@@ -64,7 +70,10 @@ fn klt_tracks_stay_within_0_3_px_of_ground_truth() {
     let within = errors.iter().filter(|&&e| e <= 0.3).count();
     let fraction = within as f64 / errors.len().max(1) as f64;
     let born_first = tracks.iter().filter(|t| t.positions[0].0 == 0).count();
-    let alive_first = tracks.iter().filter(|t| t.positions[0].0 == 0 && t.positions.len() > SPAN).count();
+    let alive_first = tracks
+        .iter()
+        .filter(|t| t.positions[0].0 == 0 && t.positions.len() > SPAN)
+        .count();
     println!(
         "render {t_render:.2}s, tracking {} frames {t_track:.2}s ({:.0} ms/frame); {} tracks, {} alive at the end",
         frames.len(),
@@ -90,19 +99,34 @@ fn tracker_survives_size_changes_and_drains_dead_tracks() {
     let mut img = GrayImage::new(120, 90);
     for y in 0..90 {
         for x in 0..120 {
-            img.data[y * 120 + x] = if ((x / 9) + (y / 7)) % 2 == 0 { 0.2 } else { 0.8 };
+            img.data[y * 120 + x] = if ((x / 9) + (y / 7)) % 2 == 0 {
+                0.2
+            } else {
+                0.8
+            };
         }
     }
-    let mut tracker = KltTracker::new(KltOptions { target_features: 30, ..KltOptions::default() }).expect("valid");
+    let mut tracker = KltTracker::new(KltOptions {
+        target_features: 30,
+        ..KltOptions::default()
+    })
+    .expect("valid");
     tracker.process(&img);
     let n = tracker.alive_count();
     assert!(n > 10, "{n}");
     tracker.process(&img);
-    assert!(tracker.tracks().iter().filter(|t| t.alive).all(|t| t.positions.len() <= 2));
+    assert!(tracker
+        .tracks()
+        .iter()
+        .filter(|t| t.alive)
+        .all(|t| t.positions.len() <= 2));
     tracker.process(&GrayImage::new(60, 40));
     let dead = tracker.drain_finished();
     assert!(dead.len() >= n && dead.iter().all(|t| !t.alive));
     assert!(tracker.tracks().iter().all(|t| t.alive));
-    assert!(KltTracker::new(KltOptions { window_radius: 0, ..KltOptions::default() }).is_err());
+    assert!(KltTracker::new(KltOptions {
+        window_radius: 0,
+        ..KltOptions::default()
+    })
+    .is_err());
 }
-

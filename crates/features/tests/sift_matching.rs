@@ -13,7 +13,10 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 fn rendered_image() -> GrayImage {
-    let opts = SequenceOptions { num_frames: 2, ..Default::default() };
+    let opts = SequenceOptions {
+        num_frames: 2,
+        ..Default::default()
+    };
     let seq = render_sequence(&opts).expect("render");
     GrayImage::from_rgb8(&seq.images[0])
 }
@@ -30,11 +33,17 @@ struct Similarity {
 impl Similarity {
     fn apply(&self, x: f32, y: f32) -> (f32, f32) {
         let (dx, dy) = (x - self.cx, y - self.cy);
-        (self.s * (self.cos * dx - self.sin * dy) + self.cx, self.s * (self.sin * dx + self.cos * dy) + self.cy)
+        (
+            self.s * (self.cos * dx - self.sin * dy) + self.cx,
+            self.s * (self.sin * dx + self.cos * dy) + self.cy,
+        )
     }
     fn invert(&self, x: f32, y: f32) -> (f32, f32) {
         let (dx, dy) = ((x - self.cx) / self.s, (y - self.cy) / self.s);
-        (self.cos * dx + self.sin * dy + self.cx, -self.sin * dx + self.cos * dy + self.cy)
+        (
+            self.cos * dx + self.sin * dy + self.cx,
+            -self.sin * dx + self.cos * dy + self.cy,
+        )
     }
 }
 
@@ -43,7 +52,11 @@ fn warp(img: &GrayImage, t: &Similarity) -> GrayImage {
     for y in 0..img.height {
         for x in 0..img.width {
             let (sx, sy) = t.invert(x as f32, y as f32);
-            out.data[y * img.width + x] = if img.inside(sx, sy, 0.0) { img.sample(sx, sy) } else { 0.5 };
+            out.data[y * img.width + x] = if img.inside(sx, sy, 0.0) {
+                img.sample(sx, sy)
+            } else {
+                0.5
+            };
         }
     }
     out
@@ -52,9 +65,18 @@ fn warp(img: &GrayImage, t: &Similarity) -> GrayImage {
 #[test]
 fn sift_is_repeatable_and_matches_under_similarity() {
     let img1 = rendered_image();
-    let t = Similarity { s: 0.8, cos: 30f32.to_radians().cos(), sin: 30f32.to_radians().sin(), cx: 319.5, cy: 239.5 };
+    let t = Similarity {
+        s: 0.8,
+        cos: 30f32.to_radians().cos(),
+        sin: 30f32.to_radians().sin(),
+        cx: 319.5,
+        cy: 239.5,
+    };
     let img2 = warp(&img1, &t);
-    let sift = Sift::new(SiftOptions { max_features: None, ..Default::default() });
+    let sift = Sift::new(SiftOptions {
+        max_features: None,
+        ..Default::default()
+    });
     assert_eq!(sift.name(), "rootsift");
     let (f1, f2) = (sift.detect(&img1), sift.detect(&img2));
     assert_eq!(f1.descriptors.dim, SIFT_DIM);
@@ -69,14 +91,25 @@ fn sift_is_repeatable_and_matches_under_similarity() {
         let (u, v) = t.apply(x, y);
         img1.inside(x, y, 12.0) && img2.inside(u, v, 12.0)
     };
-    let visible1: Vec<(f32, f32)> = f1.keypoints.iter().filter(|k| common(k.x, k.y)).map(|k| t.apply(k.x, k.y)).collect();
+    let visible1: Vec<(f32, f32)> = f1
+        .keypoints
+        .iter()
+        .filter(|k| common(k.x, k.y))
+        .map(|k| t.apply(k.x, k.y))
+        .collect();
     let visible2 = f2.keypoints.iter().filter(|k| {
         let (x, y) = t.invert(k.x, k.y);
         common(x, y)
     });
     let visible = visible1.len().min(visible2.count());
-    let repeated =
-        visible1.iter().filter(|(x, y)| f2.keypoints.iter().any(|q| (q.x - x).powi(2) + (q.y - y).powi(2) < 1.5f32.powi(2))).count();
+    let repeated = visible1
+        .iter()
+        .filter(|(x, y)| {
+            f2.keypoints
+                .iter()
+                .any(|q| (q.x - x).powi(2) + (q.y - y).powi(2) < 1.5f32.powi(2))
+        })
+        .count();
     let repeatability = repeated as f64 / visible.max(1) as f64;
     let matches = match_descriptors(&f1.descriptors, &f2.descriptors, &MatchOptions::default());
     let correct = matches
@@ -103,33 +136,84 @@ fn sift_is_repeatable_and_matches_under_similarity() {
 #[test]
 fn sift_options_validate() {
     assert!(SiftOptions::default().validate().is_ok());
-    assert!(SiftOptions { octave_layers: 0, ..Default::default() }.validate().is_err());
-    assert!(SiftOptions { sigma: f32::NAN, ..Default::default() }.validate().is_err());
-    assert!(SiftOptions { edge_threshold: 0.5, ..Default::default() }.validate().is_err());
-    assert!(SiftOptions { max_features: Some(0), ..Default::default() }.validate().is_err());
-    assert!(SiftOptions { num_octaves: Some(0), ..Default::default() }.validate().is_err());
-    assert_eq!(Sift::new(SiftOptions { root_sift: false, ..Default::default() }).name(), "sift");
+    assert!(SiftOptions {
+        octave_layers: 0,
+        ..Default::default()
+    }
+    .validate()
+    .is_err());
+    assert!(SiftOptions {
+        sigma: f32::NAN,
+        ..Default::default()
+    }
+    .validate()
+    .is_err());
+    assert!(SiftOptions {
+        edge_threshold: 0.5,
+        ..Default::default()
+    }
+    .validate()
+    .is_err());
+    assert!(SiftOptions {
+        max_features: Some(0),
+        ..Default::default()
+    }
+    .validate()
+    .is_err());
+    assert!(SiftOptions {
+        num_octaves: Some(0),
+        ..Default::default()
+    }
+    .validate()
+    .is_err());
+    assert_eq!(
+        Sift::new(SiftOptions {
+            root_sift: false,
+            ..Default::default()
+        })
+        .name(),
+        "sift"
+    );
 }
 
 #[test]
 fn sift_handles_tiny_and_flat_images() {
     let sift = Sift::default();
     assert!(sift.detect(&GrayImage::new(8, 8)).keypoints.is_empty());
-    let f = sift.detect(&GrayImage { width: 64, height: 48, data: vec![0.5; 64 * 48] });
+    let f = sift.detect(&GrayImage {
+        width: 64,
+        height: 48,
+        data: vec![0.5; 64 * 48],
+    });
     assert!(f.keypoints.is_empty() && f.descriptors.is_empty());
-    let bad = Sift::new(SiftOptions { octave_layers: 0, ..Default::default() });
+    let bad = Sift::new(SiftOptions {
+        octave_layers: 0,
+        ..Default::default()
+    });
     assert!(bad.detect(&rendered_image()).keypoints.is_empty());
 }
 
 #[test]
 fn max_features_keeps_the_strongest() {
     let img = rendered_image();
-    let all = Sift::new(SiftOptions { max_features: None, ..Default::default() }).detect(&img);
-    let few = Sift::new(SiftOptions { max_features: Some(50), ..Default::default() }).detect(&img);
+    let all = Sift::new(SiftOptions {
+        max_features: None,
+        ..Default::default()
+    })
+    .detect(&img);
+    let few = Sift::new(SiftOptions {
+        max_features: Some(50),
+        ..Default::default()
+    })
+    .detect(&img);
     assert_eq!(few.keypoints.len(), 50);
     let mut responses: Vec<f32> = all.keypoints.iter().map(|k| k.response).collect();
     responses.sort_by(|a, b| b.total_cmp(a));
-    let weakest_kept = few.keypoints.iter().map(|k| k.response).fold(f32::INFINITY, f32::min);
+    let weakest_kept = few
+        .keypoints
+        .iter()
+        .map(|k| k.response)
+        .fold(f32::INFINITY, f32::min);
     assert!(weakest_kept >= responses[60.min(responses.len() - 1)]);
 }
 
@@ -141,26 +225,42 @@ fn random_sets(n: usize, m: usize, copies: usize, seed: u64) -> (Descriptors, De
         let n = v.iter().map(|x| x * x).sum::<f32>().sqrt();
         v.into_iter().map(|x| x / n).collect::<Vec<_>>()
     };
-    let a: Vec<Vec<f32>> = (0..n).map(|_| unit((0..d).map(|_| rng.random::<f32>()).collect())).collect();
+    let a: Vec<Vec<f32>> = (0..n)
+        .map(|_| unit((0..d).map(|_| rng.random::<f32>()).collect()))
+        .collect();
     let mut b: Vec<Vec<f32>> = Vec::new();
     for i in 0..m {
         let v = if let Some(src) = a.get(i).filter(|_| i < copies) {
             let noise = rng.random::<f32>() * 0.3;
-            unit(src.iter().map(|x| x + noise * (rng.random::<f32>() - 0.5)).collect())
+            unit(
+                src.iter()
+                    .map(|x| x + noise * (rng.random::<f32>() - 0.5))
+                    .collect(),
+            )
         } else {
             unit((0..d).map(|_| rng.random::<f32>()).collect())
         };
         b.push(v);
     }
-    let flat = |v: Vec<Vec<f32>>| Descriptors { dim: d, data: v.concat() };
+    let flat = |v: Vec<Vec<f32>>| Descriptors {
+        dim: d,
+        data: v.concat(),
+    };
     (flat(a), flat(b))
 }
 
 /// O(nm) reference in f64 with the documented semantics; also reports whether a row is a near tie.
 fn naive(a: &Descriptors, b: &Descriptors, o: &MatchOptions) -> (Vec<Match>, Vec<bool>) {
-    let dist2 = |x: &[f32], y: &[f32]| x.iter().zip(y).map(|(p, q)| (*p as f64 - *q as f64).powi(2)).sum::<f64>();
+    let dist2 = |x: &[f32], y: &[f32]| {
+        x.iter()
+            .zip(y)
+            .map(|(p, q)| (*p as f64 - *q as f64).powi(2))
+            .sum::<f64>()
+    };
     let nearest = |row: &[f32], set: &Descriptors| {
-        let mut v: Vec<(f64, usize)> = (0..set.len()).map(|j| (dist2(row, set.row(j)), j)).collect();
+        let mut v: Vec<(f64, usize)> = (0..set.len())
+            .map(|j| (dist2(row, set.row(j)), j))
+            .collect();
         v.sort_by(|p, q| p.0.total_cmp(&q.0).then(p.1.cmp(&q.1)));
         v
     };
@@ -171,12 +271,20 @@ fn naive(a: &Descriptors, b: &Descriptors, o: &MatchOptions) -> (Vec<Match>, Vec
         let d2 = v.get(1).map_or(f64::INFINITY, |x| x.0);
         let r = (d1 / d2).sqrt();
         let back = nearest(b.row(j), a);
-        fragile.push((r - o.ratio as f64).abs() < 1e-3 || (d2 - d1) < 1e-5 || back.get(1).is_some_and(|x| x.0 - back[0].0 < 1e-5));
+        fragile.push(
+            (r - o.ratio as f64).abs() < 1e-3
+                || (d2 - d1) < 1e-5
+                || back.get(1).is_some_and(|x| x.0 - back[0].0 < 1e-5),
+        );
         let ok = (o.ratio >= 1.0 || r < o.ratio as f64)
             && (!o.mutual || back[0].1 == i)
             && !o.max_distance.is_some_and(|t| d1.sqrt() > t as f64);
         if ok {
-            out.push(Match { i: i as u32, j: j as u32, distance: d1.sqrt() as f32 });
+            out.push(Match {
+                i: i as u32,
+                j: j as u32,
+                distance: d1.sqrt() as f32,
+            });
         }
     }
     (out, fragile)
@@ -188,55 +296,141 @@ fn matcher_equals_naive_reference() {
     let (a, b) = random_sets(600, 1300, 400, 7);
     let variants = [
         MatchOptions::default(),
-        MatchOptions { mutual: false, ..Default::default() },
-        MatchOptions { ratio: 1.0, mutual: false, max_distance: None },
-        MatchOptions { ratio: 1.0, mutual: true, max_distance: Some(0.2) },
-        MatchOptions { ratio: 0.6, mutual: true, max_distance: None },
+        MatchOptions {
+            mutual: false,
+            ..Default::default()
+        },
+        MatchOptions {
+            ratio: 1.0,
+            mutual: false,
+            max_distance: None,
+        },
+        MatchOptions {
+            ratio: 1.0,
+            mutual: true,
+            max_distance: Some(0.2),
+        },
+        MatchOptions {
+            ratio: 0.6,
+            mutual: true,
+            max_distance: None,
+        },
     ];
     for o in &variants {
         let got = match_descriptors(&a, &b, o);
         let (want, fragile) = naive(&a, &b, o);
         let key = |m: &Match| (m.i, m.j);
-        let got_keys: Vec<_> = got.iter().map(key).filter(|k| !fragile[k.0 as usize]).collect();
-        let want_keys: Vec<_> = want.iter().map(key).filter(|k| !fragile[k.0 as usize]).collect();
+        let got_keys: Vec<_> = got
+            .iter()
+            .map(key)
+            .filter(|k| !fragile[k.0 as usize])
+            .collect();
+        let want_keys: Vec<_> = want
+            .iter()
+            .map(key)
+            .filter(|k| !fragile[k.0 as usize])
+            .collect();
         assert_eq!(got_keys, want_keys, "options {o:?}");
-        assert!(want.len() > 50, "test has too few matches ({}) for {o:?}", want.len());
+        assert!(
+            want.len() > 50,
+            "test has too few matches ({}) for {o:?}",
+            want.len()
+        );
         for (g, w) in got.iter().zip(&want).filter(|(g, w)| key(g) == key(w)) {
             assert!((g.distance - w.distance).abs() < 1e-3);
         }
     }
     // Parallel-over-pairs wrapper agrees and tolerates bad indices.
     let feats = vec![
-        Features { keypoints: vec![], descriptors: a.clone() },
-        Features { keypoints: vec![], descriptors: b.clone() },
+        Features {
+            keypoints: vec![],
+            descriptors: a.clone(),
+        },
+        Features {
+            keypoints: vec![],
+            descriptors: b.clone(),
+        },
     ];
     let per_pair = match_pairs(&feats, &[(0, 1), (1, 0), (0, 9)], &MatchOptions::default());
-    assert_eq!(per_pair[0], match_descriptors(&a, &b, &MatchOptions::default()));
+    assert_eq!(
+        per_pair[0],
+        match_descriptors(&a, &b, &MatchOptions::default())
+    );
     assert!(!per_pair[1].is_empty() && per_pair[2].is_empty());
 }
 
 #[test]
 fn ratio_and_mutual_semantics() {
-    let d = |rows: &[[f32; 2]]| Descriptors { dim: 2, data: rows.iter().flatten().copied().collect() };
+    let d = |rows: &[[f32; 2]]| Descriptors {
+        dim: 2,
+        data: rows.iter().flatten().copied().collect(),
+    };
     // a0 is 0.1 from b0 and 0.15 from b1: ratio 0.67.
     let a = d(&[[0.0, 0.0]]);
     let b = d(&[[0.1, 0.0], [0.0, 0.15]]);
-    let m = match_descriptors(&a, &b, &MatchOptions { ratio: 0.8, ..Default::default() });
+    let m = match_descriptors(
+        &a,
+        &b,
+        &MatchOptions {
+            ratio: 0.8,
+            ..Default::default()
+        },
+    );
     assert_eq!(m.len(), 1);
     assert_eq!((m[0].i, m[0].j), (0, 0));
     assert!((m[0].distance - 0.1).abs() < 1e-6);
-    assert!(match_descriptors(&a, &b, &MatchOptions { ratio: 0.6, ..Default::default() }).is_empty());
-    assert!(match_descriptors(&a, &b, &MatchOptions { max_distance: Some(0.05), ..Default::default() }).is_empty());
+    assert!(match_descriptors(
+        &a,
+        &b,
+        &MatchOptions {
+            ratio: 0.6,
+            ..Default::default()
+        }
+    )
+    .is_empty());
+    assert!(match_descriptors(
+        &a,
+        &b,
+        &MatchOptions {
+            max_distance: Some(0.05),
+            ..Default::default()
+        }
+    )
+    .is_empty());
     // Two rows of a share the nearest b0; only the nearer one survives the mutual check.
     let a = d(&[[0.0, 0.0], [0.3, 0.0]]);
     let b = d(&[[0.2, 0.0], [5.0, 5.0]]);
-    let one_way = match_descriptors(&a, &b, &MatchOptions { mutual: false, ..Default::default() });
-    assert_eq!(one_way.iter().map(|m| (m.i, m.j)).collect::<Vec<_>>(), vec![(0, 0), (1, 0)]);
+    let one_way = match_descriptors(
+        &a,
+        &b,
+        &MatchOptions {
+            mutual: false,
+            ..Default::default()
+        },
+    );
+    assert_eq!(
+        one_way.iter().map(|m| (m.i, m.j)).collect::<Vec<_>>(),
+        vec![(0, 0), (1, 0)]
+    );
     let mutual = match_descriptors(&a, &b, &MatchOptions::default());
-    assert_eq!(mutual.iter().map(|m| (m.i, m.j)).collect::<Vec<_>>(), vec![(1, 0)]);
+    assert_eq!(
+        mutual.iter().map(|m| (m.i, m.j)).collect::<Vec<_>>(),
+        vec![(1, 0)]
+    );
     // A single candidate has no second neighbour: the ratio test passes; mismatched dims give nothing.
-    assert_eq!(match_descriptors(&a, &d(&[[0.0, 0.1]]), &MatchOptions::default()).len(), 1);
-    assert!(match_descriptors(&a, &Descriptors { dim: 3, data: vec![0.0; 3] }, &MatchOptions::default()).is_empty());
+    assert_eq!(
+        match_descriptors(&a, &d(&[[0.0, 0.1]]), &MatchOptions::default()).len(),
+        1
+    );
+    assert!(match_descriptors(
+        &a,
+        &Descriptors {
+            dim: 3,
+            data: vec![0.0; 3]
+        },
+        &MatchOptions::default()
+    )
+    .is_empty());
     assert!(match_descriptors(&a, &Descriptors::default(), &MatchOptions::default()).is_empty());
 }
 
@@ -248,8 +442,15 @@ fn datasets() -> Option<PathBuf> {
 /// `(K, R, C)` of a Strecha `.camera` file (P = K [Rᵀ | −Rᵀ C]).
 fn strecha_camera(path: &std::path::Path) -> (Matrix3<f64>, Matrix3<f64>, Vector3<f64>) {
     let text = std::fs::read_to_string(path).expect("camera file");
-    let v: Vec<f64> = text.split_whitespace().map(|t| t.parse().expect("number")).collect();
-    (Matrix3::from_row_slice(&v[0..9]), Matrix3::from_row_slice(&v[12..21]), Vector3::new(v[21], v[22], v[23]))
+    let v: Vec<f64> = text
+        .split_whitespace()
+        .map(|t| t.parse().expect("number"))
+        .collect();
+    (
+        Matrix3::from_row_slice(&v[0..9]),
+        Matrix3::from_row_slice(&v[12..21]),
+        Vector3::new(v[21], v[22], v[23]),
+    )
 }
 
 /// Fundamental matrix with `x₂ᵀ F x₁ = 0` from two Strecha cameras.
@@ -268,12 +469,17 @@ fn fountain_matches_are_epipolar_consistent() {
         return;
     };
     let dir = root.join("fountain-P11");
-    let load = |name: &str| GrayImage::from_dynamic(&image::open(dir.join("images").join(name)).expect("decode"));
+    let load = |name: &str| {
+        GrayImage::from_dynamic(&image::open(dir.join("images").join(name)).expect("decode"))
+    };
     let (g1, g2) = (load("0000.jpg"), load("0001.jpg"));
     let sift = Sift::default();
     let (f1, f2) = (sift.detect(&g1), sift.detect(&g2));
     let matches = match_descriptors(&f1.descriptors, &f2.descriptors, &MatchOptions::default());
-    let f = strecha_fundamental(&dir.join("gt/0000.jpg.camera"), &dir.join("gt/0001.jpg.camera"));
+    let f = strecha_fundamental(
+        &dir.join("gt/0000.jpg.camera"),
+        &dir.join("gt/0001.jpg.camera"),
+    );
     let good = matches
         .iter()
         .filter(|m| {

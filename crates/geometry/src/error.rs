@@ -24,10 +24,16 @@ pub type Result<T> = std::result::Result<T, GeometryError>;
 
 pub(crate) fn check_pair_lengths<A, B>(x1: &[A], x2: &[B], required: usize) -> Result<()> {
     if x1.len() != x2.len() {
-        return Err(GeometryError::LengthMismatch { left: x1.len(), right: x2.len() });
+        return Err(GeometryError::LengthMismatch {
+            left: x1.len(),
+            right: x2.len(),
+        });
     }
     if x1.len() < required {
-        return Err(GeometryError::InsufficientCorrespondences { required, actual: x1.len() });
+        return Err(GeometryError::InsufficientCorrespondences {
+            required,
+            actual: x1.len(),
+        });
     }
     Ok(())
 }

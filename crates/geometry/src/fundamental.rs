@@ -41,7 +41,9 @@ pub fn enforce_rank2(f: &Matrix3<f64>) -> Matrix3<f64> {
 fn unit(f: Matrix3<f64>) -> Result<Matrix3<f64>> {
     let n = f.norm();
     if !(n.is_finite() && n > 0.0) {
-        return Err(GeometryError::Degenerate { reason: "fundamental matrix vanished" });
+        return Err(GeometryError::Degenerate {
+            reason: "fundamental matrix vanished",
+        });
     }
     Ok(f / n)
 }
@@ -55,9 +57,12 @@ fn unit(f: Matrix3<f64>) -> Result<Matrix3<f64>> {
 pub fn fundamental_8point(x1: &[Vector2<f64>], x2: &[Vector2<f64>]) -> Result<Matrix3<f64>> {
     check_pair_lengths(x1, x2, 8)?;
     let (n1, n2) = (hartley_normalization(x1)?, hartley_normalization(x2)?);
-    let (sv, v_t) = full_right_svd(design_matrix(&n1.points, &n2.points)).ok_or(GeometryError::NonFinite)?;
+    let (sv, v_t) =
+        full_right_svd(design_matrix(&n1.points, &n2.points)).ok_or(GeometryError::NonFinite)?;
     if sv[7] <= RANK_TOL * sv[0] {
-        return Err(GeometryError::Degenerate { reason: "8-point design matrix has rank < 8" });
+        return Err(GeometryError::Degenerate {
+            reason: "8-point design matrix has rank < 8",
+        });
     }
     let f_hat = enforce_rank2(&row_to_matrix3(&v_t, 8));
     unit(n2.t.transpose() * f_hat * n1.t)
@@ -77,9 +82,12 @@ pub fn fundamental_8point(x1: &[Vector2<f64>], x2: &[Vector2<f64>]) -> Result<Ma
 pub fn fundamental_7point(x1: &[Vector2<f64>], x2: &[Vector2<f64>]) -> Result<Vec<Matrix3<f64>>> {
     check_pair_lengths(x1, x2, 7)?;
     let (n1, n2) = (hartley_normalization(x1)?, hartley_normalization(x2)?);
-    let (sv, v_t) = full_right_svd(design_matrix(&n1.points, &n2.points)).ok_or(GeometryError::NonFinite)?;
+    let (sv, v_t) =
+        full_right_svd(design_matrix(&n1.points, &n2.points)).ok_or(GeometryError::NonFinite)?;
     if sv[6] <= RANK_TOL * sv[0] {
-        return Err(GeometryError::Degenerate { reason: "7-point design matrix has rank < 7" });
+        return Err(GeometryError::Degenerate {
+            reason: "7-point design matrix has rank < 7",
+        });
     }
     let (mut g1, mut g2) = (row_to_matrix3(&v_t, 7), row_to_matrix3(&v_t, 8));
     if g2.determinant().abs() < g1.determinant().abs() {
@@ -96,7 +104,10 @@ pub fn fundamental_7point(x1: &[Vector2<f64>], x2: &[Vector2<f64>]) -> Result<Ve
     let a1 = s - a3;
     let coeffs = [a0, a1, a2, a3];
     let scale = coeffs.iter().fold(0.0_f64, |m, v| m.max(v.abs()));
-    let mut candidates: Vec<Matrix3<f64>> = real_roots_cubic(coeffs).into_iter().map(|l| g1 + g2 * l).collect();
+    let mut candidates: Vec<Matrix3<f64>> = real_roots_cubic(coeffs)
+        .into_iter()
+        .map(|l| g1 + g2 * l)
+        .collect();
     if a3.abs() <= 1e-14 * scale {
         candidates.push(g2);
     }
@@ -105,7 +116,11 @@ pub fn fundamental_7point(x1: &[Vector2<f64>], x2: &[Vector2<f64>]) -> Result<Ve
 }
 
 /// `(x2ᵀ F x1, F x1, Fᵀ x2)` for pixel points.
-fn epipolar_terms(f: &Matrix3<f64>, x1: &Vector2<f64>, x2: &Vector2<f64>) -> (f64, Vector3<f64>, Vector3<f64>) {
+fn epipolar_terms(
+    f: &Matrix3<f64>,
+    x1: &Vector2<f64>,
+    x2: &Vector2<f64>,
+) -> (f64, Vector3<f64>, Vector3<f64>) {
     let h1 = Vector3::new(x1.x, x1.y, 1.0);
     let h2 = Vector3::new(x2.x, x2.y, 1.0);
     let fx1 = f * h1;
@@ -134,7 +149,11 @@ pub fn sampson_distance(f: &Matrix3<f64>, x1: &Vector2<f64>, x2: &Vector2<f64>) 
 
 /// The summand of eq. 12, `d(x2, F x1)² + d(x1, Fᵀ x2)²`: squared distances of each point to the
 /// epipolar line of the other (H&Z eq. 11.10), in pixels².
-pub fn symmetric_epipolar_distance_sq(f: &Matrix3<f64>, x1: &Vector2<f64>, x2: &Vector2<f64>) -> f64 {
+pub fn symmetric_epipolar_distance_sq(
+    f: &Matrix3<f64>,
+    x1: &Vector2<f64>,
+    x2: &Vector2<f64>,
+) -> f64 {
     let (e, fx1, ftx2) = epipolar_terms(f, x1, x2);
     let l2 = fx1.x * fx1.x + fx1.y * fx1.y;
     let l1 = ftx2.x * ftx2.x + ftx2.y * ftx2.y;
@@ -156,11 +175,17 @@ pub fn epipoles(f: &Matrix3<f64>) -> Result<(Vector3<f64>, Vector3<f64>)> {
     let svd = f.svd(true, true);
     let (u, v_t) = match (svd.u, svd.v_t) {
         (Some(u), Some(v_t)) => (u, v_t),
-        _ => return Err(GeometryError::Degenerate { reason: "SVD of F failed" }),
+        _ => {
+            return Err(GeometryError::Degenerate {
+                reason: "SVD of F failed",
+            })
+        }
     };
     let s = svd.singular_values;
     if s[1] <= RANK_TOL * s[0] {
-        return Err(GeometryError::Degenerate { reason: "F has rank below 2" });
+        return Err(GeometryError::Degenerate {
+            reason: "F has rank below 2",
+        });
     }
     let e1 = v_t.row(2).transpose();
     let e2 = u.column(2).into_owned();
@@ -170,24 +195,34 @@ pub fn epipoles(f: &Matrix3<f64>) -> Result<(Vector3<f64>, Vector3<f64>)> {
 /// `F = [e2]× P2 P1⁺` for two projective cameras, with `e2 = P2 C1` and `C1` the centre of the first
 /// camera (H&Z eq. 9.1). Unit Frobenius norm. Errors when `P1` has rank below 3 or the centres
 /// coincide.
-pub fn fundamental_from_cameras(p1: &ProjectiveCamera, p2: &ProjectiveCamera) -> Result<Matrix3<f64>> {
+pub fn fundamental_from_cameras(
+    p1: &ProjectiveCamera,
+    p2: &ProjectiveCamera,
+) -> Result<Matrix3<f64>> {
     let (p1, p2): (Matrix3x4<f64>, Matrix3x4<f64>) = (p1.P, p2.P);
     if p1.iter().chain(p2.iter()).any(|v| !v.is_finite()) {
         return Err(GeometryError::NonFinite);
     }
-    let (sv, v_t) = full_right_svd(DMatrix::from_fn(3, 4, |r, c| p1[(r, c)])).ok_or(GeometryError::NonFinite)?;
+    let (sv, v_t) = full_right_svd(DMatrix::from_fn(3, 4, |r, c| p1[(r, c)]))
+        .ok_or(GeometryError::NonFinite)?;
     if sv[2] <= RANK_TOL * sv[0] {
-        return Err(GeometryError::Degenerate { reason: "camera matrix has rank below 3" });
+        return Err(GeometryError::Degenerate {
+            reason: "camera matrix has rank below 3",
+        });
     }
     let c1 = Vector4::new(v_t[(3, 0)], v_t[(3, 1)], v_t[(3, 2)], v_t[(3, 3)]);
     let gram = (p1 * p1.transpose())
         .try_inverse()
-        .ok_or(GeometryError::Degenerate { reason: "camera matrix has rank below 3" })?;
+        .ok_or(GeometryError::Degenerate {
+            reason: "camera matrix has rank below 3",
+        })?;
     let p1_pinv = p1.transpose() * gram;
     let e2 = p2 * c1;
     let f = skew(&e2) * p2 * p1_pinv;
     if f.norm() <= RANK_TOL * p2.norm() * p1_pinv.norm() {
-        return Err(GeometryError::Degenerate { reason: "camera centres coincide" });
+        return Err(GeometryError::Degenerate {
+            reason: "camera centres coincide",
+        });
     }
     unit(f)
 }
@@ -198,7 +233,11 @@ mod tests {
     use crate::test_util::*;
 
     fn truth(tv: &TwoView) -> Matrix3<f64> {
-        fundamental_from_cameras(&ProjectiveCamera { P: tv.p1 }, &ProjectiveCamera { P: tv.p2 }).expect("distinct centres")
+        fundamental_from_cameras(
+            &ProjectiveCamera { P: tv.p1 },
+            &ProjectiveCamera { P: tv.p2 },
+        )
+        .expect("distinct centres")
     }
 
     #[test]
@@ -242,12 +281,26 @@ mod tests {
         let x1 = add_noise(&mut r, &tv.x1, sigma);
         let x2 = add_noise(&mut r, &tv.x2, sigma);
         let f = fundamental_8point(&x1, &x2).expect("general position");
-        let rms = (x1.iter().zip(&x2).map(|(a, b)| sampson_distance_sq(&f, a, b)).sum::<f64>() / 300.0).sqrt();
+        let rms = (x1
+            .iter()
+            .zip(&x2)
+            .map(|(a, b)| sampson_distance_sq(&f, a, b))
+            .sum::<f64>()
+            / 300.0)
+            .sqrt();
         // The residual of a fitted model is slightly below σ; the algebraic fit slightly above.
         assert!(rms > 0.35 && rms < 0.65, "Sampson RMS {rms}");
-        let rms_true = (x1.iter().zip(&x2).map(|(a, b)| sampson_distance_sq(&truth(&tv), a, b)).sum::<f64>() / 300.0).sqrt();
+        let rms_true = (x1
+            .iter()
+            .zip(&x2)
+            .map(|(a, b)| sampson_distance_sq(&truth(&tv), a, b))
+            .sum::<f64>()
+            / 300.0)
+            .sqrt();
         assert!(rms <= rms_true * 1.05, "fit {rms} vs truth {rms_true}");
-        eprintln!("8-point, σ = 0.5 px, 300 matches: Sampson RMS {rms:.4} px (true F: {rms_true:.4} px)");
+        eprintln!(
+            "8-point, σ = 0.5 px, 300 matches: Sampson RMS {rms:.4} px (true F: {rms_true:.4} px)"
+        );
     }
 
     #[test]
@@ -255,8 +308,15 @@ mod tests {
         for seed in 0..20 {
             let tv = two_view(100 + seed, 7);
             let sols = fundamental_7point(&tv.x1, &tv.x2).expect("general position");
-            assert!(sols.len() == 1 || sols.len() == 3, "{} solutions", sols.len());
-            let best = sols.iter().map(|f| equal_up_to_scale(f, &truth(&tv))).fold(f64::INFINITY, f64::min);
+            assert!(
+                sols.len() == 1 || sols.len() == 3,
+                "{} solutions",
+                sols.len()
+            );
+            let best = sols
+                .iter()
+                .map(|f| equal_up_to_scale(f, &truth(&tv)))
+                .fold(f64::INFINITY, f64::min);
             assert!(best < 1e-8, "seed {seed}: {best:e}");
             for f in &sols {
                 assert!(f.determinant().abs() < 1e-10);
@@ -272,13 +332,26 @@ mod tests {
         let tv = two_view(5, 20);
         assert!(matches!(
             fundamental_8point(&tv.x1[..7], &tv.x2[..7]),
-            Err(GeometryError::InsufficientCorrespondences { required: 8, actual: 7 })
+            Err(GeometryError::InsufficientCorrespondences {
+                required: 8,
+                actual: 7
+            })
         ));
-        assert!(matches!(fundamental_7point(&tv.x1[..6], &tv.x2[..6]), Err(GeometryError::InsufficientCorrespondences { .. })));
-        assert!(matches!(fundamental_8point(&tv.x1[..9], &tv.x2[..8]), Err(GeometryError::LengthMismatch { .. })));
+        assert!(matches!(
+            fundamental_7point(&tv.x1[..6], &tv.x2[..6]),
+            Err(GeometryError::InsufficientCorrespondences { .. })
+        ));
+        assert!(matches!(
+            fundamental_8point(&tv.x1[..9], &tv.x2[..8]),
+            Err(GeometryError::LengthMismatch { .. })
+        ));
         // Collinear points in both images.
-        let line1: Vec<_> = (0..10).map(|i| Vector2::new(10.0 * i as f64, 5.0 * i as f64 + 3.0)).collect();
-        let line2: Vec<_> = (0..10).map(|i| Vector2::new(7.0 * i as f64 + 1.0, -2.0 * i as f64 + 90.0)).collect();
+        let line1: Vec<_> = (0..10)
+            .map(|i| Vector2::new(10.0 * i as f64, 5.0 * i as f64 + 3.0))
+            .collect();
+        let line2: Vec<_> = (0..10)
+            .map(|i| Vector2::new(7.0 * i as f64 + 1.0, -2.0 * i as f64 + 90.0))
+            .collect();
         assert!(fundamental_8point(&line1, &line2).is_err());
         assert!(fundamental_7point(&line1[..7], &line2[..7]).is_err());
         // Coincident points.
@@ -299,10 +372,14 @@ mod tests {
         let mut x2 = Vec::new();
         for _ in 0..20 {
             use rand::Rng;
-            let p = nalgebra::Point3::new(r.random_range(-1.0..1.0), r.random_range(-1.0..1.0), 5.0);
+            let p =
+                nalgebra::Point3::new(r.random_range(-1.0..1.0), r.random_range(-1.0..1.0), 5.0);
             x1.push(project(&tv.p1, &p));
             x2.push(project(&tv.p2, &p));
         }
-        assert!(matches!(fundamental_8point(&x1, &x2), Err(GeometryError::Degenerate { .. })));
+        assert!(matches!(
+            fundamental_8point(&x1, &x2),
+            Err(GeometryError::Degenerate { .. })
+        ));
     }
 }

@@ -28,7 +28,10 @@ pub struct GoldStandardOptions {
 
 impl Default for GoldStandardOptions {
     fn default() -> Self {
-        Self { max_iterations: 30, cost_tolerance: 1e-10 }
+        Self {
+            max_iterations: 30,
+            cost_tolerance: 1e-10,
+        }
     }
 }
 
@@ -74,13 +77,20 @@ pub fn gold_standard_fundamental(
     let n1 = hartley_normalization(x1)?;
     let n2 = hartley_normalization(x2)?;
     let (y1, y2) = (&n1.points, &n2.points);
-    let t1_inv = n1.t.try_inverse().ok_or(GeometryError::Degenerate { reason: "normalisation" })?;
-    let t2_inv = n2.t.try_inverse().ok_or(GeometryError::Degenerate { reason: "normalisation" })?;
+    let t1_inv = n1.t.try_inverse().ok_or(GeometryError::Degenerate {
+        reason: "normalisation",
+    })?;
+    let t2_inv = n2.t.try_inverse().ok_or(GeometryError::Degenerate {
+        reason: "normalisation",
+    })?;
     // Pixel distance = normalised distance / scale, so weights 1/s² make the cost pixels².
     let (w1, w2) = (1.0 / n1.scale().powi(2), 1.0 / n2.scale().powi(2));
     let fnorm = t2_inv.transpose() * f * t1_inv;
     let (_, cam2) = canonical_cameras(&fnorm, &Vector3::zeros(), 1.0)?;
-    let mut s = State { p2: cam2.P / cam2.P.norm(), pts: Vec::with_capacity(y1.len()) };
+    let mut s = State {
+        p2: cam2.P / cam2.P.norm(),
+        pts: Vec::with_capacity(y1.len()),
+    };
     // Initial points: optimal two-view correction, then the depth that fits the second view.
     for (a, b) in y1.iter().zip(y2) {
         let (a_hat, b_hat) = optimal_correction(&fnorm, a, b).unwrap_or((*a, *b));
@@ -89,7 +99,11 @@ pub fn gold_standard_fundamental(
         // Solve b_hat × (m + ρ e) = 0 for ρ in least squares.
         let bh = Vector3::new(b_hat.x, b_hat.y, 1.0);
         let (c1, c2) = (bh.cross(&m), bh.cross(&e));
-        let rho = if c2.norm_squared() > 1e-300 { -c1.dot(&c2) / c2.norm_squared() } else { 0.0 };
+        let rho = if c2.norm_squared() > 1e-300 {
+            -c1.dot(&c2) / c2.norm_squared()
+        } else {
+            0.0
+        };
         s.pts.push(Vector3::new(a_hat.x, a_hat.y, rho));
     }
     let initial_cost = cost(&s, y1, y2, w1, w2);
@@ -110,7 +124,14 @@ pub fn gold_standard_fundamental(
             let r1 = Vector2::new(x[0], x[1]) - y1[i];
             let r2 = p - y2[i];
             // dπ/dq
-            let dpi = Matrix2x3::new(1.0 / q.z, 0.0, -q.x / (q.z * q.z), 0.0, 1.0 / q.z, -q.y / (q.z * q.z));
+            let dpi = Matrix2x3::new(
+                1.0 / q.z,
+                0.0,
+                -q.x / (q.z * q.z),
+                0.0,
+                1.0 / q.z,
+                -q.y / (q.z * q.z),
+            );
             let xh = Vector4::new(x[0], x[1], 1.0, x[2]);
             // dq/dP2 (row-major p_rc): dq_r/dp_rc = X_c.
             let mut jc = SMatrix::<f64, 2, 12>::zeros();
@@ -120,7 +141,11 @@ pub fn gold_standard_fundamental(
                     jc[(1, rr * 4 + cc)] = dpi[(1, rr)] * xh[cc];
                 }
             }
-            let dq_dx = Matrix3::from_columns(&[s.p2.column(0).into_owned(), s.p2.column(1).into_owned(), s.p2.column(3).into_owned()]);
+            let dq_dx = Matrix3::from_columns(&[
+                s.p2.column(0).into_owned(),
+                s.p2.column(1).into_owned(),
+                s.p2.column(3).into_owned(),
+            ]);
             let jp2 = dpi * dq_dx;
             let jp1 = Matrix2x3::new(1.0, 0.0, 0.0, 0.0, 1.0, 0.0);
             u += w2 * jc.transpose() * jc;
@@ -153,12 +178,19 @@ pub fn gold_standard_fundamental(
                 rhs += wv * g_pts[i];
                 vinv.push(vi);
             }
-            let dc = if ok { sm.cholesky().map(|c| c.solve(&rhs)) } else { None };
+            let dc = if ok {
+                sm.cholesky().map(|c| c.solve(&rhs))
+            } else {
+                None
+            };
             let Some(dc) = dc else {
                 lambda *= 10.0;
                 continue;
             };
-            let mut cand = State { p2: s.p2, pts: s.pts.clone() };
+            let mut cand = State {
+                p2: s.p2,
+                pts: s.pts.clone(),
+            };
             for rr in 0..3 {
                 for cc in 0..4 {
                     cand.p2[(rr, cc)] += dc[rr * 4 + cc];
@@ -186,15 +218,33 @@ pub fn gold_standard_fundamental(
             break;
         }
     }
-    let fn_ref = fundamental_from_cameras(&ProjectiveCamera::canonical(), &ProjectiveCamera { P: s.p2 })?;
+    let fn_ref = fundamental_from_cameras(
+        &ProjectiveCamera::canonical(),
+        &ProjectiveCamera { P: s.p2 },
+    )?;
     let fp = n2.t.transpose() * fn_ref * n1.t;
     let back = |t_inv: &Matrix3<f64>, v: Vector2<f64>| {
         let h = t_inv * Vector3::new(v.x, v.y, 1.0);
         Vector2::new(h.x / h.z, h.y / h.z)
     };
-    let x1_hat = s.pts.iter().map(|x| back(&t1_inv, Vector2::new(x[0], x[1]))).collect();
-    let x2_hat = s.pts.iter().map(|x| back(&t2_inv, project2(&s.p2, x).1)).collect();
-    Ok(GoldStandardReport { f: fp / fp.norm(), x1_hat, x2_hat, initial_cost, final_cost: current, iterations })
+    let x1_hat = s
+        .pts
+        .iter()
+        .map(|x| back(&t1_inv, Vector2::new(x[0], x[1])))
+        .collect();
+    let x2_hat = s
+        .pts
+        .iter()
+        .map(|x| back(&t2_inv, project2(&s.p2, x).1))
+        .collect();
+    Ok(GoldStandardReport {
+        f: fp / fp.norm(),
+        x1_hat,
+        x2_hat,
+        initial_cost,
+        final_cost: current,
+        iterations,
+    })
 }
 
 #[cfg(test)]
@@ -212,18 +262,35 @@ mod tests {
         let x1 = add_noise(&mut r, &tv.x1, sigma);
         let x2 = add_noise(&mut r, &tv.x2, sigma);
         let f0 = fundamental_8point(&x1, &x2).unwrap();
-        let rep = gold_standard_fundamental(&f0, &x1, &x2, &GoldStandardOptions::default()).unwrap();
+        let rep =
+            gold_standard_fundamental(&f0, &x1, &x2, &GoldStandardOptions::default()).unwrap();
         assert!(rep.final_cost <= rep.initial_cost);
         // ML residual: E[2·cost] = σ² (4n − (3n + 7)) = σ² (n − 7).
         let n = x1.len() as f64;
         let expected = sigma * sigma * (n - 7.0);
-        assert!((2.0 * rep.final_cost / expected - 1.0).abs() < 0.25, "2·cost {} vs {}", 2.0 * rep.final_cost, expected);
+        assert!(
+            (2.0 * rep.final_cost / expected - 1.0).abs() < 0.25,
+            "2·cost {} vs {}",
+            2.0 * rep.final_cost,
+            expected
+        );
         // Corrected points satisfy the refined epipolar geometry exactly.
         for (a, b) in rep.x1_hat.iter().zip(&rep.x2_hat) {
             assert!(epipolar_residuals(&rep.f, a, b)[0].abs() < 1e-6);
         }
         // Closer to the truth (error on exact points) than the linear estimate.
-        let err = |f: &Matrix3<f64>| tv.x1.iter().zip(&tv.x2).map(|(a, b)| epipolar_residuals(f, a, b)[0].powi(2)).sum::<f64>();
-        assert!(err(&rep.f) < err(&f0), "gold {} linear {}", err(&rep.f), err(&f0));
+        let err = |f: &Matrix3<f64>| {
+            tv.x1
+                .iter()
+                .zip(&tv.x2)
+                .map(|(a, b)| epipolar_residuals(f, a, b)[0].powi(2))
+                .sum::<f64>()
+        };
+        assert!(
+            err(&rep.f) < err(&f0),
+            "gold {} linear {}",
+            err(&rep.f),
+            err(&f0)
+        );
     }
 }

@@ -34,18 +34,26 @@ pub fn homography_dlt(x1: &[Vector2<f64>], x2: &[Vector2<f64>]) -> Result<Matrix
     }
     let (sv, v_t) = full_right_svd(a).ok_or(GeometryError::NonFinite)?;
     if sv[7] <= RANK_TOL * sv[0] {
-        return Err(GeometryError::Degenerate { reason: "homography design matrix has rank < 8" });
+        return Err(GeometryError::Degenerate {
+            reason: "homography design matrix has rank < 8",
+        });
     }
     let h_hat = row_to_matrix3(&v_t, 8);
     let hs = h_hat.singular_values();
     if hs[2] <= 1e-8 * hs[0] {
-        return Err(GeometryError::Degenerate { reason: "homography is singular" });
+        return Err(GeometryError::Degenerate {
+            reason: "homography is singular",
+        });
     }
-    let t2_inv = n2.t.try_inverse().ok_or(GeometryError::Degenerate { reason: "normalisation not invertible" })?;
+    let t2_inv = n2.t.try_inverse().ok_or(GeometryError::Degenerate {
+        reason: "normalisation not invertible",
+    })?;
     let h = t2_inv * h_hat * n1.t;
     let norm = h.norm();
     if !(norm.is_finite() && norm > 0.0) {
-        return Err(GeometryError::Degenerate { reason: "homography vanished" });
+        return Err(GeometryError::Degenerate {
+            reason: "homography vanished",
+        });
     }
     Ok(h / norm)
 }
@@ -62,7 +70,12 @@ pub fn transfer_error_sq(h: &Matrix3<f64>, x1: &Vector2<f64>, x2: &Vector2<f64>)
 
 /// Symmetric transfer error `d(x2, H x1)² + d(x1, H⁻¹ x2)²` in pixels² (H&Z eq. 4.7). The caller
 /// passes `H⁻¹` so that it is inverted once per model rather than once per point.
-pub fn symmetric_transfer_error_sq(h: &Matrix3<f64>, h_inv: &Matrix3<f64>, x1: &Vector2<f64>, x2: &Vector2<f64>) -> f64 {
+pub fn symmetric_transfer_error_sq(
+    h: &Matrix3<f64>,
+    h_inv: &Matrix3<f64>,
+    x1: &Vector2<f64>,
+    x2: &Vector2<f64>,
+) -> f64 {
     transfer_error_sq(h, x1, x2) + transfer_error_sq(h_inv, x2, x1)
 }
 
@@ -79,7 +92,9 @@ mod tests {
     fn planar_matches(seed: u64, n: usize) -> (Vec<Vector2<f64>>, Vec<Vector2<f64>>) {
         let mut r = rng(seed);
         let h = true_h();
-        let x1: Vec<_> = (0..n).map(|_| Vector2::new(r.random_range(0.0..640.0), r.random_range(0.0..480.0))).collect();
+        let x1: Vec<_> = (0..n)
+            .map(|_| Vector2::new(r.random_range(0.0..640.0), r.random_range(0.0..480.0)))
+            .collect();
         let x2 = x1.iter().map(|p| {
             let m = h * hom(p);
             m.xy() / m.z
@@ -107,7 +122,9 @@ mod tests {
         let tv = two_view(4, 4);
         let mut r = rng(4);
         let pts: Vec<_> = (0..30)
-            .map(|_| nalgebra::Point3::new(r.random_range(-1.0..1.0), r.random_range(-1.0..1.0), 5.0))
+            .map(|_| {
+                nalgebra::Point3::new(r.random_range(-1.0..1.0), r.random_range(-1.0..1.0), 5.0)
+            })
             .collect();
         let x1: Vec<_> = pts.iter().map(|p| project(&tv.p1, p)).collect();
         let x2: Vec<_> = pts.iter().map(|p| project(&tv.p2, p)).collect();
@@ -125,26 +142,43 @@ mod tests {
         let mut r = rng(80);
         let x2n = add_noise(&mut r, &x2, 0.5);
         let h = homography_dlt(&x1, &x2n).expect("general position");
-        let rms = (x1.iter().zip(&x2).map(|(a, b)| transfer_error_sq(&h, a, b)).sum::<f64>() / 200.0).sqrt();
+        let rms = (x1
+            .iter()
+            .zip(&x2)
+            .map(|(a, b)| transfer_error_sq(&h, a, b))
+            .sum::<f64>()
+            / 200.0)
+            .sqrt();
         assert!(rms < 0.2, "transfer RMS to the noise-free points {rms}");
     }
 
     #[test]
     fn degenerate_inputs_are_errors() {
         let (x1, x2) = planar_matches(3, 10);
-        assert!(matches!(homography_dlt(&x1[..3], &x2[..3]), Err(GeometryError::InsufficientCorrespondences { .. })));
-        assert!(matches!(homography_dlt(&x1[..5], &x2[..4]), Err(GeometryError::LengthMismatch { .. })));
+        assert!(matches!(
+            homography_dlt(&x1[..3], &x2[..3]),
+            Err(GeometryError::InsufficientCorrespondences { .. })
+        ));
+        assert!(matches!(
+            homography_dlt(&x1[..5], &x2[..4]),
+            Err(GeometryError::LengthMismatch { .. })
+        ));
         // Three of the four points collinear in both images.
         let mut c1 = x1[..4].to_vec();
         c1[2] = (c1[0] + c1[1]) * 0.5;
-        let c2: Vec<_> = c1.iter().map(|p| {
-            let m = true_h() * hom(p);
-            m.xy() / m.z
-        }).collect();
+        let c2: Vec<_> = c1
+            .iter()
+            .map(|p| {
+                let m = true_h() * hom(p);
+                m.xy() / m.z
+            })
+            .collect();
         assert!(homography_dlt(&c1, &c2).is_err());
         // Collinear in the first image only.
         assert!(homography_dlt(&c1, &x2[..4]).is_err());
-        let line: Vec<_> = (0..8).map(|i| Vector2::new(i as f64, 2.0 * i as f64)).collect();
+        let line: Vec<_> = (0..8)
+            .map(|i| Vector2::new(i as f64, 2.0 * i as f64))
+            .collect();
         assert!(homography_dlt(&line, &x2[..8]).is_err());
         let same = vec![Vector2::new(1.0, 1.0); 4];
         assert!(homography_dlt(&same, &x2[..4]).is_err());

@@ -39,14 +39,16 @@ pub(crate) mod test_util;
 
 pub use error::{GeometryError, Result};
 pub use fundamental::{
-    enforce_rank2, epipoles, fundamental_7point, fundamental_8point, fundamental_from_cameras, sampson_distance,
-    sampson_distance_sq, symmetric_epipolar_distance_sq,
+    enforce_rank2, epipoles, fundamental_7point, fundamental_8point, fundamental_from_cameras,
+    sampson_distance, sampson_distance_sq, symmetric_epipolar_distance_sq,
 };
+pub use gold_standard::{gold_standard_fundamental, GoldStandardOptions, GoldStandardReport};
 pub use homography::{homography_dlt, symmetric_transfer_error_sq, transfer_error_sq};
 pub use normalize::{hartley_normalization, Normalization};
-pub use skew::{canonical_cameras, skew};
-pub use triangulation::{optimal_correction, triangulate_iterative, triangulate_linear, triangulate_optimal};
-pub use resection::{reprojection_distance, resection_dlt, resection_iterative};
-pub use gold_standard::{gold_standard_fundamental, GoldStandardOptions, GoldStandardReport};
 pub use refine_f::{epipolar_residuals, refine_fundamental, RefineFOptions, RefineFReport};
+pub use resection::{reprojection_distance, resection_dlt, resection_iterative};
+pub use skew::{canonical_cameras, skew};
+pub use triangulation::{
+    optimal_correction, triangulate_iterative, triangulate_linear, triangulate_optimal,
+};
 pub use view_distance::{view_distance, ViewDistance};

@@ -12,7 +12,11 @@ pub(crate) fn full_right_svd(a: DMatrix<f64>) -> Option<(Vec<f64>, DMatrix<f64>)
     if a.iter().any(|v| !v.is_finite()) {
         return None;
     }
-    let a = if rows < cols { a.resize_vertically(cols, 0.0) } else { a };
+    let a = if rows < cols {
+        a.resize_vertically(cols, 0.0)
+    } else {
+        a
+    };
     let svd = a.svd(false, true);
     let v_t = svd.v_t?;
     let mut sv: Vec<f64> = svd.singular_values.iter().copied().collect();

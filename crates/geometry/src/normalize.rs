@@ -28,7 +28,10 @@ impl Normalization {
 /// Errors: no points, a non-finite coordinate, or all points coincident (the scale is undefined).
 pub fn hartley_normalization(points: &[Vector2<f64>]) -> Result<Normalization> {
     if points.is_empty() {
-        return Err(GeometryError::InsufficientCorrespondences { required: 1, actual: 0 });
+        return Err(GeometryError::InsufficientCorrespondences {
+            required: 1,
+            actual: 0,
+        });
     }
     if points.iter().any(|p| !p.x.is_finite() || !p.y.is_finite()) {
         return Err(GeometryError::NonFinite);
@@ -39,12 +42,27 @@ pub fn hartley_normalization(points: &[Vector2<f64>]) -> Result<Normalization> {
     // Relative test so that pixel-scale and unit-scale inputs are treated alike.
     let extent = centroid.abs().max() + mean_dist;
     if mean_dist.is_nan() || mean_dist <= 1e-12 * extent {
-        return Err(GeometryError::Degenerate { reason: "all points coincide" });
+        return Err(GeometryError::Degenerate {
+            reason: "all points coincide",
+        });
     }
     let s = std::f64::consts::SQRT_2 / mean_dist;
-    let t = Matrix3::new(s, 0.0, -s * centroid.x, 0.0, s, -s * centroid.y, 0.0, 0.0, 1.0);
+    let t = Matrix3::new(
+        s,
+        0.0,
+        -s * centroid.x,
+        0.0,
+        s,
+        -s * centroid.y,
+        0.0,
+        0.0,
+        1.0,
+    );
     let normalised = points.iter().map(|p| (p - centroid) * s).collect();
-    Ok(Normalization { t, points: normalised })
+    Ok(Normalization {
+        t,
+        points: normalised,
+    })
 }
 
 #[cfg(test)]
@@ -75,7 +93,10 @@ mod tests {
     fn degenerate_inputs_are_errors() {
         assert!(hartley_normalization(&[]).is_err());
         let same = vec![Vector2::new(3.0, 4.0); 6];
-        assert!(matches!(hartley_normalization(&same), Err(GeometryError::Degenerate { .. })));
+        assert!(matches!(
+            hartley_normalization(&same),
+            Err(GeometryError::Degenerate { .. })
+        ));
         let nan = vec![Vector2::new(f64::NAN, 4.0), Vector2::new(1.0, 2.0)];
         assert_eq!(hartley_normalization(&nan), Err(GeometryError::NonFinite));
     }

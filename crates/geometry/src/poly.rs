@@ -81,7 +81,9 @@ pub fn real_roots_cubic(c: [f64; 4]) -> Vec<f64> {
                 let arg = (3.0 * q / (p * m)).clamp(-1.0, 1.0);
                 let theta = arg.acos() / 3.0;
                 (0..3)
-                    .map(|k| m * (theta - 2.0 * std::f64::consts::PI * k as f64 / 3.0).cos() + shift)
+                    .map(|k| {
+                        m * (theta - 2.0 * std::f64::consts::PI * k as f64 / 3.0).cos() + shift
+                    })
                     .collect()
             }
         }
@@ -96,7 +98,11 @@ pub fn real_roots_cubic(c: [f64; 4]) -> Vec<f64> {
 /// Real roots of `c0 + c1 x + c2 x²` with the cancellation-free formula.
 pub fn real_roots_quadratic(c0: f64, c1: f64, c2: f64) -> Vec<f64> {
     if c2 == 0.0 {
-        return if c1 != 0.0 { vec![-c0 / c1] } else { Vec::new() };
+        return if c1 != 0.0 {
+            vec![-c0 / c1]
+        } else {
+            Vec::new()
+        };
     }
     let disc = c1 * c1 - 4.0 * c2 * c0;
     if disc < 0.0 {

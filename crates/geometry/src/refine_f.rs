@@ -22,7 +22,10 @@ pub struct RefineFOptions {
 
 impl Default for RefineFOptions {
     fn default() -> Self {
-        Self { max_iterations: 20, cost_tolerance: 1e-10 }
+        Self {
+            max_iterations: 20,
+            cost_tolerance: 1e-10,
+        }
     }
 }
 
@@ -81,7 +84,11 @@ impl Orthonormal {
         if v.determinant() < 0.0 {
             v = -v;
         }
-        Some(Self { u, v, s: sv[idx[1]] / sv[idx[0]] })
+        Some(Self {
+            u,
+            v,
+            s: sv[idx[1]] / sv[idx[0]],
+        })
     }
 
     fn to_f(&self) -> Matrix3<f64> {
@@ -91,7 +98,11 @@ impl Orthonormal {
     fn updated(&self, d: &SVector<f64, 7>) -> Self {
         let ru = Rotation3::new(Vector3::new(d[0], d[1], d[2]));
         let rv = Rotation3::new(Vector3::new(d[3], d[4], d[5]));
-        Self { u: self.u * ru.matrix(), v: self.v * rv.matrix(), s: (self.s + d[6]).clamp(0.0, 1.0) }
+        Self {
+            u: self.u * ru.matrix(),
+            v: self.v * rv.matrix(),
+            s: (self.s + d[6]).clamp(0.0, 1.0),
+        }
     }
 }
 
@@ -107,11 +118,17 @@ pub fn refine_fundamental(
     let n1 = hartley_normalization(x1)?;
     let n2 = hartley_normalization(x2)?;
     // F_pix = T2ᵀ F_n T1  ⇔  F_n = T2⁻ᵀ F_pix T1⁻¹.
-    let t1_inv = n1.t.try_inverse().ok_or(GeometryError::Degenerate { reason: "normalisation" })?;
-    let t2_inv = n2.t.try_inverse().ok_or(GeometryError::Degenerate { reason: "normalisation" })?;
+    let t1_inv = n1.t.try_inverse().ok_or(GeometryError::Degenerate {
+        reason: "normalisation",
+    })?;
+    let t2_inv = n2.t.try_inverse().ok_or(GeometryError::Degenerate {
+        reason: "normalisation",
+    })?;
     let to_pix = |fnorm: &Matrix3<f64>| n2.t.transpose() * fnorm * n1.t;
     let fn0 = t2_inv.transpose() * f * t1_inv;
-    let mut param = Orthonormal::from_f(&fn0).ok_or(GeometryError::Degenerate { reason: "F is zero" })?;
+    let mut param = Orthonormal::from_f(&fn0).ok_or(GeometryError::Degenerate {
+        reason: "F is zero",
+    })?;
     let residuals = |p: &Orthonormal, out: &mut Vec<f64>| {
         out.clear();
         let fp = to_pix(&p.to_f());
@@ -180,7 +197,12 @@ pub fn refine_fundamental(
         }
     }
     let fp = to_pix(&param.to_f());
-    Ok(RefineFReport { f: fp / fp.norm(), initial_cost, final_cost: current, iterations })
+    Ok(RefineFReport {
+        f: fp / fp.norm(),
+        initial_cost,
+        final_cost: current,
+        iterations,
+    })
 }
 
 #[cfg(test)]
@@ -201,11 +223,25 @@ mod tests {
         assert!(rep.final_cost < rep.initial_cost, "{rep:?}");
         assert!(rep.f.determinant().abs() < 1e-12);
         // Closer to the truth than the linear estimate.
-        let ft = fundamental_from_cameras(&ProjectiveCamera { P: tv.p1 }, &ProjectiveCamera { P: tv.p2 }).unwrap();
+        let ft = fundamental_from_cameras(
+            &ProjectiveCamera { P: tv.p1 },
+            &ProjectiveCamera { P: tv.p2 },
+        )
+        .unwrap();
         let err = |f: &Matrix3<f64>| {
-            tv.x1.iter().zip(&tv.x2).map(|(a, b)| epipolar_residuals(f, a, b)[0].powi(2)).sum::<f64>() / tv.x1.len() as f64
+            tv.x1
+                .iter()
+                .zip(&tv.x2)
+                .map(|(a, b)| epipolar_residuals(f, a, b)[0].powi(2))
+                .sum::<f64>()
+                / tv.x1.len() as f64
         };
-        assert!(err(&rep.f) <= err(&f0) * 1.05, "refined {} vs linear {}", err(&rep.f), err(&f0));
+        assert!(
+            err(&rep.f) <= err(&f0) * 1.05,
+            "refined {} vs linear {}",
+            err(&rep.f),
+            err(&f0)
+        );
         assert!(equal_up_to_scale(&rep.f, &ft) < 0.05);
     }
 

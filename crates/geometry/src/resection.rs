@@ -38,7 +38,11 @@ fn normalize_3d(points: &[Vector4<f64>]) -> Matrix4<f64> {
 /// Accumulates the weighted DLT normal matrix `AᵀA` (12×12, `p` row-major) and returns its
 /// eigenvector of the smallest eigenvalue as a camera, plus the ratio of the two smallest
 /// eigenvalues (a rank check).
-fn solve_dlt(points: &[Vector4<f64>], image: &[Vector2<f64>], weights: Option<&[f64]>) -> Option<(Matrix3x4<f64>, f64, f64)> {
+fn solve_dlt(
+    points: &[Vector4<f64>],
+    image: &[Vector2<f64>],
+    weights: Option<&[f64]>,
+) -> Option<(Matrix3x4<f64>, f64, f64)> {
     let row = |k: usize, r: usize| -> SMatrix<f64, 1, 12> {
         let (m, x) = (&points[k], &image[k]);
         let w = weights.map_or(1.0, |w| w[k]);
@@ -62,7 +66,11 @@ fn solve_dlt(points: &[Vector4<f64>], image: &[Vector2<f64>], weights: Option<&[
         let (sv, v_t) = crate::linalg::full_right_svd(a)?;
         let ratio = sv[11] / sv[10].max(1e-300);
         let rel = sv[10] / sv[0].max(1e-300);
-        return Some((Matrix3x4::from_fn(|r, c| v_t[(11, 4 * r + c)]), ratio * ratio, rel));
+        return Some((
+            Matrix3x4::from_fn(|r, c| v_t[(11, 4 * r + c)]),
+            ratio * ratio,
+            rel,
+        ));
     }
     let mut ata = SMatrix::<f64, 12, 12>::zeros();
     for k in 0..points.len() {
@@ -85,12 +93,20 @@ fn solve_dlt(points: &[Vector4<f64>], image: &[Vector2<f64>], weights: Option<&[
 
 fn check(points: &[Vector4<f64>], image: &[Vector2<f64>]) -> Result<()> {
     if points.len() != image.len() {
-        return Err(GeometryError::LengthMismatch { left: points.len(), right: image.len() });
+        return Err(GeometryError::LengthMismatch {
+            left: points.len(),
+            right: image.len(),
+        });
     }
     if points.len() < 6 {
-        return Err(GeometryError::InsufficientCorrespondences { required: 6, actual: points.len() });
+        return Err(GeometryError::InsufficientCorrespondences {
+            required: 6,
+            actual: points.len(),
+        });
     }
-    if points.iter().any(|m| m.iter().any(|v| !v.is_finite())) || image.iter().any(|x| !x.x.is_finite() || !x.y.is_finite()) {
+    if points.iter().any(|m| m.iter().any(|v| !v.is_finite()))
+        || image.iter().any(|x| !x.x.is_finite() || !x.y.is_finite())
+    {
         return Err(GeometryError::NonFinite);
     }
     Ok(())
@@ -107,20 +123,33 @@ pub fn resection_dlt(points: &[Vector4<f64>], image: &[Vector2<f64>]) -> Result<
 /// The DLT followed by `iterations` re-solves in which each point's two equations are weighted by
 /// `1 / (p3·M)` of the previous estimate, so that the algebraic residual approaches the image
 /// distance: the resection counterpart of eq. 20.
-pub fn resection_iterative(points: &[Vector4<f64>], image: &[Vector2<f64>], iterations: usize) -> Result<Matrix3x4<f64>> {
+pub fn resection_iterative(
+    points: &[Vector4<f64>],
+    image: &[Vector2<f64>],
+    iterations: usize,
+) -> Result<Matrix3x4<f64>> {
     check(points, image)?;
     resection_weighted_impl(points, image, iterations)
 }
 
-fn resection_weighted_impl(points: &[Vector4<f64>], image: &[Vector2<f64>], iterations: usize) -> Result<Matrix3x4<f64>> {
+fn resection_weighted_impl(
+    points: &[Vector4<f64>],
+    image: &[Vector2<f64>],
+    iterations: usize,
+) -> Result<Matrix3x4<f64>> {
     let n2 = hartley_normalization(image)?;
     let t2: Matrix3<f64> = n2.t;
     let u = normalize_3d(points);
-    let pts: Vec<Vector4<f64>> = points.iter().map(|m| {
-        let v = u * m;
-        v / v.norm()
-    }).collect();
-    let degenerate = GeometryError::Degenerate { reason: "the 2D–3D correspondences do not determine a camera" };
+    let pts: Vec<Vector4<f64>> = points
+        .iter()
+        .map(|m| {
+            let v = u * m;
+            v / v.norm()
+        })
+        .collect();
+    let degenerate = GeometryError::Degenerate {
+        reason: "the 2D–3D correspondences do not determine a camera",
+    };
     let (mut p, ratio, rel) = solve_dlt(&pts, &n2.points, None).ok_or(GeometryError::NonFinite)?;
     // With exactly 6 points the system is square and the smallest eigenvalue is ~0 for any data;
     // a second tiny eigenvalue means a one-parameter family of cameras (degenerate sample).
@@ -136,7 +165,9 @@ fn resection_weighted_impl(points: &[Vector4<f64>], image: &[Vector2<f64>], iter
         }
         let mean = weights.iter().sum::<f64>() / weights.len() as f64;
         weights.iter_mut().for_each(|w| *w /= mean);
-        p = solve_dlt(&pts, &n2.points, Some(&weights)).ok_or(GeometryError::NonFinite)?.0;
+        p = solve_dlt(&pts, &n2.points, Some(&weights))
+            .ok_or(GeometryError::NonFinite)?
+            .0;
     }
     let t2_inv = t2.try_inverse().ok_or(degenerate.clone())?;
     let p = t2_inv * p * u;
@@ -167,11 +198,25 @@ mod tests {
     fn scene(seed: u64, n: usize) -> (Matrix3x4<f64>, Vec<Vector4<f64>>, Vec<Vector2<f64>>) {
         let mut r = rng(seed);
         let k = Matrix3::new(800.0, 0.0, 320.0, 0.0, 810.0, 240.0, 0.0, 0.0, 1.0);
-        let p = camera_matrix(&k, Rotation3::from_euler_angles(0.1, -0.2, 0.05), Point3::new(0.3, -0.2, -5.0));
+        let p = camera_matrix(
+            &k,
+            Rotation3::from_euler_angles(0.1, -0.2, 0.05),
+            Point3::new(0.3, -0.2, -5.0),
+        );
         let pts: Vec<Vector4<f64>> = (0..n)
-            .map(|_| Vector4::new(r.random_range(-1.0..1.0), r.random_range(-1.0..1.0), r.random_range(-1.0..1.0), 1.0))
+            .map(|_| {
+                Vector4::new(
+                    r.random_range(-1.0..1.0),
+                    r.random_range(-1.0..1.0),
+                    r.random_range(-1.0..1.0),
+                    1.0,
+                )
+            })
             .collect();
-        let img = pts.iter().map(|m| project(&p, &Point3::from(m.xyz()))).collect();
+        let img = pts
+            .iter()
+            .map(|m| project(&p, &Point3::from(m.xyz())))
+            .collect();
         (p, pts, img)
     }
 
@@ -185,7 +230,11 @@ mod tests {
         for seed in 0..5 {
             let (p, pts, img) = scene(seed, 6);
             let est = resection_dlt(&pts, &img).unwrap();
-            assert!(camera_error(&est, &p) < 1e-8, "seed {seed}: {}", camera_error(&est, &p));
+            assert!(
+                camera_error(&est, &p) < 1e-8,
+                "seed {seed}: {}",
+                camera_error(&est, &p)
+            );
             let (p, pts, img) = scene(seed, 50);
             let est = resection_iterative(&pts, &img, 3).unwrap();
             assert!(camera_error(&est, &p) < 1e-9);
@@ -199,7 +248,12 @@ mod tests {
         let noisy = add_noise(&mut r, &img, 1.0);
         let est = resection_iterative(&pts, &noisy, 3).unwrap();
         // The fitted camera must reproject the exact points to within well under the noise level.
-        let err: f64 = pts.iter().zip(&img).map(|(m, x)| reprojection_distance(&est, m, x)).sum::<f64>() / 200.0;
+        let err: f64 = pts
+            .iter()
+            .zip(&img)
+            .map(|(m, x)| reprojection_distance(&est, m, x))
+            .sum::<f64>()
+            / 200.0;
         assert!(err < 0.3, "mean error to the noise-free points {err}");
         let _ = p;
     }
@@ -212,8 +266,20 @@ mod tests {
         bad[0].x = f64::NAN;
         assert!(resection_dlt(&bad, &img).is_err());
         // Coplanar points (z = 0) leave a family of cameras.
-        let planar: Vec<Vector4<f64>> = (0..20).map(|i| Vector4::new((i % 5) as f64, (i / 5) as f64 * 0.7 + (i % 3) as f64 * 0.1, 0.0, 1.0)).collect();
-        let img: Vec<Vector2<f64>> = planar.iter().map(|m| Vector2::new(m.x * 10.0 + 3.0, m.y * 9.0 - m.x)).collect();
+        let planar: Vec<Vector4<f64>> = (0..20)
+            .map(|i| {
+                Vector4::new(
+                    (i % 5) as f64,
+                    (i / 5) as f64 * 0.7 + (i % 3) as f64 * 0.1,
+                    0.0,
+                    1.0,
+                )
+            })
+            .collect();
+        let img: Vec<Vector2<f64>> = planar
+            .iter()
+            .map(|m| Vector2::new(m.x * 10.0 + 3.0, m.y * 9.0 - m.x))
+            .collect();
         assert!(resection_dlt(&planar, &img).is_err());
     }
 }

@@ -18,12 +18,18 @@ pub fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
 /// `a = 0`, `σ = 1`. The pair reproduces `F` up to scale (see [`crate::fundamental_from_cameras`]).
 ///
 /// Errors: `F` of rank below 2, `σ = 0`, or a non-finite input.
-pub fn canonical_cameras(f: &Matrix3<f64>, a: &Vector3<f64>, sigma: f64) -> Result<(ProjectiveCamera, ProjectiveCamera)> {
+pub fn canonical_cameras(
+    f: &Matrix3<f64>,
+    a: &Vector3<f64>,
+    sigma: f64,
+) -> Result<(ProjectiveCamera, ProjectiveCamera)> {
     if !sigma.is_finite() || a.iter().any(|v| !v.is_finite()) {
         return Err(GeometryError::NonFinite);
     }
     if sigma == 0.0 {
-        return Err(GeometryError::Degenerate { reason: "σ = 0 gives a singular second camera" });
+        return Err(GeometryError::Degenerate {
+            reason: "σ = 0 gives a singular second camera",
+        });
     }
     let (_, e2) = epipoles(f)?;
     let m = skew(&e2) * f + e2 * a.transpose();
@@ -49,7 +55,11 @@ mod tests {
     #[test]
     fn canonical_pair_reproduces_f() {
         let tv = two_view(11, 10);
-        let f = fundamental_from_cameras(&ProjectiveCamera { P: tv.p1 }, &ProjectiveCamera { P: tv.p2 }).expect("distinct");
+        let f = fundamental_from_cameras(
+            &ProjectiveCamera { P: tv.p1 },
+            &ProjectiveCamera { P: tv.p2 },
+        )
+        .expect("distinct");
         for (a, sigma) in [(Vector3::zeros(), 1.0), (Vector3::new(0.2, -0.1, 0.4), 2.5)] {
             let (c1, c2) = canonical_cameras(&f, &a, sigma).expect("rank 2");
             assert_eq!(c1.P, Matrix3x4::identity());

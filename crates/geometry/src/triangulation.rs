@@ -20,12 +20,21 @@ const RANK_TOL: f64 = 1e-10;
 ///
 /// Errors: fewer than 2 views, mismatched lengths, non-finite input, or rank below 3 (coincident
 /// centres, a point on the baseline).
-pub fn triangulate_linear(cameras: &[ProjectiveCamera], points: &[Vector2<f64>]) -> Result<ProjectivePoint> {
+pub fn triangulate_linear(
+    cameras: &[ProjectiveCamera],
+    points: &[Vector2<f64>],
+) -> Result<ProjectivePoint> {
     if cameras.len() != points.len() {
-        return Err(GeometryError::LengthMismatch { left: cameras.len(), right: points.len() });
+        return Err(GeometryError::LengthMismatch {
+            left: cameras.len(),
+            right: points.len(),
+        });
     }
     if cameras.len() < 2 {
-        return Err(GeometryError::InsufficientCorrespondences { required: 2, actual: cameras.len() });
+        return Err(GeometryError::InsufficientCorrespondences {
+            required: 2,
+            actual: cameras.len(),
+        });
     }
     let mut a = DMatrix::<f64>::zeros(2 * cameras.len(), 4);
     for (i, (cam, x)) in cameras.iter().zip(points).enumerate() {
@@ -43,7 +52,9 @@ pub fn triangulate_linear(cameras: &[ProjectiveCamera], points: &[Vector2<f64>])
     }
     let (sv, v_t) = full_right_svd(a).ok_or(GeometryError::NonFinite)?;
     if sv[2] <= RANK_TOL * sv[0] {
-        return Err(GeometryError::Degenerate { reason: "rays do not determine a point" });
+        return Err(GeometryError::Degenerate {
+            reason: "rays do not determine a point",
+        });
     }
     let mut x = Vector4::new(v_t[(3, 0)], v_t[(3, 1)], v_t[(3, 2)], v_t[(3, 3)]);
     if x.w < 0.0 {
@@ -61,12 +72,22 @@ pub fn triangulate_linear(cameras: &[ProjectiveCamera], points: &[Vector2<f64>])
 ///
 /// Errors: fewer than 2 views, mismatched lengths, non-finite input, or rays that do not determine
 /// a point (the two smallest eigenvalues of the normal matrix too close).
-pub fn triangulate_iterative(cameras: &[Matrix3x4<f64>], points: &[Vector2<f64>], iterations: usize) -> Result<Vector4<f64>> {
+pub fn triangulate_iterative(
+    cameras: &[Matrix3x4<f64>],
+    points: &[Vector2<f64>],
+    iterations: usize,
+) -> Result<Vector4<f64>> {
     if cameras.len() != points.len() {
-        return Err(GeometryError::LengthMismatch { left: cameras.len(), right: points.len() });
+        return Err(GeometryError::LengthMismatch {
+            left: cameras.len(),
+            right: points.len(),
+        });
     }
     if cameras.len() < 2 {
-        return Err(GeometryError::InsufficientCorrespondences { required: 2, actual: cameras.len() });
+        return Err(GeometryError::InsufficientCorrespondences {
+            required: 2,
+            actual: cameras.len(),
+        });
     }
     let solve = |weights: &[f64]| -> Result<(Vector4<f64>, f64)> {
         let mut ata = Matrix4::<f64>::zeros();
@@ -90,7 +111,9 @@ pub fn triangulate_iterative(cameras: &[Matrix3x4<f64>], points: &[Vector2<f64>]
     if ratio > 1e-2 && cameras.len() == 2 {
         // Two views: the rays always nearly meet, so only an exactly rank-deficient system fails.
     } else if ratio > 0.25 {
-        return Err(GeometryError::Degenerate { reason: "rays do not determine a point" });
+        return Err(GeometryError::Degenerate {
+            reason: "rays do not determine a point",
+        });
     }
     for _ in 0..iterations {
         for (w, p) in weights.iter_mut().zip(cameras) {
@@ -169,7 +192,11 @@ fn poly_add(a: &[f64], b: &[f64], scale_b: f64) -> Vec<f64> {
 /// `t = ∞` is taken; the corrected points are the feet of the perpendiculars on the two lines.
 ///
 /// Errors: a non-finite input, `F` of rank below 2, or a measured point exactly at its epipole.
-pub fn optimal_correction(f: &Matrix3<f64>, x1: &Vector2<f64>, x2: &Vector2<f64>) -> Result<(Vector2<f64>, Vector2<f64>)> {
+pub fn optimal_correction(
+    f: &Matrix3<f64>,
+    x1: &Vector2<f64>,
+    x2: &Vector2<f64>,
+) -> Result<(Vector2<f64>, Vector2<f64>)> {
     if !(x1.iter().chain(x2.iter()).all(|v| v.is_finite())) {
         return Err(GeometryError::NonFinite);
     }
@@ -177,7 +204,9 @@ pub fn optimal_correction(f: &Matrix3<f64>, x1: &Vector2<f64>, x2: &Vector2<f64>
     // Steps (i)–(ii): F ← T2⁻ᵀ F T1⁻¹, with T the translation taking the point to the origin.
     let ft = t2_inv.transpose() * f * t1_inv;
     let (e1, e2) = epipoles(&ft)?;
-    let at_epipole = GeometryError::Degenerate { reason: "measured point coincides with its epipole" };
+    let at_epipole = GeometryError::Degenerate {
+        reason: "measured point coincides with its epipole",
+    };
     let e1 = unit_xy(e1).ok_or(at_epipole.clone())?;
     let e2 = unit_xy(e2).ok_or(at_epipole)?;
     let (r1, r2) = (rotation_from_epipole(&e1), rotation_from_epipole(&e2));
@@ -189,7 +218,11 @@ pub fn optimal_correction(f: &Matrix3<f64>, x1: &Vector2<f64>, x2: &Vector2<f64>
     // Step (vii): g(t) = t((at+b)² + f'²(ct+d)²)² − (ad − bc)(1 + f²t²)²(at+b)(ct+d).
     let lin_a = [b, a];
     let lin_c = [d, c];
-    let q = poly_add(&poly_mul(&lin_a, &lin_a), &poly_mul(&lin_c, &lin_c), f2 * f2);
+    let q = poly_add(
+        &poly_mul(&lin_a, &lin_a),
+        &poly_mul(&lin_c, &lin_c),
+        f2 * f2,
+    );
     let term1 = poly_mul(&[0.0, 1.0], &poly_mul(&q, &q));
     let one_f = [1.0, 0.0, f1 * f1];
     let term2 = poly_mul(&poly_mul(&one_f, &one_f), &poly_mul(&lin_a, &lin_c));
@@ -199,11 +232,19 @@ pub fn optimal_correction(f: &Matrix3<f64>, x1: &Vector2<f64>, x2: &Vector2<f64>
     let cost = |t: f64| {
         let (at_b, ct_d) = (a * t + b, c * t + d);
         let den = at_b * at_b + f2 * f2 * ct_d * ct_d;
-        let second = if den > 0.0 { ct_d * ct_d / den } else { f64::INFINITY };
+        let second = if den > 0.0 {
+            ct_d * ct_d / den
+        } else {
+            f64::INFINITY
+        };
         t * t / (1.0 + f1 * f1 * t * t) + second
     };
     let mut best_t: Option<f64> = None;
-    let mut best_cost = if f1 != 0.0 { 1.0 / (f1 * f1) + c * c / (a * a + f2 * f2 * c * c) } else { f64::INFINITY };
+    let mut best_cost = if f1 != 0.0 {
+        1.0 / (f1 * f1) + c * c / (a * a + f2 * f2 * c * c)
+    } else {
+        f64::INFINITY
+    };
     if !best_cost.is_finite() {
         best_cost = f64::INFINITY;
     }
@@ -216,19 +257,26 @@ pub fn optimal_correction(f: &Matrix3<f64>, x1: &Vector2<f64>, x2: &Vector2<f64>
         }
     }
     if best_t.is_none() && !best_cost.is_finite() {
-        return Err(GeometryError::Degenerate { reason: "no finite minimum of the epipolar-plane cost" });
+        return Err(GeometryError::Degenerate {
+            reason: "no finite minimum of the epipolar-plane cost",
+        });
     }
 
     // Step (ix): the epipolar lines of the optimal plane and the closest points on them.
     let (l1, l2) = match best_t {
-        Some(t) => (Vector3::new(t * f1, 1.0, -t), Vector3::new(-f2 * (c * t + d), a * t + b, c * t + d)),
+        Some(t) => (
+            Vector3::new(t * f1, 1.0, -t),
+            Vector3::new(-f2 * (c * t + d), a * t + b, c * t + d),
+        ),
         None => (Vector3::new(f1, 0.0, -1.0), Vector3::new(-f2 * c, a, c)),
     };
     // Step (x): back to the original coordinates.
     let h1 = t1_inv * r1.transpose() * foot_of_origin(&l1);
     let h2 = t2_inv * r2.transpose() * foot_of_origin(&l2);
     if h1.z == 0.0 || h2.z == 0.0 {
-        return Err(GeometryError::Degenerate { reason: "corrected point at infinity" });
+        return Err(GeometryError::Degenerate {
+            reason: "corrected point at infinity",
+        });
     }
     Ok((h1.xy() / h1.z, h2.xy() / h2.z))
 }
@@ -245,7 +293,13 @@ mod tests {
     }
 
     fn reproj_sq(cams: &[ProjectiveCamera], obs: &[Vector2<f64>], x: &ProjectivePoint) -> f64 {
-        cams.iter().zip(obs).map(|(c, o)| c.project(x).map_or(f64::INFINITY, |p| (p - o).norm_squared())).sum()
+        cams.iter()
+            .zip(obs)
+            .map(|(c, o)| {
+                c.project(x)
+                    .map_or(f64::INFINITY, |p| (p - o).norm_squared())
+            })
+            .sum()
     }
 
     #[test]
@@ -256,7 +310,11 @@ mod tests {
             nalgebra::Rotation3::from_euler_angles(0.05, 0.2, 0.0),
             nalgebra::Point3::new(-0.7, 0.1, 0.3),
         );
-        let cams3 = [ProjectiveCamera { P: tv.p1 }, ProjectiveCamera { P: tv.p2 }, ProjectiveCamera { P: extra }];
+        let cams3 = [
+            ProjectiveCamera { P: tv.p1 },
+            ProjectiveCamera { P: tv.p2 },
+            ProjectiveCamera { P: extra },
+        ];
         for p in &tv.points {
             let obs: Vec<_> = cams3.iter().map(|c| project(&c.P, p)).collect();
             let x = triangulate_linear(&cams3, &obs).expect("general position");
@@ -290,11 +348,18 @@ mod tests {
             for (a, b) in x1.iter().zip(&x2) {
                 let (ca, cb) = optimal_correction(&f, a, b).expect("general position");
                 // The corrected points lie exactly on corresponding epipolar lines.
-                assert!(sampson_distance_sq(&f, &ca, &cb) < 1e-18, "{}", sampson_distance_sq(&f, &ca, &cb));
+                assert!(
+                    sampson_distance_sq(&f, &ca, &cb) < 1e-18,
+                    "{}",
+                    sampson_distance_sq(&f, &ca, &cb)
+                );
                 let moved = (ca - a).norm_squared() + (cb - b).norm_squared();
                 let xo = triangulate_linear(&[c1, c2], &[ca, cb]).expect("rays meet");
                 let e_opt = reproj_sq(&[c1, c2], &[*a, *b], &xo);
-                assert!((e_opt - moved).abs() < 1e-6 * (1.0 + moved), "{e_opt} vs {moved}");
+                assert!(
+                    (e_opt - moved).abs() < 1e-6 * (1.0 + moved),
+                    "{e_opt} vs {moved}"
+                );
                 let xl = triangulate_linear(&[c1, c2], &[*a, *b]).expect("general position");
                 let e_lin = reproj_sq(&[c1, c2], &[*a, *b], &xl);
                 assert!(e_opt <= e_lin + 1e-9, "optimal {e_opt} > linear {e_lin}");
@@ -306,7 +371,10 @@ mod tests {
         eprintln!("500 points, σ = 1 px: Σ reprojection² optimal {total_opt:.2}, linear {total_lin:.2}, Σ Sampson² {total_sampson:.2}");
         assert!(total_opt < total_lin, "{total_opt} vs {total_lin}");
         // The Sampson distance is the first-order approximation of the optimal cost.
-        assert!((total_opt / total_sampson - 1.0).abs() < 0.01, "{total_opt} vs Sampson {total_sampson}");
+        assert!(
+            (total_opt / total_sampson - 1.0).abs() < 0.01,
+            "{total_opt} vs Sampson {total_sampson}"
+        );
     }
 
     #[test]
@@ -314,7 +382,8 @@ mod tests {
         let tv = two_view(40, 30);
         let (c1, c2) = cams(&tv);
         let f = fundamental_from_cameras(&c1, &c2).expect("distinct");
-        let (q1, q2) = crate::skew::canonical_cameras(&f, &Vector3::new(0.1, 0.0, -0.2), 1.0).expect("rank 2");
+        let (q1, q2) =
+            crate::skew::canonical_cameras(&f, &Vector3::new(0.1, 0.0, -0.2), 1.0).expect("rank 2");
         let mut r = rng(41);
         let x1 = add_noise(&mut r, &tv.x1, 0.7);
         let x2 = add_noise(&mut r, &tv.x2, 0.7);
@@ -323,7 +392,10 @@ mod tests {
             let xp = triangulate_optimal(&q1, &q2, a, b).expect("projective");
             let em = reproj_sq(&[c1, c2], &[*a, *b], &xm);
             let ep = reproj_sq(&[q1, q2], &[*a, *b], &xp);
-            assert!((em - ep).abs() < 1e-6 * (1.0 + em), "reprojection error depends on the frame: {em} vs {ep}");
+            assert!(
+                (em - ep).abs() < 1e-6 * (1.0 + em),
+                "reprojection error depends on the frame: {em} vs {ep}"
+            );
         }
     }
 
@@ -331,15 +403,28 @@ mod tests {
     fn degenerate_inputs_are_errors() {
         let tv = two_view(50, 5);
         let (c1, c2) = cams(&tv);
-        assert!(matches!(triangulate_linear(&[c1], &[tv.x1[0]]), Err(GeometryError::InsufficientCorrespondences { .. })));
-        assert!(matches!(triangulate_linear(&[c1, c2], &[tv.x1[0]]), Err(GeometryError::LengthMismatch { .. })));
+        assert!(matches!(
+            triangulate_linear(&[c1], &[tv.x1[0]]),
+            Err(GeometryError::InsufficientCorrespondences { .. })
+        ));
+        assert!(matches!(
+            triangulate_linear(&[c1, c2], &[tv.x1[0]]),
+            Err(GeometryError::LengthMismatch { .. })
+        ));
         assert!(triangulate_linear(&[c1, c1], &[tv.x1[0], tv.x1[0]]).is_err());
         assert!(triangulate_linear(&[c1, c2], &[Vector2::new(f64::NAN, 0.0), tv.x2[0]]).is_err());
         assert!(triangulate_optimal(&c1, &c1, &tv.x1[0], &tv.x1[0]).is_err());
-        let zero = ProjectiveCamera { P: Matrix3x4::zeros() };
+        let zero = ProjectiveCamera {
+            P: Matrix3x4::zeros(),
+        };
         assert!(triangulate_optimal(&zero, &c2, &tv.x1[0], &tv.x2[0]).is_err());
         assert!(optimal_correction(&Matrix3::zeros(), &tv.x1[0], &tv.x2[0]).is_err());
-        assert!(optimal_correction(&Matrix3::identity(), &Vector2::new(f64::INFINITY, 0.0), &tv.x2[0]).is_err());
+        assert!(optimal_correction(
+            &Matrix3::identity(),
+            &Vector2::new(f64::INFINITY, 0.0),
+            &tv.x2[0]
+        )
+        .is_err());
     }
 
     #[test]
@@ -355,7 +440,8 @@ mod tests {
             let obs = [x1[k], x2[k]];
             let m0 = triangulate_iterative(&cams, &obs, 0).unwrap();
             let m = triangulate_iterative(&cams, &obs, 3).unwrap();
-            let pc: Vec<ProjectiveCamera> = cams.iter().map(|p| ProjectiveCamera { P: *p }).collect();
+            let pc: Vec<ProjectiveCamera> =
+                cams.iter().map(|p| ProjectiveCamera { P: *p }).collect();
             err_lin += reproj_sq(&pc, &obs, &ProjectivePoint { X: m0 });
             err_it += reproj_sq(&pc, &obs, &ProjectivePoint { X: m });
             let exact = triangulate_iterative(&cams, &[tv.x1[k], tv.x2[k]], 2).unwrap();

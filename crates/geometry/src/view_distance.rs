@@ -22,7 +22,11 @@ pub struct ViewDistance {
 /// Eq. 15: `a_min = argmin_a Σ d(([e]× F + e aᵀ) m, m′)²`, linearised through the cross product
 /// `m′ × ([e]× F m + e (aᵀ m)) = 0` (two independent rows per match, linear in `a`), solved in
 /// least squares; then eq. 14, the median transfer distance. `e` is the epipole in image 2.
-pub fn view_distance(f: &Matrix3<f64>, x1: &[Vector2<f64>], x2: &[Vector2<f64>]) -> Result<ViewDistance> {
+pub fn view_distance(
+    f: &Matrix3<f64>,
+    x1: &[Vector2<f64>],
+    x2: &[Vector2<f64>],
+) -> Result<ViewDistance> {
     check_pair_lengths(x1, x2, 3)?;
     let (_, e) = epipoles(f)?;
     let m0 = skew(&e) * f;
@@ -41,15 +45,30 @@ pub fn view_distance(f: &Matrix3<f64>, x1: &[Vector2<f64>], x2: &[Vector2<f64>])
             atb -= row * r[k];
         }
     }
-    let a_min = ata.try_inverse().map(|inv| inv * atb).ok_or(GeometryError::Degenerate { reason: "a_min is not determined" })?;
+    let a_min = ata
+        .try_inverse()
+        .map(|inv| inv * atb)
+        .ok_or(GeometryError::Degenerate {
+            reason: "a_min is not determined",
+        })?;
     let h = m0 + e * a_min.transpose();
-    let mut d: Vec<f64> = x1.iter().zip(x2).map(|(p, q)| transfer_error_sq(&h, p, q).sqrt()).collect();
+    let mut d: Vec<f64> = x1
+        .iter()
+        .zip(x2)
+        .map(|(p, q)| transfer_error_sq(&h, p, q).sqrt())
+        .collect();
     d.sort_by(|a, b| a.total_cmp(b));
     let median_transfer_px = d[d.len() / 2];
     if !median_transfer_px.is_finite() {
-        return Err(GeometryError::Degenerate { reason: "transfer through H is undefined" });
+        return Err(GeometryError::Degenerate {
+            reason: "transfer through H is undefined",
+        });
     }
-    Ok(ViewDistance { h, a_min, median_transfer_px })
+    Ok(ViewDistance {
+        h,
+        a_min,
+        median_transfer_px,
+    })
 }
 
 #[cfg(test)]
@@ -63,14 +82,25 @@ mod tests {
     fn setup(baseline: f64) -> (Matrix3<f64>, Vec<Vector2<f64>>, Vec<Vector2<f64>>) {
         let k = Matrix3::new(800.0, 0.0, 320.0, 0.0, 800.0, 240.0, 0.0, 0.0, 1.0);
         let p1 = camera_matrix(&k, Rotation3::identity(), Point3::origin());
-        let p2 = camera_matrix(&k, Rotation3::from_euler_angles(0.0, 0.05, 0.0), Point3::new(baseline, 0.0, 0.0));
+        let p2 = camera_matrix(
+            &k,
+            Rotation3::from_euler_angles(0.0, 0.05, 0.0),
+            Point3::new(baseline, 0.0, 0.0),
+        );
         let mut r = rng(3);
         let pts: Vec<Point3<f64>> = (0..200)
-            .map(|_| Point3::new(gauss(&mut r), gauss(&mut r), 6.0 + 2.0 * gauss(&mut r).abs()))
+            .map(|_| {
+                Point3::new(
+                    gauss(&mut r),
+                    gauss(&mut r),
+                    6.0 + 2.0 * gauss(&mut r).abs(),
+                )
+            })
             .collect();
         let x1: Vec<_> = pts.iter().map(|p| project(&p1, p)).collect();
         let x2: Vec<_> = pts.iter().map(|p| project(&p2, p)).collect();
-        let f = fundamental_from_cameras(&ProjectiveCamera { P: p1 }, &ProjectiveCamera { P: p2 }).unwrap();
+        let f = fundamental_from_cameras(&ProjectiveCamera { P: p1 }, &ProjectiveCamera { P: p2 })
+            .unwrap();
         (f, x1, x2)
     }
 

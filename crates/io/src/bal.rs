@@ -15,8 +15,8 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use handheld_core::{
-    Camera, CameraId, ImageId, Intrinsics, MetricReconstruction, Observation, Point3D, PointId, Rigid3, Track,
-    TrackElement, View,
+    Camera, CameraId, ImageId, Intrinsics, MetricReconstruction, Observation, Point3D, PointId,
+    Rigid3, Track, TrackElement, View,
 };
 use nalgebra::{Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector2, Vector3};
 
@@ -42,22 +42,33 @@ pub struct BalProblem {
 /// Reads a BAL text file. Errors name the file and the line.
 pub fn read_bal(path: &Path) -> Result<BalProblem> {
     let text = std::fs::read_to_string(path).map_err(|e| IoError::io(path, e))?;
-    parse_bal(&text).map_err(|(line, reason)| IoError::format(path, format!("line {line}: {reason}")))
+    parse_bal(&text)
+        .map_err(|(line, reason)| IoError::format(path, format!("line {line}: {reason}")))
 }
 
 /// Parses BAL text; errors are `(line number, reason)`.
 pub fn parse_bal(text: &str) -> std::result::Result<BalProblem, (usize, String)> {
-    let mut tokens = text.lines().enumerate().flat_map(|(i, l)| l.split_whitespace().map(move |t| (i + 1, t)));
+    let mut tokens = text
+        .lines()
+        .enumerate()
+        .flat_map(|(i, l)| l.split_whitespace().map(move |t| (i + 1, t)));
     let mut last_line = 1;
     let mut next = |what: &str| -> std::result::Result<(usize, &str), (usize, String)> {
-        let r = tokens.next().ok_or((last_line, format!("unexpected end of file, expected {what}")));
+        let r = tokens.next().ok_or((
+            last_line,
+            format!("unexpected end of file, expected {what}"),
+        ));
         if let Ok((l, _)) = r {
             last_line = l;
         }
         r
     };
-    fn num<T: std::str::FromStr>((line, t): (usize, &str), what: &str) -> std::result::Result<T, (usize, String)> {
-        t.parse::<T>().map_err(|_| (line, format!("{what} `{t}` is not a valid number")))
+    fn num<T: std::str::FromStr>(
+        (line, t): (usize, &str),
+        what: &str,
+    ) -> std::result::Result<T, (usize, String)> {
+        t.parse::<T>()
+            .map_err(|_| (line, format!("{what} `{t}` is not a valid number")))
     }
     let nc: usize = num(next("the camera count")?, "camera count")?;
     let np: usize = num(next("the point count")?, "point count")?;
@@ -76,7 +87,11 @@ pub fn parse_bal(text: &str) -> std::result::Result<BalProblem, (usize, String)>
         }
         let x: f64 = num(next("x")?, "x")?;
         let y: f64 = num(next("y")?, "y")?;
-        observations.push(BalObservation { camera, point, xy: [x, y] });
+        observations.push(BalObservation {
+            camera,
+            point,
+            xy: [x, y],
+        });
     }
     let mut cameras = Vec::with_capacity(nc);
     for _ in 0..nc {
@@ -94,7 +109,11 @@ pub fn parse_bal(text: &str) -> std::result::Result<BalProblem, (usize, String)>
         }
         points.push(p);
     }
-    Ok(BalProblem { cameras, points, observations })
+    Ok(BalProblem {
+        cameras,
+        points,
+        observations,
+    })
 }
 
 /// Rotation matrix of an angle-axis vector (Rodrigues).
@@ -108,7 +127,8 @@ impl BalProblem {
         let ob = &self.observations[o];
         let c = &self.cameras[ob.camera];
         let x = &self.points[ob.point];
-        let p = angle_axis_matrix(&c[..3]) * Vector3::new(x[0], x[1], x[2]) + Vector3::new(c[3], c[4], c[5]);
+        let p = angle_axis_matrix(&c[..3]) * Vector3::new(x[0], x[1], x[2])
+            + Vector3::new(c[3], c[4], c[5]);
         let (px, py) = (-p.x / p.z, -p.y / p.z);
         let r2 = px * px + py * py;
         let d = c[6] * (1.0 + c[7] * r2 + c[8] * r2 * r2);
@@ -117,7 +137,10 @@ impl BalProblem {
 
     /// Ceres' cost `½ Σ ‖r‖²` with BAL's projection.
     pub fn cost(&self) -> f64 {
-        0.5 * (0..self.observations.len()).map(|o| self.residual(o)).map(|r| r[0] * r[0] + r[1] * r[1]).sum::<f64>()
+        0.5 * (0..self.observations.len())
+            .map(|o| self.residual(o))
+            .map(|r| r[0] * r[0] + r[1] * r[1])
+            .sum::<f64>()
     }
 
     /// The same problem as a metric reconstruction (see the module doc): camera `i` becomes intrinsics
@@ -128,8 +151,23 @@ impl BalProblem {
         let d = Matrix3::from_diagonal(&Vector3::new(1.0, -1.0, -1.0));
         for (i, c) in self.cameras.iter().enumerate() {
             let id = CameraId(i as u32);
-            let k = Intrinsics { f: c[6], aspect: 1.0, skew: 0.0, pp: Vector2::zeros(), k1: c[7], k2: c[8] };
-            rec.cameras.insert(id, Camera { id, width: 0, height: 0, intrinsics: k });
+            let k = Intrinsics {
+                f: c[6],
+                aspect: 1.0,
+                skew: 0.0,
+                pp: Vector2::zeros(),
+                k1: c[7],
+                k2: c[8],
+            };
+            rec.cameras.insert(
+                id,
+                Camera {
+                    id,
+                    width: 0,
+                    height: 0,
+                    intrinsics: k,
+                },
+            );
             let r = d * angle_axis_matrix(&c[..3]);
             let t = d * Vector3::new(c[3], c[4], c[5]);
             let q = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(r));
@@ -137,22 +175,40 @@ impl BalProblem {
             let image = ImageId(i as u32);
             rec.views.insert(
                 image,
-                View { id: image, name: format!("bal_{i}"), camera_id: id, cam_from_world: pose, observations: Vec::new(), frame: None },
+                View {
+                    id: image,
+                    name: format!("bal_{i}"),
+                    camera_id: id,
+                    cam_from_world: pose,
+                    observations: Vec::new(),
+                    frame: None,
+                },
             );
         }
         let mut tracks: BTreeMap<usize, Vec<TrackElement>> = BTreeMap::new();
         for ob in &self.observations {
             let image = ImageId(ob.camera as u32);
             if let Some(v) = rec.views.get_mut(&image) {
-                tracks.entry(ob.point).or_default().push(TrackElement { image_id: image, point2d_idx: v.observations.len() as u32 });
-                v.observations.push(Observation { xy: Vector2::new(ob.xy[0], -ob.xy[1]), point_id: Some(PointId(ob.point as u64)) });
+                tracks.entry(ob.point).or_default().push(TrackElement {
+                    image_id: image,
+                    point2d_idx: v.observations.len() as u32,
+                });
+                v.observations.push(Observation {
+                    xy: Vector2::new(ob.xy[0], -ob.xy[1]),
+                    point_id: Some(PointId(ob.point as u64)),
+                });
             }
         }
         for (j, x) in self.points.iter().enumerate() {
             let elements = tracks.remove(&j).unwrap_or_default();
             rec.points.insert(
                 PointId(j as u64),
-                Point3D { xyz: Point3::new(x[0], x[1], x[2]), color: [128; 3], error: -1.0, track: Track { elements } },
+                Point3D {
+                    xyz: Point3::new(x[0], x[1], x[2]),
+                    color: [128; 3],
+                    error: -1.0,
+                    track: Track { elements },
+                },
             );
         }
         rec
@@ -171,19 +227,27 @@ mod tests {
     #[test]
     fn parses_and_converted_cost_matches_bal_formula() {
         let bal = parse_bal(TINY).expect("valid");
-        assert_eq!((bal.cameras.len(), bal.points.len(), bal.observations.len()), (2, 2, 3));
+        assert_eq!(
+            (bal.cameras.len(), bal.points.len(), bal.observations.len()),
+            (2, 2, 3)
+        );
         let rec = bal.to_metric_reconstruction();
         rec.validate().expect("consistent");
         let mut ours = 0.0;
         for p in rec.points.values() {
             for el in &p.track.elements {
                 let v = &rec.views[&el.image_id];
-                let px = rec.cameras[&v.camera_id].project(&v.cam_from_world, &p.xyz).expect("in front");
+                let px = rec.cameras[&v.camera_id]
+                    .project(&v.cam_from_world, &p.xyz)
+                    .expect("in front");
                 ours += 0.5 * (px - v.observations[el.point2d_idx as usize].xy).norm_squared();
             }
         }
         let theirs = bal.cost();
-        assert!((ours - theirs).abs() <= 1e-12 * theirs, "{ours} vs {theirs}");
+        assert!(
+            (ours - theirs).abs() <= 1e-12 * theirs,
+            "{ours} vs {theirs}"
+        );
     }
 
     #[test]

@@ -62,7 +62,11 @@ pub struct StoredTwoViewGeometry {
 
 /// COLMAP's pair key (order-independent).
 pub fn pair_id(id1: u32, id2: u32) -> u64 {
-    let (a, b) = if id1 <= id2 { (id1 as u64, id2 as u64) } else { (id2 as u64, id1 as u64) };
+    let (a, b) = if id1 <= id2 {
+        (id1 as u64, id2 as u64)
+    } else {
+        (id2 as u64, id1 as u64)
+    };
     MAX_IMAGE_ID * a + b
 }
 
@@ -91,12 +95,19 @@ fn blob_matrix(b: &[u8]) -> Option<Matrix3<f64>> {
     if b.len() != 72 {
         return None;
     }
-    let v: Vec<f64> = b.chunks_exact(8).map(|c| f64::from_le_bytes([c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7]])).collect();
+    let v: Vec<f64> = b
+        .chunks_exact(8)
+        .map(|c| f64::from_le_bytes([c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7]]))
+        .collect();
     Some(Matrix3::from_column_slice(&v))
 }
 
 fn pairs_blob(pairs: &[(u32, u32)], swap: bool) -> Vec<u8> {
-    pairs.iter().flat_map(|&(a, b)| if swap { [b, a] } else { [a, b] }).flat_map(|v| v.to_le_bytes()).collect()
+    pairs
+        .iter()
+        .flat_map(|&(a, b)| if swap { [b, a] } else { [a, b] })
+        .flat_map(|v| v.to_le_bytes())
+        .collect()
 }
 
 fn blob_pairs(b: &[u8], swap: bool) -> Vec<(u32, u32)> {
@@ -104,7 +115,11 @@ fn blob_pairs(b: &[u8], swap: bool) -> Vec<(u32, u32)> {
         .map(|c| {
             let a = u32::from_le_bytes([c[0], c[1], c[2], c[3]]);
             let d = u32::from_le_bytes([c[4], c[5], c[6], c[7]]);
-            if swap { (d, a) } else { (a, d) }
+            if swap {
+                (d, a)
+            } else {
+                (a, d)
+            }
         })
         .collect()
 }
@@ -119,29 +134,54 @@ impl Database {
         let _ = std::fs::remove_file(&tmp);
         let conn = Connection::open(&tmp).map_err(sql_err(path))?;
         conn.execute_batch(SCHEMA).map_err(sql_err(path))?;
-        conn.execute_batch("PRAGMA journal_mode=OFF; PRAGMA synchronous=OFF; BEGIN;").map_err(sql_err(path))?;
-        Ok(Self { conn, path: path.to_path_buf(), tmp: Some(tmp) })
+        conn.execute_batch("PRAGMA journal_mode=OFF; PRAGMA synchronous=OFF; BEGIN;")
+            .map_err(sql_err(path))?;
+        Ok(Self {
+            conn,
+            path: path.to_path_buf(),
+            tmp: Some(tmp),
+        })
     }
 
     /// Opens an existing database for reading.
     pub fn open(path: &Path) -> Result<Self> {
         if !path.exists() {
-            return Err(IoError::NotFound { path: path.to_path_buf() });
+            return Err(IoError::NotFound {
+                path: path.to_path_buf(),
+            });
         }
-        let conn = Connection::open_with_flags(path, rusqlite::OpenFlags::SQLITE_OPEN_READ_ONLY).map_err(sql_err(path))?;
-        Ok(Self { conn, path: path.to_path_buf(), tmp: None })
+        let conn = Connection::open_with_flags(path, rusqlite::OpenFlags::SQLITE_OPEN_READ_ONLY)
+            .map_err(sql_err(path))?;
+        Ok(Self {
+            conn,
+            path: path.to_path_buf(),
+            tmp: None,
+        })
     }
 
     /// Commits and renames the database into place.
     pub fn finish(self) -> Result<()> {
-        let Some(tmp) = self.tmp.clone() else { return Ok(()) };
-        self.conn.execute_batch("COMMIT;").map_err(sql_err(&self.path))?;
-        self.conn.close().map_err(|(_, e)| IoError::format(&tmp, e.to_string()))?;
+        let Some(tmp) = self.tmp.clone() else {
+            return Ok(());
+        };
+        self.conn
+            .execute_batch("COMMIT;")
+            .map_err(sql_err(&self.path))?;
+        self.conn
+            .close()
+            .map_err(|(_, e)| IoError::format(&tmp, e.to_string()))?;
         std::fs::rename(&tmp, &self.path).map_err(|e| IoError::io(&self.path, e))
     }
 
     /// Adds an intrinsics group; `model` is COLMAP's model id, `params` its parameter vector.
-    pub fn add_camera(&self, model: i64, width: u32, height: u32, params: &[f64], prior_focal_length: bool) -> Result<u32> {
+    pub fn add_camera(
+        &self,
+        model: i64,
+        width: u32,
+        height: u32,
+        params: &[f64],
+        prior_focal_length: bool,
+    ) -> Result<u32> {
         let blob: Vec<u8> = params.iter().flat_map(|v| v.to_le_bytes()).collect();
         self.conn
             .execute(
@@ -155,24 +195,40 @@ impl Database {
     /// Adds an image and returns its id.
     pub fn add_image(&self, name: &str, camera_id: u32) -> Result<u32> {
         self.conn
-            .execute("INSERT INTO images (name, camera_id) VALUES (?1, ?2)", params![name, camera_id])
+            .execute(
+                "INSERT INTO images (name, camera_id) VALUES (?1, ?2)",
+                params![name, camera_id],
+            )
             .map_err(sql_err(&self.path))?;
         Ok(self.conn.last_insert_rowid() as u32)
     }
 
     /// All images as `(image_id, name, camera_id)`, by id.
     pub fn images(&self) -> Result<Vec<(u32, String, u32)>> {
-        let mut st = self.conn.prepare("SELECT image_id, name, camera_id FROM images ORDER BY image_id").map_err(sql_err(&self.path))?;
-        let rows = st.query_map([], |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?))).map_err(sql_err(&self.path))?;
-        rows.collect::<std::result::Result<_, _>>().map_err(sql_err(&self.path))
+        let mut st = self
+            .conn
+            .prepare("SELECT image_id, name, camera_id FROM images ORDER BY image_id")
+            .map_err(sql_err(&self.path))?;
+        let rows = st
+            .query_map([], |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)))
+            .map_err(sql_err(&self.path))?;
+        rows.collect::<std::result::Result<_, _>>()
+            .map_err(sql_err(&self.path))
     }
 
     /// Stores keypoints `(x, y, scale, orientation)` in Handheld's pixel convention.
     pub fn write_keypoints(&self, image_id: u32, keypoints: &[[f32; 4]]) -> Result<()> {
         let off = PIXEL_CENTER_OFFSET_COLMAP as f32;
-        let blob: Vec<u8> = keypoints.iter().flat_map(|k| [k[0] + off, k[1] + off, k[2], k[3]]).flat_map(|v| v.to_le_bytes()).collect();
+        let blob: Vec<u8> = keypoints
+            .iter()
+            .flat_map(|k| [k[0] + off, k[1] + off, k[2], k[3]])
+            .flat_map(|v| v.to_le_bytes())
+            .collect();
         self.conn
-            .execute("INSERT OR REPLACE INTO keypoints VALUES (?1, ?2, 4, ?3)", params![image_id, keypoints.len() as i64, blob])
+            .execute(
+                "INSERT OR REPLACE INTO keypoints VALUES (?1, ?2, 4, ?3)",
+                params![image_id, keypoints.len() as i64, blob],
+            )
             .map_err(sql_err(&self.path))?;
         Ok(())
     }
@@ -182,20 +238,40 @@ impl Database {
     pub fn read_keypoints(&self, image_id: u32) -> Result<Vec<[f32; 4]>> {
         let row: Option<(i64, i64, Vec<u8>)> = self
             .conn
-            .query_row("SELECT rows, cols, data FROM keypoints WHERE image_id = ?1", [image_id], |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)))
+            .query_row(
+                "SELECT rows, cols, data FROM keypoints WHERE image_id = ?1",
+                [image_id],
+                |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?)),
+            )
             .optional()
             .map_err(sql_err(&self.path))?;
-        let Some((rows, cols, data)) = row else { return Ok(Vec::new()) };
+        let Some((rows, cols, data)) = row else {
+            return Ok(Vec::new());
+        };
         let cols = cols as usize;
         if !(cols == 2 || cols == 4 || cols == 6) || data.len() != rows as usize * cols * 4 {
-            return Err(IoError::format(&self.path, format!("keypoints of image {image_id}: bad blob ({rows}×{cols}, {} bytes)", data.len())));
+            return Err(IoError::format(
+                &self.path,
+                format!(
+                    "keypoints of image {image_id}: bad blob ({rows}×{cols}, {} bytes)",
+                    data.len()
+                ),
+            ));
         }
-        let v: Vec<f32> = data.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
+        let v: Vec<f32> = data
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect();
         let off = PIXEL_CENTER_OFFSET_COLMAP as f32;
         Ok(v.chunks_exact(cols)
             .map(|k| match cols {
                 4 => [k[0] - off, k[1] - off, k[2], k[3]],
-                6 => [k[0] - off, k[1] - off, 0.5 * ((k[2] * k[2] + k[4] * k[4]).sqrt() + (k[3] * k[3] + k[5] * k[5]).sqrt()), k[4].atan2(k[2])],
+                6 => [
+                    k[0] - off,
+                    k[1] - off,
+                    0.5 * ((k[2] * k[2] + k[4] * k[4]).sqrt() + (k[3] * k[3] + k[5] * k[5]).sqrt()),
+                    k[4].atan2(k[2]),
+                ],
                 _ => [k[0] - off, k[1] - off, 0.0, 0.0],
             })
             .collect())
@@ -204,9 +280,15 @@ impl Database {
     /// Stores float descriptors (row-major, `dim` per keypoint) as COLMAP's `uint8`.
     pub fn write_descriptors(&self, image_id: u32, dim: usize, data: &[f32]) -> Result<()> {
         let rows = data.len().checked_div(dim).unwrap_or(0);
-        let blob: Vec<u8> = data.iter().map(|v| (512.0 * v).round().clamp(0.0, 255.0) as u8).collect();
+        let blob: Vec<u8> = data
+            .iter()
+            .map(|v| (512.0 * v).round().clamp(0.0, 255.0) as u8)
+            .collect();
         self.conn
-            .execute("INSERT OR REPLACE INTO descriptors VALUES (?1, ?2, ?3, ?4)", params![image_id, rows as i64, dim as i64, blob])
+            .execute(
+                "INSERT OR REPLACE INTO descriptors VALUES (?1, ?2, ?3, ?4)",
+                params![image_id, rows as i64, dim as i64, blob],
+            )
             .map_err(sql_err(&self.path))?;
         Ok(())
     }
@@ -215,7 +297,10 @@ impl Database {
     pub fn write_matches(&self, id1: u32, id2: u32, matches: &[(u32, u32)]) -> Result<()> {
         let blob = pairs_blob(matches, id1 > id2);
         self.conn
-            .execute("INSERT OR REPLACE INTO matches VALUES (?1, ?2, 2, ?3)", params![pair_id(id1, id2) as i64, matches.len() as i64, blob])
+            .execute(
+                "INSERT OR REPLACE INTO matches VALUES (?1, ?2, 2, ?3)",
+                params![pair_id(id1, id2) as i64, matches.len() as i64, blob],
+            )
             .map_err(sql_err(&self.path))?;
         Ok(())
     }
@@ -224,18 +309,28 @@ impl Database {
     pub fn read_matches(&self, id1: u32, id2: u32) -> Result<Vec<(u32, u32)>> {
         let blob: Option<Vec<u8>> = self
             .conn
-            .query_row("SELECT data FROM matches WHERE pair_id = ?1", [pair_id(id1, id2) as i64], |r| r.get(0))
+            .query_row(
+                "SELECT data FROM matches WHERE pair_id = ?1",
+                [pair_id(id1, id2) as i64],
+                |r| r.get(0),
+            )
             .optional()
             .map_err(sql_err(&self.path))?;
         Ok(blob.map(|b| blob_pairs(&b, id1 > id2)).unwrap_or_default())
     }
 
     /// Stores a verified two-view geometry (`F`, `H` as given for `x_id2ᵀ F x_id1 = 0`).
-    pub fn write_two_view_geometry(&self, id1: u32, id2: u32, g: &StoredTwoViewGeometry) -> Result<()> {
+    pub fn write_two_view_geometry(
+        &self,
+        id1: u32,
+        id2: u32,
+        g: &StoredTwoViewGeometry,
+    ) -> Result<()> {
         let swap = id1 > id2;
         // COLMAP stores F and H for the ordered pair (smaller id first).
         let f = g.f.map(|f| if swap { f.transpose() } else { f });
-        let h = g.h.and_then(|h| if swap { h.try_inverse() } else { Some(h) });
+        let h =
+            g.h.and_then(|h| if swap { h.try_inverse() } else { Some(h) });
         let z = Matrix3::<f64>::zeros();
         self.conn
             .execute(
@@ -257,7 +352,11 @@ impl Database {
     }
 
     /// Reads a verified geometry, oriented for `(id1, id2)`.
-    pub fn read_two_view_geometry(&self, id1: u32, id2: u32) -> Result<Option<StoredTwoViewGeometry>> {
+    pub fn read_two_view_geometry(
+        &self,
+        id1: u32,
+        id2: u32,
+    ) -> Result<Option<StoredTwoViewGeometry>> {
         let row: Option<(Vec<u8>, i64, Vec<u8>, Vec<u8>)> = self
             .conn
             .query_row(
@@ -274,7 +373,8 @@ impl Database {
                 config,
                 inliers: blob_pairs(&data, swap),
                 f: nonzero(blob_matrix(&f)).map(|f| if swap { f.transpose() } else { f }),
-                h: nonzero(blob_matrix(&h)).and_then(|h| if swap { h.try_inverse() } else { Some(h) }),
+                h: nonzero(blob_matrix(&h))
+                    .and_then(|h| if swap { h.try_inverse() } else { Some(h) }),
             }
         }))
     }
@@ -290,21 +390,36 @@ mod tests {
         let path = dir.path().join("database.db");
         let db = Database::create(&path).unwrap();
         assert!(!path.exists(), "nothing at the final path before finish");
-        let cam = db.add_camera(2, 640, 480, &[500.0, 320.5, 240.5, 0.0], false).unwrap();
+        let cam = db
+            .add_camera(2, 640, 480, &[500.0, 320.5, 240.5, 0.0], false)
+            .unwrap();
         let a = db.add_image("a.png", cam).unwrap();
         let b = db.add_image("b.png", cam).unwrap();
-        db.write_keypoints(a, &[[10.0, 20.0, 1.5, 0.25], [30.0, 40.0, 2.0, -1.0]]).unwrap();
-        db.write_descriptors(a, 4, &[0.1, 0.2, 0.3, 0.9, 0.0, 0.5, 1.0, 0.25]).unwrap();
+        db.write_keypoints(a, &[[10.0, 20.0, 1.5, 0.25], [30.0, 40.0, 2.0, -1.0]])
+            .unwrap();
+        db.write_descriptors(a, 4, &[0.1, 0.2, 0.3, 0.9, 0.0, 0.5, 1.0, 0.25])
+            .unwrap();
         db.write_matches(b, a, &[(0, 1), (5, 0)]).unwrap();
         let f = Matrix3::new(0.0, -1e-4, 0.02, 1e-4, 0.0, -0.03, -0.02, 0.03, 1.0);
         let h = Matrix3::new(1.1, 0.01, 3.0, -0.02, 0.95, -4.0, 1e-5, 2e-5, 1.0);
-        let g = StoredTwoViewGeometry { config: TwoViewConfig::Uncalibrated as i64, inliers: vec![(5, 0)], f: Some(f), h: Some(h) };
+        let g = StoredTwoViewGeometry {
+            config: TwoViewConfig::Uncalibrated as i64,
+            inliers: vec![(5, 0)],
+            f: Some(f),
+            h: Some(h),
+        };
         db.write_two_view_geometry(b, a, &g).unwrap();
         db.finish().unwrap();
 
         let db = Database::open(&path).unwrap();
-        assert_eq!(db.images().unwrap(), vec![(a, "a.png".into(), cam), (b, "b.png".into(), cam)]);
-        assert_eq!(db.read_keypoints(a).unwrap(), vec![[10.0, 20.0, 1.5, 0.25], [30.0, 40.0, 2.0, -1.0]]);
+        assert_eq!(
+            db.images().unwrap(),
+            vec![(a, "a.png".into(), cam), (b, "b.png".into(), cam)]
+        );
+        assert_eq!(
+            db.read_keypoints(a).unwrap(),
+            vec![[10.0, 20.0, 1.5, 0.25], [30.0, 40.0, 2.0, -1.0]]
+        );
         assert_eq!(db.read_matches(b, a).unwrap(), vec![(0, 1), (5, 0)]);
         assert_eq!(db.read_matches(a, b).unwrap(), vec![(1, 0), (0, 5)]);
         let back = db.read_two_view_geometry(b, a).unwrap().unwrap();
@@ -316,17 +431,26 @@ mod tests {
         assert_eq!(ids_from_pair(pair_id(b, a)), (a.min(b), a.max(b)));
         // COLMAP's stored layout: smaller id first, its columns swapped accordingly.
         let conn = Connection::open(&path).unwrap();
-        let raw: Vec<u8> = conn.query_row("SELECT data FROM matches", [], |r| r.get(0)).unwrap();
+        let raw: Vec<u8> = conn
+            .query_row("SELECT data FROM matches", [], |r| r.get(0))
+            .unwrap();
         assert_eq!(blob_pairs(&raw, false), vec![(1, 0), (0, 5)]);
-        let kp: Vec<u8> = conn.query_row("SELECT data FROM keypoints", [], |r| r.get(0)).unwrap();
+        let kp: Vec<u8> = conn
+            .query_row("SELECT data FROM keypoints", [], |r| r.get(0))
+            .unwrap();
         assert_eq!(f32::from_le_bytes([kp[0], kp[1], kp[2], kp[3]]), 10.5);
-        let desc: Vec<u8> = conn.query_row("SELECT data FROM descriptors", [], |r| r.get(0)).unwrap();
+        let desc: Vec<u8> = conn
+            .query_row("SELECT data FROM descriptors", [], |r| r.get(0))
+            .unwrap();
         assert_eq!(&desc[..4], &[51, 102, 154, 255]);
     }
 
     #[test]
     fn missing_database_is_named() {
-        let err = Database::open(Path::new("/nonexistent/database.db")).err().unwrap().to_string();
+        let err = Database::open(Path::new("/nonexistent/database.db"))
+            .err()
+            .unwrap()
+            .to_string();
         assert!(err.contains("database.db") && err.contains("does not exist"));
     }
 }

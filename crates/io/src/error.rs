@@ -6,7 +6,10 @@ use std::path::PathBuf;
 #[derive(Debug, thiserror::Error)]
 pub enum IoError {
     #[error("{path}: {source}")]
-    Io { path: PathBuf, source: std::io::Error },
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
     #[error("{path}: does not exist")]
     NotFound { path: PathBuf },
     #[error("{path}: {reason}")]
@@ -33,7 +36,10 @@ impl IoError {
     }
 
     pub fn format(path: impl Into<PathBuf>, reason: impl Into<String>) -> Self {
-        IoError::Format { path: path.into(), reason: reason.into() }
+        IoError::Format {
+            path: path.into(),
+            reason: reason.into(),
+        }
     }
 }
 

@@ -24,7 +24,10 @@ pub struct FeatureFile {
 /// Writes a feature file atomically.
 pub fn write_features(path: &Path, f: &FeatureFile) -> Result<()> {
     if f.descriptors.len() != f.keypoints.len() * f.dim {
-        return Err(IoError::format(path, "descriptor count does not match keypoint count"));
+        return Err(IoError::format(
+            path,
+            "descriptor count does not match keypoint count",
+        ));
     }
     write_atomic(path, |w| {
         w.write_all(MAGIC)?;
@@ -49,15 +52,45 @@ pub fn read_features(path: &Path) -> Result<FeatureFile> {
     if bytes.len() < 24 || &bytes[..8] != MAGIC {
         return Err(IoError::format(path, "not a Handheld feature file"));
     }
-    let u64_at = |o: usize| u64::from_le_bytes([bytes[o], bytes[o + 1], bytes[o + 2], bytes[o + 3], bytes[o + 4], bytes[o + 5], bytes[o + 6], bytes[o + 7]]);
+    let u64_at = |o: usize| {
+        u64::from_le_bytes([
+            bytes[o],
+            bytes[o + 1],
+            bytes[o + 2],
+            bytes[o + 3],
+            bytes[o + 4],
+            bytes[o + 5],
+            bytes[o + 6],
+            bytes[o + 7],
+        ])
+    };
     let (n, d) = (u64_at(8) as usize, u64_at(16) as usize);
-    let need = n.checked_mul(5 + d).and_then(|c| c.checked_mul(4)).and_then(|c| c.checked_add(24));
+    let need = n
+        .checked_mul(5 + d)
+        .and_then(|c| c.checked_mul(4))
+        .and_then(|c| c.checked_add(24));
     if need != Some(bytes.len()) {
-        return Err(IoError::format(path, format!("truncated or corrupt: {n} keypoints × {d} need {need:?} bytes, file has {}", bytes.len())));
+        return Err(IoError::format(
+            path,
+            format!(
+                "truncated or corrupt: {n} keypoints × {d} need {need:?} bytes, file has {}",
+                bytes.len()
+            ),
+        ));
     }
-    let floats: Vec<f32> = bytes[24..].chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
-    let keypoints = floats[..5 * n].chunks_exact(5).map(|c| [c[0], c[1], c[2], c[3], c[4]]).collect();
-    Ok(FeatureFile { keypoints, dim: d, descriptors: floats[5 * n..].to_vec() })
+    let floats: Vec<f32> = bytes[24..]
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect();
+    let keypoints = floats[..5 * n]
+        .chunks_exact(5)
+        .map(|c| [c[0], c[1], c[2], c[3], c[4]])
+        .collect();
+    Ok(FeatureFile {
+        keypoints,
+        dim: d,
+        descriptors: floats[5 * n..].to_vec(),
+    })
 }
 
 #[cfg(test)]
@@ -68,7 +101,11 @@ mod tests {
     fn round_trip_and_truncation() {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("0.feat");
-        let f = FeatureFile { keypoints: vec![[1.0, 2.0, 3.0, 0.5, 9.0], [4.0, 5.0, 1.0, -1.0, 2.0]], dim: 3, descriptors: vec![0.1, 0.2, 0.3, 0.4, 0.5, 0.6] };
+        let f = FeatureFile {
+            keypoints: vec![[1.0, 2.0, 3.0, 0.5, 9.0], [4.0, 5.0, 1.0, -1.0, 2.0]],
+            dim: 3,
+            descriptors: vec![0.1, 0.2, 0.3, 0.4, 0.5, 0.6],
+        };
         write_features(&p, &f).unwrap();
         assert_eq!(read_features(&p).unwrap(), f);
         let bytes = std::fs::read(&p).unwrap();

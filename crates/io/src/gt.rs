@@ -20,7 +20,8 @@ pub struct GtCamera {
 impl GtCamera {
     pub fn projection(&self) -> Matrix3x4<f64> {
         let mut rt = Matrix3x4::zeros();
-        rt.fixed_view_mut::<3, 3>(0, 0).copy_from(&self.r_cam_from_world);
+        rt.fixed_view_mut::<3, 3>(0, 0)
+            .copy_from(&self.r_cam_from_world);
         rt.fixed_view_mut::<3, 1>(0, 3).copy_from(&self.t);
         self.k * rt
     }
@@ -32,7 +33,12 @@ impl GtCamera {
 
 fn numbers(path: &Path) -> Result<Vec<f64>> {
     let text = std::fs::read_to_string(path).map_err(|e| IoError::io(path, e))?;
-    text.split_whitespace().map(|t| t.parse::<f64>().map_err(|_| IoError::format(path, format!("not a number: {t:?}")))).collect()
+    text.split_whitespace()
+        .map(|t| {
+            t.parse::<f64>()
+                .map_err(|_| IoError::format(path, format!("not a number: {t:?}")))
+        })
+        .collect()
 }
 
 /// Reads every ground-truth camera of a data set folder (`DATASET/gt/…`), keyed by image stem
@@ -44,18 +50,31 @@ pub fn read_gt_cameras(dataset: &Path) -> Result<BTreeMap<String, GtCamera>> {
     let mut par = None;
     for e in entries.flatten() {
         let p = e.path();
-        let name = p.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        let name = p
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
         if name.ends_with(".camera") {
             let v = numbers(&p)?;
             if v.len() < 24 {
-                return Err(IoError::format(&p, "a Strecha camera file needs at least 24 numbers"));
+                return Err(IoError::format(
+                    &p,
+                    "a Strecha camera file needs at least 24 numbers",
+                ));
             }
             let k = Matrix3::from_row_slice(&v[0..9]);
             let r_world_from_cam = Matrix3::from_row_slice(&v[12..21]);
             let c = Vector3::new(v[21], v[22], v[23]);
             let r = r_world_from_cam.transpose();
             let stem = name.split('.').next().unwrap_or_default().to_string();
-            out.insert(stem, GtCamera { k, r_cam_from_world: r, t: -(r * c) });
+            out.insert(
+                stem,
+                GtCamera {
+                    k,
+                    r_cam_from_world: r,
+                    t: -(r * c),
+                },
+            );
         } else if name.ends_with("_par.txt") {
             par = Some(p);
         }
@@ -68,15 +87,35 @@ pub fn read_gt_cameras(dataset: &Path) -> Result<BTreeMap<String, GtCamera>> {
                 continue;
             }
             if t.len() < 22 {
-                return Err(IoError::format(&p, format!("line {}: expected a name and 21 numbers", i + 2)));
+                return Err(IoError::format(
+                    &p,
+                    format!("line {}: expected a name and 21 numbers", i + 2),
+                ));
             }
-            let v: Vec<f64> = t[1..22].iter().map(|s| s.parse().map_err(|_| IoError::format(&p, format!("line {}: bad number {s:?}", i + 2)))).collect::<Result<_>>()?;
+            let v: Vec<f64> = t[1..22]
+                .iter()
+                .map(|s| {
+                    s.parse().map_err(|_| {
+                        IoError::format(&p, format!("line {}: bad number {s:?}", i + 2))
+                    })
+                })
+                .collect::<Result<_>>()?;
             let stem = t[0].split('.').next().unwrap_or_default().to_string();
-            out.insert(stem, GtCamera { k: Matrix3::from_row_slice(&v[0..9]), r_cam_from_world: Matrix3::from_row_slice(&v[9..18]), t: Vector3::new(v[18], v[19], v[20]) });
+            out.insert(
+                stem,
+                GtCamera {
+                    k: Matrix3::from_row_slice(&v[0..9]),
+                    r_cam_from_world: Matrix3::from_row_slice(&v[9..18]),
+                    t: Vector3::new(v[18], v[19], v[20]),
+                },
+            );
         }
     }
     if out.is_empty() {
-        return Err(IoError::format(&gt, "no ground-truth cameras found (.camera or *_par.txt)"));
+        return Err(IoError::format(
+            &gt,
+            "no ground-truth cameras found (.camera or *_par.txt)",
+        ));
     }
     Ok(out)
 }

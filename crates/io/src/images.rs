@@ -27,7 +27,11 @@ pub struct ImageIngestOptions {
 
 impl Default for ImageIngestOptions {
     fn default() -> Self {
-        Self { min_dimension: 32, min_images: 2, skip_unreadable: false }
+        Self {
+            min_dimension: 32,
+            min_images: 2,
+            skip_unreadable: false,
+        }
     }
 }
 
@@ -66,7 +70,9 @@ impl ExifInfo {
             "{}|{}|{}",
             self.make.as_deref().unwrap_or(""),
             self.model.as_deref().unwrap_or(""),
-            self.focal_length_mm.map(|f| format!("{f:.2}")).unwrap_or_default()
+            self.focal_length_mm
+                .map(|f| format!("{f:.2}"))
+                .unwrap_or_default()
         )
     }
 }
@@ -117,10 +123,15 @@ pub fn has_image_extension(path: &Path) -> bool {
 /// `skipped`. Fails when the folder does not exist or holds fewer than `min_images` images.
 pub fn list_image_folder(dir: &Path, opts: &ImageIngestOptions) -> Result<FolderListing> {
     if !dir.exists() {
-        return Err(IoError::NotFound { path: dir.to_path_buf() });
+        return Err(IoError::NotFound {
+            path: dir.to_path_buf(),
+        });
     }
     if !dir.is_dir() {
-        return Err(IoError::Input { path: dir.to_path_buf(), reason: "is not a folder of images".into() });
+        return Err(IoError::Input {
+            path: dir.to_path_buf(),
+            reason: "is not a folder of images".into(),
+        });
     }
     let mut listing = FolderListing::default();
     let entries = fs::read_dir(dir).map_err(|e| IoError::io(dir, e))?;
@@ -130,25 +141,41 @@ pub fn list_image_folder(dir: &Path, opts: &ImageIngestOptions) -> Result<Folder
         if path.is_dir() {
             continue;
         }
-        let hidden = path.file_name().and_then(|n| n.to_str()).map(|n| n.starts_with('.')).unwrap_or(false);
+        let hidden = path
+            .file_name()
+            .and_then(|n| n.to_str())
+            .map(|n| n.starts_with('.'))
+            .unwrap_or(false);
         if hidden {
             continue;
         }
         if has_image_extension(&path) {
             listing.images.push(path);
         } else {
-            listing.skipped.push((path, "not a JPEG, PNG or TIFF file".into()));
+            listing
+                .skipped
+                .push((path, "not a JPEG, PNG or TIFF file".into()));
         }
     }
     listing.images.sort();
     listing.skipped.sort();
     if listing.images.len() < opts.min_images {
         let reason = if listing.images.is_empty() {
-            format!("contains no images (JPEG, PNG or TIFF); need at least {}", opts.min_images)
+            format!(
+                "contains no images (JPEG, PNG or TIFF); need at least {}",
+                opts.min_images
+            )
         } else {
-            format!("contains only {} image(s); need at least {} views of the scene", listing.images.len(), opts.min_images)
+            format!(
+                "contains only {} image(s); need at least {} views of the scene",
+                listing.images.len(),
+                opts.min_images
+            )
         };
-        return Err(IoError::Input { path: dir.to_path_buf(), reason });
+        return Err(IoError::Input {
+            path: dir.to_path_buf(),
+            reason,
+        });
     }
     Ok(listing)
 }
@@ -161,19 +188,26 @@ pub fn read_exif(path: &Path, bytes: &[u8]) -> ExifInfo {
         return ExifInfo::default();
     };
     let rational = |tag| {
-        ex.get_field(tag, exif::In::PRIMARY).and_then(|f| match &f.value {
-            exif::Value::Rational(v) => v.first().map(|r| r.to_f64()).filter(|v| v.is_finite()),
-            exif::Value::Short(v) => v.first().map(|&s| s as f64),
-            exif::Value::Long(v) => v.first().map(|&s| s as f64),
-            _ => None,
-        })
+        ex.get_field(tag, exif::In::PRIMARY)
+            .and_then(|f| match &f.value {
+                exif::Value::Rational(v) => v.first().map(|r| r.to_f64()).filter(|v| v.is_finite()),
+                exif::Value::Short(v) => v.first().map(|&s| s as f64),
+                exif::Value::Long(v) => v.first().map(|&s| s as f64),
+                _ => None,
+            })
     };
-    let uint = |tag| ex.get_field(tag, exif::In::PRIMARY).and_then(|f| f.value.get_uint(0));
+    let uint = |tag| {
+        ex.get_field(tag, exif::In::PRIMARY)
+            .and_then(|f| f.value.get_uint(0))
+    };
     let ascii = |tag| {
-        ex.get_field(tag, exif::In::PRIMARY).and_then(|f| match &f.value {
-            exif::Value::Ascii(v) => v.first().map(|s| String::from_utf8_lossy(s).trim().to_string()),
-            _ => None,
-        })
+        ex.get_field(tag, exif::In::PRIMARY)
+            .and_then(|f| match &f.value {
+                exif::Value::Ascii(v) => v
+                    .first()
+                    .map(|s| String::from_utf8_lossy(s).trim().to_string()),
+                _ => None,
+            })
     };
     // Focal-plane resolution: unit 2 = inch, 3 = cm, 4 = mm.
     let fp_res = rational(exif::Tag::FocalPlaneXResolution).and_then(|r| {
@@ -189,7 +223,9 @@ pub fn read_exif(path: &Path, bytes: &[u8]) -> ExifInfo {
         make: ascii(exif::Tag::Make),
         model: ascii(exif::Tag::Model),
         focal_length_mm: rational(exif::Tag::FocalLength).filter(|f| *f > 0.0),
-        focal_length_35mm: uint(exif::Tag::FocalLengthIn35mmFilm).map(|v| v as f64).filter(|f| *f > 0.0),
+        focal_length_35mm: uint(exif::Tag::FocalLengthIn35mmFilm)
+            .map(|v| v as f64)
+            .filter(|f| *f > 0.0),
         focal_plane_px_per_mm: fp_res,
         orientation: uint(exif::Tag::Orientation),
     }
@@ -216,13 +252,23 @@ fn check_jpeg_complete(path: &Path, bytes: &[u8]) -> Result<()> {
 pub fn load_image(path: &Path, opts: &ImageIngestOptions) -> Result<LoadedImage> {
     let bytes = fs::read(path).map_err(|e| IoError::io(path, e))?;
     if bytes.is_empty() {
-        return Err(IoError::Decode { path: path.to_path_buf(), reason: "the file is empty".into() });
+        return Err(IoError::Decode {
+            path: path.to_path_buf(),
+            reason: "the file is empty".into(),
+        });
     }
     check_jpeg_complete(path, &bytes)?;
-    let decode_err = |e: image::ImageError| IoError::Decode { path: path.to_path_buf(), reason: e.to_string() };
-    let reader = ImageReader::new(BufReader::new(Cursor::new(&bytes))).with_guessed_format().map_err(|e| IoError::io(path, e))?;
+    let decode_err = |e: image::ImageError| IoError::Decode {
+        path: path.to_path_buf(),
+        reason: e.to_string(),
+    };
+    let reader = ImageReader::new(BufReader::new(Cursor::new(&bytes)))
+        .with_guessed_format()
+        .map_err(|e| IoError::io(path, e))?;
     let mut decoder = reader.into_decoder().map_err(decode_err)?;
-    let orientation = decoder.orientation().unwrap_or(image::metadata::Orientation::NoTransforms);
+    let orientation = decoder
+        .orientation()
+        .unwrap_or(image::metadata::Orientation::NoTransforms);
     let color = decoder.color_type();
     let mut image = DynamicImage::from_decoder(decoder).map_err(decode_err)?;
     image.apply_orientation(orientation);
@@ -237,7 +283,10 @@ pub fn load_image(path: &Path, opts: &ImageIngestOptions) -> Result<LoadedImage>
         });
     }
     let exif = read_exif(path, &bytes);
-    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
     let focal_prior_px = exif.focal_prior_px(width, height);
     let info = ImageInfo {
         path: path.to_path_buf(),

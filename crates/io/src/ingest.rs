@@ -11,7 +11,9 @@ use serde::{Deserialize, Serialize};
 
 use crate::atomic::write_bytes_atomic;
 use crate::error::{IoError, Result};
-use crate::images::{has_image_extension, list_image_folder, load_image, ImageInfo, ImageIngestOptions};
+use crate::images::{
+    has_image_extension, list_image_folder, load_image, ImageInfo, ImageIngestOptions,
+};
 use crate::video::{has_video_extension, VideoInfo, VideoOptions, VideoReader};
 
 /// Options of the ingest stage.
@@ -60,10 +62,20 @@ pub struct IngestResult {
 }
 
 /// Runs ingest on `input`; video frames are written to `frames_dir`.
-pub fn ingest(input: &Path, frames_dir: &Path, opts: &IngestOptions, progress: &dyn Progress) -> Result<IngestResult> {
-    opts.validate().map_err(|reason| IoError::Input { path: input.to_path_buf(), reason })?;
+pub fn ingest(
+    input: &Path,
+    frames_dir: &Path,
+    opts: &IngestOptions,
+    progress: &dyn Progress,
+) -> Result<IngestResult> {
+    opts.validate().map_err(|reason| IoError::Input {
+        path: input.to_path_buf(),
+        reason,
+    })?;
     if !input.exists() {
-        return Err(IoError::NotFound { path: input.to_path_buf() });
+        return Err(IoError::NotFound {
+            path: input.to_path_buf(),
+        });
     }
     if input.is_dir() {
         return ingest_photos(input, opts, progress);
@@ -71,16 +83,24 @@ pub fn ingest(input: &Path, frames_dir: &Path, opts: &IngestOptions, progress: &
     if has_image_extension(input) {
         return Err(IoError::Input {
             path: input.to_path_buf(),
-            reason: "is a single image; give the folder that holds all the photos of the scene".into(),
+            reason: "is a single image; give the folder that holds all the photos of the scene"
+                .into(),
         });
     }
     if !has_video_extension(input) {
-        tracing::warn!("{}: unknown extension, trying to read it as a video", input.display());
+        tracing::warn!(
+            "{}: unknown extension, trying to read it as a video",
+            input.display()
+        );
     }
     ingest_video(input, frames_dir, opts, progress)
 }
 
-fn ingest_photos(dir: &Path, opts: &IngestOptions, progress: &dyn Progress) -> Result<IngestResult> {
+fn ingest_photos(
+    dir: &Path,
+    opts: &IngestOptions,
+    progress: &dyn Progress,
+) -> Result<IngestResult> {
     let listing = list_image_folder(dir, &opts.images)?;
     for (path, why) in &listing.skipped {
         tracing::warn!("{}: skipped ({why})", path.display());
@@ -111,13 +131,28 @@ fn ingest_photos(dir: &Path, opts: &IngestOptions, progress: &dyn Progress) -> R
     if images.len() < opts.images.min_images {
         return Err(IoError::Input {
             path: dir.to_path_buf(),
-            reason: format!("only {} readable image(s) remain; need at least {}", images.len(), opts.images.min_images),
+            reason: format!(
+                "only {} readable image(s) remain; need at least {}",
+                images.len(),
+                opts.images.min_images
+            ),
         });
     }
-    Ok(IngestResult { kind: InputKind::Photos, input: dir.to_path_buf(), images, skipped, video: None })
+    Ok(IngestResult {
+        kind: InputKind::Photos,
+        input: dir.to_path_buf(),
+        images,
+        skipped,
+        video: None,
+    })
 }
 
-fn ingest_video(path: &Path, frames_dir: &Path, opts: &IngestOptions, progress: &dyn Progress) -> Result<IngestResult> {
+fn ingest_video(
+    path: &Path,
+    frames_dir: &Path,
+    opts: &IngestOptions,
+    progress: &dyn Progress,
+) -> Result<IngestResult> {
     let reader = VideoReader::open(path, &opts.video)?;
     let info = reader.info().clone();
     progress.start("decoding video", reader.estimated_frames().unwrap_or(0));
@@ -130,7 +165,10 @@ fn ingest_video(path: &Path, frames_dir: &Path, opts: &IngestOptions, progress: 
         write_png(&out, &frame.image)?;
         let (width, height) = frame.image.dimensions();
         if width < opts.images.min_dimension || height < opts.images.min_dimension {
-            return Err(IoError::Input { path: path.to_path_buf(), reason: format!("video frames are only {width}×{height} pixels") });
+            return Err(IoError::Input {
+                path: path.to_path_buf(),
+                reason: format!("video frames are only {width}×{height} pixels"),
+            });
         }
         images.push(IngestedImage {
             info: ImageInfo {
@@ -143,7 +181,11 @@ fn ingest_video(path: &Path, frames_dir: &Path, opts: &IngestOptions, progress: 
                 exif: Default::default(),
                 focal_prior_px: None,
             },
-            frame: Some(FrameInfo { index: frame.index, time_s: frame.time_s, keyframe: false }),
+            frame: Some(FrameInfo {
+                index: frame.index,
+                time_s: frame.time_s,
+                keyframe: false,
+            }),
         });
         progress.inc(1);
     }
@@ -151,10 +193,20 @@ fn ingest_video(path: &Path, frames_dir: &Path, opts: &IngestOptions, progress: 
     if images.len() < opts.images.min_images {
         return Err(IoError::Input {
             path: path.to_path_buf(),
-            reason: format!("only {} frame(s) in the requested range; need at least {}", images.len(), opts.images.min_images),
+            reason: format!(
+                "only {} frame(s) in the requested range; need at least {}",
+                images.len(),
+                opts.images.min_images
+            ),
         });
     }
-    Ok(IngestResult { kind: InputKind::Video, input: path.to_path_buf(), images, skipped: Vec::new(), video: Some(info) })
+    Ok(IngestResult {
+        kind: InputKind::Video,
+        input: path.to_path_buf(),
+        images,
+        skipped: Vec::new(),
+        video: Some(info),
+    })
 }
 
 /// Encodes an RGB image as PNG and writes it atomically.

@@ -18,13 +18,29 @@ pub fn write_pfm(path: &Path, map: &FloatMap) -> Result<()> {
     let tag = match map.channels {
         1 => "Pf",
         3 => "PF",
-        c => return Err(IoError::Input { path: path.to_path_buf(), reason: format!("PFM holds 1 or 3 channels, not {c}") }),
+        c => {
+            return Err(IoError::Input {
+                path: path.to_path_buf(),
+                reason: format!("PFM holds 1 or 3 channels, not {c}"),
+            })
+        }
     };
     let row_len = map.width * map.channels;
-    if map.width.checked_mul(map.height).and_then(|n| n.checked_mul(map.channels)) != Some(map.data.len()) {
+    if map
+        .width
+        .checked_mul(map.height)
+        .and_then(|n| n.checked_mul(map.channels))
+        != Some(map.data.len())
+    {
         return Err(IoError::Input {
             path: path.to_path_buf(),
-            reason: format!("{} values for a {}x{}x{} map", map.data.len(), map.width, map.height, map.channels),
+            reason: format!(
+                "{} values for a {}x{}x{} map",
+                map.data.len(),
+                map.width,
+                map.height,
+                map.channels
+            ),
         });
     }
     write_atomic(path, |w| {
@@ -58,32 +74,53 @@ pub fn read_pfm(path: &Path) -> Result<FloatMap> {
             pos += 1;
         }
         if start == pos {
-            return Err(bad("truncated PFM header (expected `PF`/`Pf`, width, height, scale)".into()));
+            return Err(bad(
+                "truncated PFM header (expected `PF`/`Pf`, width, height, scale)".into(),
+            ));
         }
         tokens.push(String::from_utf8_lossy(&bytes[start..pos]).into_owned());
     }
     if pos >= bytes.len() || !bytes[pos].is_ascii_whitespace() {
-        return Err(bad("malformed PFM header: no line break after the scale".into()));
+        return Err(bad(
+            "malformed PFM header: no line break after the scale".into()
+        ));
     }
     pos += 1;
 
     let channels = match tokens[0].as_str() {
         "Pf" => 1,
         "PF" => 3,
-        t => return Err(bad(format!("not a PFM file: magic is `{t}`, expected `PF` or `Pf`"))),
+        t => {
+            return Err(bad(format!(
+                "not a PFM file: magic is `{t}`, expected `PF` or `Pf`"
+            )))
+        }
     };
-    let dim = |t: &str, what: &str| t.parse::<usize>().map_err(|_| bad(format!("PFM {what} `{t}` is not a non-negative integer")));
+    let dim = |t: &str, what: &str| {
+        t.parse::<usize>()
+            .map_err(|_| bad(format!("PFM {what} `{t}` is not a non-negative integer")))
+    };
     let width = dim(&tokens[1], "width")?;
     let height = dim(&tokens[2], "height")?;
-    let scale: f64 = tokens[3].parse().map_err(|_| bad(format!("PFM scale `{}` is not a number", tokens[3])))?;
+    let scale: f64 = tokens[3]
+        .parse()
+        .map_err(|_| bad(format!("PFM scale `{}` is not a number", tokens[3])))?;
     if scale == 0.0 || !scale.is_finite() {
-        return Err(bad(format!("PFM scale must be non-zero and finite (its sign is the byte order), got {scale}")));
+        return Err(bad(format!(
+            "PFM scale must be non-zero and finite (its sign is the byte order), got {scale}"
+        )));
     }
     let little = scale < 0.0;
 
-    let row_len = width.checked_mul(channels).ok_or_else(|| bad("PFM size overflows".into()))?;
-    let count = row_len.checked_mul(height).ok_or_else(|| bad("PFM size overflows".into()))?;
-    let need = count.checked_mul(4).ok_or_else(|| bad("PFM size overflows".into()))?;
+    let row_len = width
+        .checked_mul(channels)
+        .ok_or_else(|| bad("PFM size overflows".into()))?;
+    let count = row_len
+        .checked_mul(height)
+        .ok_or_else(|| bad("PFM size overflows".into()))?;
+    let need = count
+        .checked_mul(4)
+        .ok_or_else(|| bad("PFM size overflows".into()))?;
     let have = bytes.len() - pos;
     if have < need {
         return Err(bad(format!(
@@ -93,15 +130,28 @@ pub fn read_pfm(path: &Path) -> Result<FloatMap> {
 
     let body = &bytes[pos..pos + need];
     let mut data = vec![0f32; count];
-    for (file_row, chunk) in body.chunks_exact((row_len * 4).max(1)).take(height).enumerate() {
+    for (file_row, chunk) in body
+        .chunks_exact((row_len * 4).max(1))
+        .take(height)
+        .enumerate()
+    {
         let y = height - 1 - file_row;
         let out = &mut data[y * row_len..(y + 1) * row_len];
         for (v, b) in out.iter_mut().zip(chunk.chunks_exact(4)) {
             let b = [b[0], b[1], b[2], b[3]];
-            *v = if little { f32::from_le_bytes(b) } else { f32::from_be_bytes(b) };
+            *v = if little {
+                f32::from_le_bytes(b)
+            } else {
+                f32::from_be_bytes(b)
+            };
         }
     }
-    Ok(FloatMap { width, height, channels, data })
+    Ok(FloatMap {
+        width,
+        height,
+        channels,
+        data,
+    })
 }
 
 #[cfg(test)]
@@ -110,7 +160,12 @@ mod tests {
 
     fn ramp(w: usize, h: usize, c: usize) -> FloatMap {
         let data = (0..w * h * c).map(|i| i as f32 * 0.37 - 5.0).collect();
-        FloatMap { width: w, height: h, channels: c, data }
+        FloatMap {
+            width: w,
+            height: h,
+            channels: c,
+            data,
+        }
     }
 
     #[test]
@@ -133,11 +188,19 @@ mod tests {
     fn rows_are_stored_bottom_to_top() {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("a.pfm");
-        let m = FloatMap { width: 1, height: 2, channels: 1, data: vec![1.0, 2.0] };
+        let m = FloatMap {
+            width: 1,
+            height: 2,
+            channels: 1,
+            data: vec![1.0, 2.0],
+        };
         write_pfm(&p, &m).unwrap();
         let bytes = fs::read(&p).unwrap();
         assert!(bytes.starts_with(b"Pf\n1 2\n-1\n"));
-        assert_eq!(&bytes[bytes.len() - 8..], [2f32.to_le_bytes(), 1f32.to_le_bytes()].concat().as_slice());
+        assert_eq!(
+            &bytes[bytes.len() - 8..],
+            [2f32.to_le_bytes(), 1f32.to_le_bytes()].concat().as_slice()
+        );
     }
 
     #[test]
@@ -161,15 +224,34 @@ mod tests {
         for cut in [0, 2, 6, 10, good.len() - 1] {
             fs::write(&p, &good[..cut]).unwrap();
             let e = read_pfm(&p).unwrap_err().to_string();
-            assert!(e.contains("t.pfm") && (e.contains("truncated") || e.contains("header")), "{cut}: {e}");
+            assert!(
+                e.contains("t.pfm") && (e.contains("truncated") || e.contains("header")),
+                "{cut}: {e}"
+            );
         }
         fs::write(&p, &good[..good.len() - 1]).unwrap();
-        assert!(read_pfm(&p).unwrap_err().to_string().contains("truncated PFM"));
-        for bad in [&b"P6\n1 1\n-1\n\0\0\0\0"[..], b"Pf\n-1 1\n-1\n\0\0\0\0", b"Pf\n1 1\n0\n\0\0\0\0", b"Pf\n99999999999 99999999999\n-1\n"] {
+        assert!(read_pfm(&p)
+            .unwrap_err()
+            .to_string()
+            .contains("truncated PFM"));
+        for bad in [
+            &b"P6\n1 1\n-1\n\0\0\0\0"[..],
+            b"Pf\n-1 1\n-1\n\0\0\0\0",
+            b"Pf\n1 1\n0\n\0\0\0\0",
+            b"Pf\n99999999999 99999999999\n-1\n",
+        ] {
             fs::write(&p, bad).unwrap();
             assert!(matches!(read_pfm(&p), Err(IoError::Format { .. })));
         }
-        let bad_map = FloatMap { width: 2, height: 2, channels: 2, data: vec![0.0; 8] };
-        assert!(matches!(write_pfm(&p, &bad_map), Err(IoError::Input { .. })));
+        let bad_map = FloatMap {
+            width: 2,
+            height: 2,
+            channels: 2,
+            data: vec![0.0; 8],
+        };
+        assert!(matches!(
+            write_pfm(&p, &bad_map),
+            Err(IoError::Input { .. })
+        ));
     }
 }

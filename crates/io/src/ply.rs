@@ -30,15 +30,24 @@ pub enum PlyFormat {
 
 /// Writes a point cloud (colours and normals when present).
 pub fn write_point_cloud(path: &Path, cloud: &PointCloud, format: PlyFormat) -> Result<()> {
-    cloud.validate().map_err(|reason| IoError::Input { path: path.to_path_buf(), reason })?;
+    cloud.validate().map_err(|reason| IoError::Input {
+        path: path.to_path_buf(),
+        reason,
+    })?;
     write_ply(path, cloud, &[], &[], format)
 }
 
 /// Writes a triangle mesh (per-vertex colours, normals and texture coordinates when present).
 pub fn write_mesh(path: &Path, mesh: &TriMesh, format: PlyFormat) -> Result<()> {
-    mesh.validate().map_err(|reason| IoError::Input { path: path.to_path_buf(), reason })?;
+    mesh.validate().map_err(|reason| IoError::Input {
+        path: path.to_path_buf(),
+        reason,
+    })?;
     if mesh.vertices.len() > i32::MAX as usize {
-        return Err(IoError::Input { path: path.to_path_buf(), reason: "too many vertices for PLY int indices".into() });
+        return Err(IoError::Input {
+            path: path.to_path_buf(),
+            reason: "too many vertices for PLY int indices".into(),
+        });
     }
     write_ply(path, &mesh.vertices, &mesh.uvs, &mesh.faces, format)
 }
@@ -53,7 +62,13 @@ pub fn read_mesh(path: &Path) -> Result<TriMesh> {
     read_ply(path, true)
 }
 
-fn write_ply(path: &Path, v: &PointCloud, uvs: &[[f32; 2]], faces: &[[u32; 3]], format: PlyFormat) -> Result<()> {
+fn write_ply(
+    path: &Path,
+    v: &PointCloud,
+    uvs: &[[f32; 2]],
+    faces: &[[u32; 3]],
+    format: PlyFormat,
+) -> Result<()> {
     let (normals, colors, has_uv) = (!v.normals.is_empty(), !v.colors.is_empty(), !uvs.is_empty());
     let is_mesh = has_uv || !faces.is_empty();
     let mut header = String::from("ply\n");
@@ -62,7 +77,10 @@ fn write_ply(path: &Path, v: &PointCloud, uvs: &[[f32; 2]], faces: &[[u32; 3]], 
         PlyFormat::BinaryLittleEndian => "format binary_little_endian 1.0\n",
     };
     header += "comment written by Handheld\n";
-    header += &format!("element vertex {}\nproperty float x\nproperty float y\nproperty float z\n", v.len());
+    header += &format!(
+        "element vertex {}\nproperty float x\nproperty float y\nproperty float z\n",
+        v.len()
+    );
     if normals {
         header += "property float nx\nproperty float ny\nproperty float nz\n";
     }
@@ -73,7 +91,10 @@ fn write_ply(path: &Path, v: &PointCloud, uvs: &[[f32; 2]], faces: &[[u32; 3]], 
         header += "property float s\nproperty float t\n";
     }
     if is_mesh {
-        header += &format!("element face {}\nproperty list uchar int vertex_indices\n", faces.len());
+        header += &format!(
+            "element face {}\nproperty list uchar int vertex_indices\n",
+            faces.len()
+        );
     }
     header += "end_header\n";
 
@@ -88,7 +109,11 @@ fn write_ply(path: &Path, v: &PointCloud, uvs: &[[f32; 2]], faces: &[[u32; 3]], 
             }
             match format {
                 PlyFormat::Ascii => {
-                    let mut line = floats.iter().map(|f| f.to_string()).collect::<Vec<_>>().join(" ");
+                    let mut line = floats
+                        .iter()
+                        .map(|f| f.to_string())
+                        .collect::<Vec<_>>()
+                        .join(" ");
                     if colors {
                         let [r, g, b] = v.colors[i];
                         line += &format!(" {r} {g} {b}");
@@ -178,8 +203,15 @@ impl Scalar {
 
 #[derive(Debug)]
 enum Property {
-    Scalar { name: String, ty: Scalar },
-    List { name: String, count: Scalar, item: Scalar },
+    Scalar {
+        name: String,
+        ty: Scalar,
+    },
+    List {
+        name: String,
+        count: Scalar,
+        item: Scalar,
+    },
 }
 
 #[derive(Debug)]
@@ -198,12 +230,16 @@ fn parse_header(path: &Path, bytes: &[u8]) -> Result<(Encoding, Vec<Element>, us
     loop {
         line_no += 1;
         let Some(len) = bytes[pos..].iter().position(|&b| b == b'\n') else {
-            return Err(IoError::format(path, "truncated PLY header: no `end_header` line"));
+            return Err(IoError::format(
+                path,
+                "truncated PLY header: no `end_header` line",
+            ));
         };
         let line = String::from_utf8_lossy(&bytes[pos..pos + len]);
         pos += len + 1;
         let line = line.trim();
-        let err = |reason: String| IoError::format(path, format!("header line {line_no}: {reason}"));
+        let err =
+            |reason: String| IoError::format(path, format!("header line {line_no}: {reason}"));
         let words: Vec<&str> = line.split_whitespace().collect();
         if line_no == 1 {
             if line != "ply" {
@@ -223,28 +259,51 @@ fn parse_header(path: &Path, bytes: &[u8]) -> Result<(Encoding, Vec<Element>, us
                 });
             }
             ["element", name, count] => {
-                let count = count.parse().map_err(|_| err(format!("bad element count `{count}`")))?;
-                elements.push(Element { name: name.to_string(), count, props: Vec::new() });
+                let count = count
+                    .parse()
+                    .map_err(|_| err(format!("bad element count `{count}`")))?;
+                elements.push(Element {
+                    name: name.to_string(),
+                    count,
+                    props: Vec::new(),
+                });
             }
             ["property", "list", count, item, name] => {
-                let ty = |t: &str| Scalar::parse(t).ok_or_else(|| err(format!("unknown property type `{t}`")));
-                let prop = Property::List { name: name.to_string(), count: ty(count)?, item: ty(item)? };
+                let ty = |t: &str| {
+                    Scalar::parse(t).ok_or_else(|| err(format!("unknown property type `{t}`")))
+                };
+                let prop = Property::List {
+                    name: name.to_string(),
+                    count: ty(count)?,
+                    item: ty(item)?,
+                };
                 if let Property::List { count: c, .. } = &prop {
                     if c.is_float() {
                         return Err(err("list count must be an integer type".into()));
                     }
                 }
-                elements.last_mut().ok_or_else(|| err("property before any element".into()))?.props.push(prop);
+                elements
+                    .last_mut()
+                    .ok_or_else(|| err("property before any element".into()))?
+                    .props
+                    .push(prop);
             }
             ["property", ty, name] => {
-                let ty = Scalar::parse(ty).ok_or_else(|| err(format!("unknown property type `{ty}`")))?;
-                let el = elements.last_mut().ok_or_else(|| err("property before any element".into()))?;
-                el.props.push(Property::Scalar { name: name.to_string(), ty });
+                let ty = Scalar::parse(ty)
+                    .ok_or_else(|| err(format!("unknown property type `{ty}`")))?;
+                let el = elements
+                    .last_mut()
+                    .ok_or_else(|| err("property before any element".into()))?;
+                el.props.push(Property::Scalar {
+                    name: name.to_string(),
+                    ty,
+                });
             }
             _ => return Err(err(format!("cannot parse `{line}`"))),
         }
     }
-    let encoding = encoding.ok_or_else(|| IoError::format(path, "PLY header has no `format` line"))?;
+    let encoding =
+        encoding.ok_or_else(|| IoError::format(path, "PLY header has no `format` line"))?;
     Ok((encoding, elements, pos))
 }
 
@@ -274,7 +333,9 @@ impl Body<'_> {
                 return Err(self.err("file is truncated (fewer values than the header declares)"));
             }
             let tok = std::str::from_utf8(&self.data[start..self.pos]).unwrap_or("");
-            return tok.parse::<f64>().map_err(|_| self.err(&format!("cannot parse `{tok}` as a number")));
+            return tok
+                .parse::<f64>()
+                .map_err(|_| self.err(&format!("cannot parse `{tok}` as a number")));
         }
         let n = ty.size();
         if self.data.len() - self.pos < n {
@@ -326,7 +387,12 @@ const SLOTS: [&[&str]; 11] = [
 fn read_ply(path: &Path, want_faces: bool) -> Result<TriMesh> {
     let bytes = fs::read(path).map_err(|e| IoError::io(path, e))?;
     let (enc, elements, start) = parse_header(path, &bytes)?;
-    let mut body = Body { path, data: &bytes, pos: start, enc };
+    let mut body = Body {
+        path,
+        data: &bytes,
+        pos: start,
+        enc,
+    };
     let mut mesh = TriMesh::default();
     let mut seen_vertex = false;
     let cap = |n: usize| n.min(bytes.len());
@@ -340,7 +406,9 @@ fn read_ply(path: &Path, want_faces: bool) -> Result<TriMesh> {
             for _ in 0..el.count {
                 for p in &el.props {
                     match p {
-                        Property::List { name, count, item } if name == "vertex_indices" || name == "vertex_index" => {
+                        Property::List { name, count, item }
+                            if name == "vertex_indices" || name == "vertex_index" =>
+                        {
                             let n = body.index(*count, "face vertex count")?;
                             poly.clear();
                             for _ in 0..n {
@@ -366,8 +434,15 @@ fn read_ply(path: &Path, want_faces: bool) -> Result<TriMesh> {
         return Err(IoError::format(path, "PLY file has no `vertex` element"));
     }
     let n = mesh.vertices.len();
-    if let Some(f) = mesh.faces.iter().find(|f| f.iter().any(|&i| i as usize >= n)) {
-        return Err(IoError::format(path, format!("face {f:?} refers to a vertex past the {n} vertices")));
+    if let Some(f) = mesh
+        .faces
+        .iter()
+        .find(|f| f.iter().any(|&i| i as usize >= n))
+    {
+        return Err(IoError::format(
+            path,
+            format!("face {f:?} refers to a vertex past the {n} vertices"),
+        ));
     }
     Ok(mesh)
 }
@@ -393,19 +468,25 @@ fn read_vertices(body: &mut Body<'_>, el: &Element, mesh: &mut TriMesh, cap: usi
     let mut types: [Option<Scalar>; 11] = [None; 11];
     for p in &el.props {
         let slot = match p {
-            Property::Scalar { name, ty } => SLOTS.iter().position(|names| names.contains(&name.as_str())).filter(|&s| {
-                let free = types[s].is_none();
-                if free {
-                    types[s] = Some(*ty);
-                }
-                free
-            }),
+            Property::Scalar { name, ty } => SLOTS
+                .iter()
+                .position(|names| names.contains(&name.as_str()))
+                .filter(|&s| {
+                    let free = types[s].is_none();
+                    if free {
+                        types[s] = Some(*ty);
+                    }
+                    free
+                }),
             Property::List { .. } => None,
         };
         slot_of.push(slot);
     }
     if types[..3].iter().any(|t| t.is_none()) {
-        return Err(IoError::format(body.path, "PLY `vertex` element lacks an x, y or z property"));
+        return Err(IoError::format(
+            body.path,
+            "PLY `vertex` element lacks an x, y or z property",
+        ));
     }
     let has = |r: std::ops::Range<usize>| types[r].iter().all(|t| t.is_some());
     let (normals, colors, uvs) = (has(3..6), has(6..9), has(9..11));
@@ -419,13 +500,19 @@ fn read_vertices(body: &mut Body<'_>, el: &Element, mesh: &mut TriMesh, cap: usi
                 _ => skip_property(body, p)?,
             }
         }
-        v.positions.push([vals[0] as f32, vals[1] as f32, vals[2] as f32]);
+        v.positions
+            .push([vals[0] as f32, vals[1] as f32, vals[2] as f32]);
         if normals {
-            v.normals.push([vals[3] as f32, vals[4] as f32, vals[5] as f32]);
+            v.normals
+                .push([vals[3] as f32, vals[4] as f32, vals[5] as f32]);
         }
         if colors {
             let c = |s: usize| {
-                let x = if types[s].is_some_and(Scalar::is_float) { vals[s] * 255.0 } else { vals[s] };
+                let x = if types[s].is_some_and(Scalar::is_float) {
+                    vals[s] * 255.0
+                } else {
+                    vals[s]
+                };
                 x.round().clamp(0.0, 255.0) as u8
             };
             v.colors.push([c(6), c(7), c(8)]);
@@ -444,17 +531,39 @@ mod tests {
     fn cloud(colors: bool, normals: bool) -> PointCloud {
         let n = 17;
         PointCloud {
-            positions: (0..n).map(|i| [i as f32 * 0.1, -(i as f32) / 3.0, 1e-7 * i as f32]).collect(),
-            colors: if colors { (0..n).map(|i| [i as u8, 255 - i as u8, 7]).collect() } else { vec![] },
-            normals: if normals { (0..n).map(|i| [0.0, (i as f32).sin(), (i as f32).cos()]).collect() } else { vec![] },
+            positions: (0..n)
+                .map(|i| [i as f32 * 0.1, -(i as f32) / 3.0, 1e-7 * i as f32])
+                .collect(),
+            colors: if colors {
+                (0..n).map(|i| [i as u8, 255 - i as u8, 7]).collect()
+            } else {
+                vec![]
+            },
+            normals: if normals {
+                (0..n)
+                    .map(|i| [0.0, (i as f32).sin(), (i as f32).cos()])
+                    .collect()
+            } else {
+                vec![]
+            },
         }
     }
 
     fn mesh(uvs: bool) -> TriMesh {
         let vertices = cloud(true, true);
         let faces = (0..15).map(|i| [i, i + 1, i + 2]).collect();
-        let uvs = if uvs { (0..17).map(|i| [i as f32 / 16.0, 1.0 - i as f32 / 17.0]).collect() } else { vec![] };
-        TriMesh { vertices, uvs, faces }
+        let uvs = if uvs {
+            (0..17)
+                .map(|i| [i as f32 / 16.0, 1.0 - i as f32 / 17.0])
+                .collect()
+        } else {
+            vec![]
+        };
+        TriMesh {
+            vertices,
+            uvs,
+            faces,
+        }
     }
 
     #[test]
@@ -465,7 +574,11 @@ mod tests {
                 let p = dir.path().join(format!("c_{format:?}_{c}_{n}.ply"));
                 let pc = cloud(c, n);
                 write_point_cloud(&p, &pc, format).unwrap();
-                assert_eq!(read_point_cloud(&p).unwrap(), pc, "{format:?} colors={c} normals={n}");
+                assert_eq!(
+                    read_point_cloud(&p).unwrap(),
+                    pc,
+                    "{format:?} colors={c} normals={n}"
+                );
             }
         }
         let empty = dir.path().join("empty.ply");
@@ -487,7 +600,10 @@ mod tests {
         }
         let mut bad = mesh(false);
         bad.faces.push([0, 1, 99]);
-        assert!(matches!(write_mesh(&dir.path().join("bad.ply"), &bad, PlyFormat::Ascii), Err(IoError::Input { .. })));
+        assert!(matches!(
+            write_mesh(&dir.path().join("bad.ply"), &bad, PlyFormat::Ascii),
+            Err(IoError::Input { .. })
+        ));
     }
 
     #[test]

@@ -39,7 +39,12 @@ pub struct VideoOptions {
 
 impl Default for VideoOptions {
     fn default() -> Self {
-        Self { stride: 1, start_s: 0.0, end_s: None, max_frames: None }
+        Self {
+            stride: 1,
+            start_s: 0.0,
+            end_s: None,
+            max_frames: None,
+        }
     }
 }
 
@@ -50,11 +55,17 @@ impl VideoOptions {
             return Err("--stride must be at least 1".into());
         }
         if !self.start_s.is_finite() || self.start_s < 0.0 {
-            return Err(format!("--start must be a time ≥ 0 s, got {}", self.start_s));
+            return Err(format!(
+                "--start must be a time ≥ 0 s, got {}",
+                self.start_s
+            ));
         }
         if let Some(end) = self.end_s {
             if !end.is_finite() || end <= self.start_s {
-                return Err(format!("--end ({end} s) must come after --start ({} s)", self.start_s));
+                return Err(format!(
+                    "--end ({end} s) must come after --start ({} s)",
+                    self.start_s
+                ));
             }
         }
         if self.max_frames == Some(0) {
@@ -109,7 +120,9 @@ pub fn ffprobe_program() -> String {
 
 fn spawn_error(program: &str, e: std::io::Error) -> IoError {
     if e.kind() == std::io::ErrorKind::NotFound {
-        IoError::FfmpegMissing { program: program.into() }
+        IoError::FfmpegMissing {
+            program: program.into(),
+        }
     } else {
         IoError::io(program, e)
     }
@@ -117,7 +130,11 @@ fn spawn_error(program: &str, e: std::io::Error) -> IoError {
 
 fn first_line(stderr: &[u8]) -> String {
     let text = String::from_utf8_lossy(stderr);
-    let line = text.lines().map(str::trim).rfind(|l| !l.is_empty()).unwrap_or("no video stream found");
+    let line = text
+        .lines()
+        .map(str::trim)
+        .rfind(|l| !l.is_empty())
+        .unwrap_or("no video stream found");
     line.to_string()
 }
 
@@ -130,7 +147,9 @@ fn parse_rate(s: &str) -> Option<f64> {
 /// Probes the first video stream of a file.
 pub fn probe(path: &Path) -> Result<VideoInfo> {
     if !path.exists() {
-        return Err(IoError::NotFound { path: path.to_path_buf() });
+        return Err(IoError::NotFound {
+            path: path.to_path_buf(),
+        });
     }
     let program = ffprobe_program();
     let out = Command::new(&program)
@@ -141,13 +160,23 @@ pub fn probe(path: &Path) -> Result<VideoInfo> {
         .stdin(Stdio::null())
         .output()
         .map_err(|e| spawn_error(&program, e))?;
-    let video_err = |reason: String| IoError::Video { path: path.to_path_buf(), reason };
+    let video_err = |reason: String| IoError::Video {
+        path: path.to_path_buf(),
+        reason,
+    };
     if !out.status.success() {
         return Err(video_err(first_line(&out.stderr)));
     }
-    let json: serde_json::Value = serde_json::from_slice(&out.stdout).map_err(|e| video_err(format!("unreadable ffprobe output: {e}")))?;
-    let stream = json["streams"].get(0).ok_or_else(|| video_err("the file has no video stream".into()))?;
-    let num = |v: &serde_json::Value| v.as_str().and_then(|s| s.parse::<f64>().ok()).or_else(|| v.as_f64());
+    let json: serde_json::Value = serde_json::from_slice(&out.stdout)
+        .map_err(|e| video_err(format!("unreadable ffprobe output: {e}")))?;
+    let stream = json["streams"]
+        .get(0)
+        .ok_or_else(|| video_err("the file has no video stream".into()))?;
+    let num = |v: &serde_json::Value| {
+        v.as_str()
+            .and_then(|s| s.parse::<f64>().ok())
+            .or_else(|| v.as_f64())
+    };
     let width = stream["width"].as_u64().unwrap_or(0) as u32;
     let height = stream["height"].as_u64().unwrap_or(0) as u32;
     if width == 0 || height == 0 {
@@ -159,7 +188,10 @@ pub fn probe(path: &Path) -> Result<VideoInfo> {
         .or_else(|| stream["r_frame_rate"].as_str().and_then(parse_rate))
         .ok_or_else(|| video_err("the video stream has no frame rate".into()))?;
     Ok(VideoInfo {
-        codec: stream["codec_name"].as_str().unwrap_or("unknown").to_string(),
+        codec: stream["codec_name"]
+            .as_str()
+            .unwrap_or("unknown")
+            .to_string(),
         width,
         height,
         fps,
@@ -184,7 +216,10 @@ pub struct VideoReader {
 impl VideoReader {
     /// Probes the file and starts ffmpeg.
     pub fn open(path: &Path, opts: &VideoOptions) -> Result<Self> {
-        opts.validate().map_err(|reason| IoError::Input { path: path.to_path_buf(), reason })?;
+        opts.validate().map_err(|reason| IoError::Input {
+            path: path.to_path_buf(),
+            reason,
+        })?;
         let info = probe(path)?;
         let program = ffmpeg_program();
         let mut cmd = Command::new(&program);
@@ -199,14 +234,26 @@ impl VideoReader {
         if opts.stride > 1 {
             cmd.args(["-vf", &format!("select=not(mod(n\\,{}))", opts.stride)]);
         }
-        cmd.args(["-fps_mode", "passthrough", "-an", "-f", "image2pipe", "-c:v", "ppm", "pipe:1"]);
+        cmd.args([
+            "-fps_mode",
+            "passthrough",
+            "-an",
+            "-f",
+            "image2pipe",
+            "-c:v",
+            "ppm",
+            "pipe:1",
+        ]);
         let mut child = cmd
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
             .stderr(Stdio::piped())
             .spawn()
             .map_err(|e| spawn_error(&program, e))?;
-        let stdout = child.stdout.take().ok_or_else(|| IoError::Video { path: path.to_path_buf(), reason: "no output pipe".into() })?;
+        let stdout = child.stdout.take().ok_or_else(|| IoError::Video {
+            path: path.to_path_buf(),
+            reason: "no output pipe".into(),
+        })?;
         let mut err_pipe = child.stderr.take();
         let stderr = std::thread::spawn(move || {
             let mut buf = Vec::new();
@@ -237,12 +284,20 @@ impl VideoReader {
     pub fn estimated_frames(&self) -> Option<u64> {
         let duration = self.info.duration_s?;
         let end = self.opts.end_s.map_or(duration, |e| e.min(duration));
-        let frames = ((end - self.opts.start_s).max(0.0) * self.info.fps / self.opts.stride as f64).ceil() as u64;
-        Some(self.opts.max_frames.map_or(frames, |m| frames.min(m as u64)))
+        let frames = ((end - self.opts.start_s).max(0.0) * self.info.fps / self.opts.stride as f64)
+            .ceil() as u64;
+        Some(
+            self.opts
+                .max_frames
+                .map_or(frames, |m| frames.min(m as u64)),
+        )
     }
 
     fn video_err(&self, reason: String) -> IoError {
-        IoError::Video { path: self.path.clone(), reason }
+        IoError::Video {
+            path: self.path.clone(),
+            reason,
+        }
     }
 
     /// Reads one PPM token (header field), skipping whitespace and comments.
@@ -271,29 +326,47 @@ impl VideoReader {
     }
 
     fn read_frame(&mut self) -> Result<Option<RgbImage>> {
-        let io = |e: std::io::Error| IoError::Video { path: PathBuf::new(), reason: e.to_string() };
-        let Some(magic) = self.token().map_err(io)? else { return Ok(None) };
+        let io = |e: std::io::Error| IoError::Video {
+            path: PathBuf::new(),
+            reason: e.to_string(),
+        };
+        let Some(magic) = self.token().map_err(io)? else {
+            return Ok(None);
+        };
         if magic != "P6" {
             return Err(self.video_err(format!("unexpected frame header {magic:?} from ffmpeg")));
         }
         let mut fields = [0u32; 3];
         for f in &mut fields {
-            let t = self.token().map_err(io)?.ok_or_else(|| self.video_err("truncated frame header".into()))?;
-            *f = t.parse().map_err(|_| self.video_err(format!("bad frame header field {t:?}")))?;
+            let t = self
+                .token()
+                .map_err(io)?
+                .ok_or_else(|| self.video_err("truncated frame header".into()))?;
+            *f = t
+                .parse()
+                .map_err(|_| self.video_err(format!("bad frame header field {t:?}")))?;
         }
         let [w, h, maxval] = fields;
         if maxval != 255 {
             return Err(self.video_err(format!("unexpected frame depth {maxval}")));
         }
         let mut data = vec![0u8; w as usize * h as usize * 3];
-        self.stdout.read_exact(&mut data).map_err(|e| self.video_err(format!("frame cut short: {e}")))?;
-        RgbImage::from_raw(w, h, data).map(Some).ok_or_else(|| self.video_err("frame size mismatch".into()))
+        self.stdout
+            .read_exact(&mut data)
+            .map_err(|e| self.video_err(format!("frame cut short: {e}")))?;
+        RgbImage::from_raw(w, h, data)
+            .map(Some)
+            .ok_or_else(|| self.video_err("frame size mismatch".into()))
     }
 
     fn finish(&mut self) -> Result<()> {
         self.done = true;
         let status = self.child.wait().map_err(|e| IoError::io(&self.path, e))?;
-        let stderr = self.stderr.take().and_then(|h| h.join().ok()).unwrap_or_default();
+        let stderr = self
+            .stderr
+            .take()
+            .and_then(|h| h.join().ok())
+            .unwrap_or_default();
         if !status.success() && self.emitted == 0 {
             return Err(self.video_err(first_line(&stderr)));
         }
@@ -321,7 +394,11 @@ impl Iterator for VideoReader {
             Ok(Some(image)) => {
                 let index = self.first_index + self.emitted as u64 * self.opts.stride as u64;
                 self.emitted += 1;
-                Some(Ok(VideoFrame { index, time_s: index as f64 / self.info.fps, image }))
+                Some(Ok(VideoFrame {
+                    index,
+                    time_s: index as f64 / self.info.fps,
+                    image,
+                }))
             }
             Ok(None) => self.finish().err().map(Err),
             Err(e) => {

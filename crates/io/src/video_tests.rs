@@ -5,9 +5,17 @@ use std::io::Write;
 
 /// True when ffmpeg is installed; on CI (`CI` set) its absence is a failure, elsewhere a skip.
 fn have_ffmpeg() -> bool {
-    let ok = Command::new("ffmpeg").arg("-version").stdout(Stdio::null()).stderr(Stdio::null()).status().is_ok();
+    let ok = Command::new("ffmpeg")
+        .arg("-version")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .is_ok();
     if !ok {
-        assert!(std::env::var_os("CI").is_none(), "ffmpeg must be installed on CI");
+        assert!(
+            std::env::var_os("CI").is_none(),
+            "ffmpeg must be installed on CI"
+        );
         eprintln!("ffmpeg not installed: skipping");
     }
     ok
@@ -16,7 +24,10 @@ fn have_ffmpeg() -> bool {
 /// Encodes `n` frames of 64×48 at 10 fps; frame k is uniformly grey at level 10·k + 5.
 fn encode(path: &Path, n: u32) {
     let mut child = Command::new("ffmpeg")
-        .args(["-v", "error", "-y", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", "64x48", "-r", "10", "-i", "-"])
+        .args([
+            "-v", "error", "-y", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s", "64x48", "-r", "10",
+            "-i", "-",
+        ])
         .args(["-c:v", "mpeg4", "-q:v", "2", "-pix_fmt", "yuv420p"])
         .arg(path)
         .stdin(Stdio::piped())
@@ -24,7 +35,9 @@ fn encode(path: &Path, n: u32) {
         .unwrap();
     let mut stdin = child.stdin.take().unwrap();
     for k in 0..n {
-        stdin.write_all(&vec![(10 * k + 5) as u8; 64 * 48 * 3]).unwrap();
+        stdin
+            .write_all(&vec![(10 * k + 5) as u8; 64 * 48 * 3])
+            .unwrap();
     }
     drop(stdin);
     assert!(child.wait().unwrap().success());
@@ -46,28 +59,63 @@ fn streams_every_frame_with_stride_and_range() {
     assert_eq!((info.width, info.height), (64, 48));
     assert!((info.fps - 10.0).abs() < 1e-6);
 
-    let all: Vec<_> = VideoReader::open(&p, &VideoOptions::default()).unwrap().collect::<Result<_>>().unwrap();
+    let all: Vec<_> = VideoReader::open(&p, &VideoOptions::default())
+        .unwrap()
+        .collect::<Result<_>>()
+        .unwrap();
     assert_eq!(all.len(), 20);
     for f in &all {
-        assert!((level(&f.image) - (10 * f.index + 5) as f64).abs() < 3.0, "frame {} level {}", f.index, level(&f.image));
+        assert!(
+            (level(&f.image) - (10 * f.index + 5) as f64).abs() < 3.0,
+            "frame {} level {}",
+            f.index,
+            level(&f.image)
+        );
     }
 
-    let opts = VideoOptions { stride: 3, ..Default::default() };
-    let strided: Vec<_> = VideoReader::open(&p, &opts).unwrap().collect::<Result<_>>().unwrap();
-    assert_eq!(strided.iter().map(|f| f.index).collect::<Vec<_>>(), vec![0, 3, 6, 9, 12, 15, 18]);
+    let opts = VideoOptions {
+        stride: 3,
+        ..Default::default()
+    };
+    let strided: Vec<_> = VideoReader::open(&p, &opts)
+        .unwrap()
+        .collect::<Result<_>>()
+        .unwrap();
+    assert_eq!(
+        strided.iter().map(|f| f.index).collect::<Vec<_>>(),
+        vec![0, 3, 6, 9, 12, 15, 18]
+    );
     for f in &strided {
         assert!((level(&f.image) - (10 * f.index + 5) as f64).abs() < 3.0);
     }
 
-    let opts = VideoOptions { stride: 2, start_s: 0.5, end_s: Some(1.5), max_frames: None };
-    let ranged: Vec<_> = VideoReader::open(&p, &opts).unwrap().collect::<Result<_>>().unwrap();
-    assert_eq!(ranged.iter().map(|f| f.index).collect::<Vec<_>>(), vec![5, 7, 9, 11, 13]);
+    let opts = VideoOptions {
+        stride: 2,
+        start_s: 0.5,
+        end_s: Some(1.5),
+        max_frames: None,
+    };
+    let ranged: Vec<_> = VideoReader::open(&p, &opts)
+        .unwrap()
+        .collect::<Result<_>>()
+        .unwrap();
+    assert_eq!(
+        ranged.iter().map(|f| f.index).collect::<Vec<_>>(),
+        vec![5, 7, 9, 11, 13]
+    );
     for f in &ranged {
-        assert!((level(&f.image) - (10 * f.index + 5) as f64).abs() < 3.0, "frame {}", f.index);
+        assert!(
+            (level(&f.image) - (10 * f.index + 5) as f64).abs() < 3.0,
+            "frame {}",
+            f.index
+        );
         assert!((f.time_s - f.index as f64 / 10.0).abs() < 1e-9);
     }
 
-    let opts = VideoOptions { max_frames: Some(4), ..Default::default() };
+    let opts = VideoOptions {
+        max_frames: Some(4),
+        ..Default::default()
+    };
     assert_eq!(VideoReader::open(&p, &opts).unwrap().count(), 4);
 }
 
@@ -79,19 +127,47 @@ fn a_file_that_is_not_a_video_is_named() {
     let dir = tempfile::tempdir().unwrap();
     let p = dir.path().join("fake.mp4");
     std::fs::write(&p, b"definitely not a movie").unwrap();
-    let err = VideoReader::open(&p, &VideoOptions::default()).err().unwrap().to_string();
-    assert!(err.contains("fake.mp4") && err.contains("cannot read this video"), "{err}");
+    let err = VideoReader::open(&p, &VideoOptions::default())
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        err.contains("fake.mp4") && err.contains("cannot read this video"),
+        "{err}"
+    );
 }
 
 #[test]
 fn missing_ffmpeg_says_how_to_install() {
-    let err = spawn_error("/nonexistent/ffmpeg", std::io::Error::from(std::io::ErrorKind::NotFound)).to_string();
+    let err = spawn_error(
+        "/nonexistent/ffmpeg",
+        std::io::Error::from(std::io::ErrorKind::NotFound),
+    )
+    .to_string();
     assert!(err.contains("apt-get install ffmpeg"), "{err}");
 }
 
 #[test]
 fn out_of_range_options_name_the_option() {
-    assert!(VideoOptions { stride: 0, ..Default::default() }.validate().unwrap_err().contains("--stride"));
-    assert!(VideoOptions { end_s: Some(0.0), ..Default::default() }.validate().unwrap_err().contains("--end"));
-    assert!(VideoOptions { start_s: -1.0, ..Default::default() }.validate().unwrap_err().contains("--start"));
+    assert!(VideoOptions {
+        stride: 0,
+        ..Default::default()
+    }
+    .validate()
+    .unwrap_err()
+    .contains("--stride"));
+    assert!(VideoOptions {
+        end_s: Some(0.0),
+        ..Default::default()
+    }
+    .validate()
+    .unwrap_err()
+    .contains("--end"));
+    assert!(VideoOptions {
+        start_s: -1.0,
+        ..Default::default()
+    }
+    .validate()
+    .unwrap_err()
+    .contains("--start"));
 }

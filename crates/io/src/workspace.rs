@@ -69,13 +69,26 @@ impl Fingerprint {
     /// fingerprinting a long video stays instant).
     pub fn add_file(&mut self, path: &Path) -> Result<&mut Self> {
         let meta = fs::metadata(path).map_err(|e| IoError::io(path, e))?;
-        let mtime = meta.modified().ok().and_then(|t| t.duration_since(UNIX_EPOCH).ok()).map(|d| d.as_nanos()).unwrap_or(0);
+        let mtime = meta
+            .modified()
+            .ok()
+            .and_then(|t| t.duration_since(UNIX_EPOCH).ok())
+            .map(|d| d.as_nanos())
+            .unwrap_or(0);
         let abs = fs::canonicalize(path).unwrap_or_else(|_| path.to_path_buf());
-        Ok(self.add_str("file", &format!("{}|{}|{}", abs.display(), meta.len(), mtime)))
+        Ok(self.add_str(
+            "file",
+            &format!("{}|{}|{}", abs.display(), meta.len(), mtime),
+        ))
     }
 
     pub fn hex(&self) -> String {
-        self.0.clone().finalize().iter().map(|b| format!("{b:02x}")).collect()
+        self.0
+            .clone()
+            .finalize()
+            .iter()
+            .map(|b| format!("{b:02x}"))
+            .collect()
     }
 }
 
@@ -89,10 +102,15 @@ impl Workspace {
     /// Opens (creating if needed) a workspace folder. Fails when the path exists and is not a folder.
     pub fn open(root: &Path) -> Result<Self> {
         if root.exists() && !root.is_dir() {
-            return Err(IoError::Input { path: root.to_path_buf(), reason: "exists and is not a folder; choose another workspace path".into() });
+            return Err(IoError::Input {
+                path: root.to_path_buf(),
+                reason: "exists and is not a folder; choose another workspace path".into(),
+            });
         }
         fs::create_dir_all(root).map_err(|e| IoError::io(root, e))?;
-        Ok(Self { root: root.to_path_buf() })
+        Ok(Self {
+            root: root.to_path_buf(),
+        })
     }
 
     /// The folder of a stage (created on demand).
@@ -114,9 +132,13 @@ impl Workspace {
 
     /// True when `stage` finished with this input hash and this Handheld version, and its outputs exist.
     pub fn is_up_to_date(&self, stage: &str, input_hash: &str) -> bool {
-        let Some(m) = self.manifest(stage) else { return false };
+        let Some(m) = self.manifest(stage) else {
+            return false;
+        };
         let dir = self.root.join(stage);
-        m.input_hash == input_hash && m.handheld_version == HANDHELD_VERSION && m.outputs.iter().all(|o| dir.join(o).exists())
+        m.input_hash == input_hash
+            && m.handheld_version == HANDHELD_VERSION
+            && m.outputs.iter().all(|o| dir.join(o).exists())
     }
 
     /// Marks a stage as in progress by removing its manifest.
@@ -132,7 +154,8 @@ impl Workspace {
     /// Marks a stage as finished by writing its manifest, and records its time in `timings.json`.
     pub fn finish(&self, manifest: &StageManifest) -> Result<()> {
         let path = self.manifest_path(&manifest.stage);
-        let text = serde_json::to_vec_pretty(manifest).map_err(|e| IoError::format(&path, e.to_string()))?;
+        let text = serde_json::to_vec_pretty(manifest)
+            .map_err(|e| IoError::format(&path, e.to_string()))?;
         write_bytes_atomic(&path, &text)?;
         self.record_timing(&manifest.stage, manifest.seconds)
     }
@@ -140,21 +163,28 @@ impl Workspace {
     /// Stage wall-clock times of the latest runs, `{stage: seconds}`.
     pub fn timings(&self) -> serde_json::Map<String, serde_json::Value> {
         let path = self.root.join("timings.json");
-        fs::read_to_string(path).ok().and_then(|t| serde_json::from_str(&t).ok()).unwrap_or_default()
+        fs::read_to_string(path)
+            .ok()
+            .and_then(|t| serde_json::from_str(&t).ok())
+            .unwrap_or_default()
     }
 
     fn record_timing(&self, stage: &str, seconds: f64) -> Result<()> {
         let mut t = self.timings();
         t.insert(stage.to_string(), serde_json::json!(seconds));
         let path = self.root.join("timings.json");
-        let text = serde_json::to_vec_pretty(&t).map_err(|e| IoError::format(&path, e.to_string()))?;
+        let text =
+            serde_json::to_vec_pretty(&t).map_err(|e| IoError::format(&path, e.to_string()))?;
         write_bytes_atomic(&path, &text)
     }
 }
 
 /// Seconds since the Unix epoch.
 pub fn now_unix_s() -> f64 {
-    SystemTime::now().duration_since(UNIX_EPOCH).map(|d| d.as_secs_f64()).unwrap_or(0.0)
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map(|d| d.as_secs_f64())
+        .unwrap_or(0.0)
 }
 
 #[cfg(test)]

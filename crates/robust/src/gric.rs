@@ -35,26 +35,49 @@ pub fn gric(model: GricModel, residuals_sq: &[f64], sigma: f64) -> f64 {
     let (l1, l2, l3) = (r.ln(), (r * n).ln(), 2.0);
     let s2 = (sigma * sigma).max(1e-12);
     let cap = l3 * (r - d);
-    residuals_sq.iter().map(|e2| if e2.is_finite() { (e2 / s2).min(cap) } else { cap }).sum::<f64>() + l1 * d * n + l2 * k
+    residuals_sq
+        .iter()
+        .map(|e2| {
+            if e2.is_finite() {
+                (e2 / s2).min(cap)
+            } else {
+                cap
+            }
+        })
+        .sum::<f64>()
+        + l1 * d * n
+        + l2 * k
 }
 
 /// Squared residuals of F for GRIC: the Sampson distance, the first-order distance of the match to
 /// the F variety in the 4D joint image space.
 pub fn f_residuals_sq(f: &Matrix3<f64>, matches: &[Match2d2d]) -> Vec<f64> {
-    matches.iter().map(|m| sampson_distance_sq(f, &m.x1, &m.x2)).collect()
+    matches
+        .iter()
+        .map(|m| sampson_distance_sq(f, &m.x1, &m.x2))
+        .collect()
 }
 
 /// Squared residuals of H for GRIC: a quarter of the symmetric transfer error, which approximates
 /// the 4D distance to the H variety when the noise is split between the two images.
 pub fn h_residuals_sq(h: &Matrix3<f64>, matches: &[Match2d2d]) -> Vec<f64> {
-    let Some(h_inv) = h.try_inverse() else { return vec![f64::INFINITY; matches.len()] };
-    matches.iter().map(|m| 0.25 * symmetric_transfer_error_sq(h, &h_inv, &m.x1, &m.x2)).collect()
+    let Some(h_inv) = h.try_inverse() else {
+        return vec![f64::INFINITY; matches.len()];
+    };
+    matches
+        .iter()
+        .map(|m| 0.25 * symmetric_transfer_error_sq(h, &h_inv, &m.x1, &m.x2))
+        .collect()
 }
 
 /// Robust noise estimate from squared residuals of the inliers of the more general model:
 /// `σ = √(median(e²) / 0.455)` (0.455 is the median of χ²₁), clamped to at least `min_sigma`.
 pub fn estimate_sigma(residuals_sq: &[f64], min_sigma: f64) -> f64 {
-    let mut v: Vec<f64> = residuals_sq.iter().copied().filter(|e| e.is_finite()).collect();
+    let mut v: Vec<f64> = residuals_sq
+        .iter()
+        .copied()
+        .filter(|e| e.is_finite())
+        .collect();
     if v.is_empty() {
         return min_sigma;
     }
@@ -79,11 +102,13 @@ mod tests {
     #[test]
     fn sigma_of_gaussian_residuals() {
         // Residuals e = σ·z for a deterministic normal-like sample with median |z| ≈ 0.6745.
-        let e2: Vec<f64> = (1..1000).map(|i| {
-            let p = i as f64 / 1000.0;
-            let z = (2.0f64).sqrt() * erfinv(2.0 * p - 1.0);
-            (2.0 * z).powi(2)
-        }).collect();
+        let e2: Vec<f64> = (1..1000)
+            .map(|i| {
+                let p = i as f64 / 1000.0;
+                let z = (2.0f64).sqrt() * erfinv(2.0 * p - 1.0);
+                (2.0 * z).powi(2)
+            })
+            .collect();
         let s = estimate_sigma(&e2, 0.1);
         assert!((s - 2.0).abs() < 0.05, "{s}");
     }

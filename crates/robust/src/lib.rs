@@ -34,4 +34,7 @@ pub use ransac::{required_iterations, run, RansacReport};
 pub use resection::{Match2d3d, ResectionEstimator};
 pub use sampler::{Sampler, UniformSampler};
 pub use two_view::{FundamentalEstimator, HomographyEstimator, Match2d2d};
-pub use verify::{estimate_two_view_geometry, refine_two_view, TwoViewConfiguration, TwoViewGeometry, TwoViewOptions};
+pub use verify::{
+    estimate_two_view_geometry, refine_two_view, TwoViewConfiguration, TwoViewGeometry,
+    TwoViewOptions,
+};

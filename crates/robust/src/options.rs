@@ -5,7 +5,11 @@
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum RansacError {
     #[error("invalid RANSAC option `{name}` = {value}: {reason}")]
-    InvalidOption { name: &'static str, value: String, reason: &'static str },
+    InvalidOption {
+        name: &'static str,
+        value: String,
+        reason: &'static str,
+    },
 }
 
 /// Options of [`crate::run`].
@@ -73,32 +77,60 @@ impl Default for RansacOptions {
 }
 
 fn invalid(name: &'static str, value: impl std::fmt::Display, reason: &'static str) -> RansacError {
-    RansacError::InvalidOption { name, value: value.to_string(), reason }
+    RansacError::InvalidOption {
+        name,
+        value: value.to_string(),
+        reason,
+    }
 }
 
 impl RansacOptions {
     /// Checks every field against its documented range.
     pub fn validate(&self) -> Result<(), RansacError> {
         if !(self.max_error.is_finite() && self.max_error > 0.0) {
-            return Err(invalid("max_error", self.max_error, "must be positive and finite"));
+            return Err(invalid(
+                "max_error",
+                self.max_error,
+                "must be positive and finite",
+            ));
         }
         if !(self.confidence > 0.0 && self.confidence < 1.0) {
             return Err(invalid("confidence", self.confidence, "must lie in (0, 1)"));
         }
         if self.max_iterations == 0 {
-            return Err(invalid("max_iterations", self.max_iterations, "must be at least 1"));
+            return Err(invalid(
+                "max_iterations",
+                self.max_iterations,
+                "must be at least 1",
+            ));
         }
         if self.min_iterations > self.max_iterations {
-            return Err(invalid("min_iterations", self.min_iterations, "must not exceed max_iterations"));
+            return Err(invalid(
+                "min_iterations",
+                self.min_iterations,
+                "must not exceed max_iterations",
+            ));
         }
         if !(0.0..=1.0).contains(&self.min_inlier_ratio) {
-            return Err(invalid("min_inlier_ratio", self.min_inlier_ratio, "must lie in [0, 1]"));
+            return Err(invalid(
+                "min_inlier_ratio",
+                self.min_inlier_ratio,
+                "must lie in [0, 1]",
+            ));
         }
         if !(self.lo_threshold_factor.is_finite() && self.lo_threshold_factor >= 1.0) {
-            return Err(invalid("lo_threshold_factor", self.lo_threshold_factor, "must be finite and at least 1"));
+            return Err(invalid(
+                "lo_threshold_factor",
+                self.lo_threshold_factor,
+                "must be finite and at least 1",
+            ));
         }
         if self.tdd == Some(0) {
-            return Err(invalid("tdd", 0, "d must be at least 1 (use None to disable the test)"));
+            return Err(invalid(
+                "tdd",
+                0,
+                "d must be at least 1 (use None to disable the test)",
+            ));
         }
         Ok(())
     }
@@ -112,16 +144,49 @@ mod tests {
     fn default_is_valid_and_bad_values_are_named() {
         assert!(RansacOptions::default().validate().is_ok());
         let bad = [
-            RansacOptions { max_error: 0.0, ..Default::default() },
-            RansacOptions { max_error: f64::NAN, ..Default::default() },
-            RansacOptions { confidence: 1.0, ..Default::default() },
-            RansacOptions { max_iterations: 0, ..Default::default() },
-            RansacOptions { min_iterations: 20_000, ..Default::default() },
-            RansacOptions { min_inlier_ratio: 1.5, ..Default::default() },
-            RansacOptions { lo_threshold_factor: 0.5, ..Default::default() },
-            RansacOptions { tdd: Some(0), ..Default::default() },
+            RansacOptions {
+                max_error: 0.0,
+                ..Default::default()
+            },
+            RansacOptions {
+                max_error: f64::NAN,
+                ..Default::default()
+            },
+            RansacOptions {
+                confidence: 1.0,
+                ..Default::default()
+            },
+            RansacOptions {
+                max_iterations: 0,
+                ..Default::default()
+            },
+            RansacOptions {
+                min_iterations: 20_000,
+                ..Default::default()
+            },
+            RansacOptions {
+                min_inlier_ratio: 1.5,
+                ..Default::default()
+            },
+            RansacOptions {
+                lo_threshold_factor: 0.5,
+                ..Default::default()
+            },
+            RansacOptions {
+                tdd: Some(0),
+                ..Default::default()
+            },
         ];
-        let names = ["max_error", "max_error", "confidence", "max_iterations", "min_iterations", "min_inlier_ratio", "lo_threshold_factor", "tdd"];
+        let names = [
+            "max_error",
+            "max_error",
+            "confidence",
+            "max_iterations",
+            "min_iterations",
+            "min_inlier_ratio",
+            "lo_threshold_factor",
+            "tdd",
+        ];
         for (o, name) in bad.iter().zip(names) {
             match o.validate() {
                 Err(RansacError::InvalidOption { name: n, .. }) => assert_eq!(n, name),

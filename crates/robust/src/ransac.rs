@@ -135,7 +135,9 @@ where
     let mut minimal: Vec<E::Sample> = Vec::with_capacity(p);
     let mut models: Vec<E::Model> = Vec::new();
 
-    while report.num_trials < opts.max_iterations && (report.num_trials < opts.min_iterations || report.num_trials < required) {
+    while report.num_trials < opts.max_iterations
+        && (report.num_trials < opts.min_iterations || report.num_trials < required)
+    {
         report.num_trials += 1;
         sampler.sample(n, p, &mut indices);
         minimal.clear();
@@ -146,7 +148,8 @@ where
         for model in models.drain(..) {
             if let Some(d) = opts.tdd {
                 let rng = sampler.rng();
-                let passes = (0..d).all(|_| estimator.residual(&model, &samples[rng.random_range(0..n)]) <= t);
+                let passes = (0..d)
+                    .all(|_| estimator.residual(&model, &samples[rng.random_range(0..n)]) <= t);
                 if !passes {
                     report.num_tdd_rejections += 1;
                     continue;
@@ -162,14 +165,30 @@ where
                 continue;
             }
             best_sampled_score = score;
-            let mut candidate = Scored { model, score, support };
+            let mut candidate = Scored {
+                model,
+                score,
+                support,
+            };
             if opts.local_optimization {
-                candidate = local_optimization(estimator, consensus, sampler, samples, candidate, opts, &mut report);
+                candidate = local_optimization(
+                    estimator,
+                    consensus,
+                    sampler,
+                    samples,
+                    candidate,
+                    opts,
+                    &mut report,
+                );
             }
             if best.as_ref().is_some_and(|b| candidate.score <= b.score) {
                 continue;
             }
-            required = required_iterations(candidate.support as f64 / n as f64, stop_exponent, opts.confidence);
+            required = required_iterations(
+                candidate.support as f64 / n as f64,
+                stop_exponent,
+                opts.confidence,
+            );
             best = Some(candidate);
         }
     }
@@ -183,7 +202,10 @@ where
     if best.support < min_support {
         return Ok(report);
     }
-    report.inlier_mask = samples.iter().map(|s| estimator.residual(&best.model, s) <= t).collect();
+    report.inlier_mask = samples
+        .iter()
+        .map(|s| estimator.residual(&best.model, s) <= t)
+        .collect();
     report.success = true;
     report.model = Some(best.model);
     Ok(report)
@@ -210,8 +232,11 @@ fn local_optimization<E: Estimator, C: Consensus, S: Sampler>(
     let p = E::SAMPLE_SIZE;
     let start = best.model.clone();
     let mut best = iterate_refits(estimator, consensus, samples, start, best, opts, report);
-    let inliers: Vec<E::Sample> =
-        samples.iter().filter(|s| estimator.residual(&best.model, s) <= opts.max_error).cloned().collect();
+    let inliers: Vec<E::Sample> = samples
+        .iter()
+        .filter(|s| estimator.residual(&best.model, s) <= opts.max_error)
+        .cloned()
+        .collect();
     let k = (inliers.len() / 2).clamp(p + 1, 4 * p);
     if inliers.len() <= k {
         return best;
@@ -228,7 +253,11 @@ fn local_optimization<E: Estimator, C: Consensus, S: Sampler>(
         let (score, support) = evaluate(estimator, consensus, &model, samples, opts.max_error);
         report.num_lo_verifications += 1;
         if score > best.score {
-            best = Scored { model: model.clone(), score, support };
+            best = Scored {
+                model: model.clone(),
+                score,
+                support,
+            };
         }
         best = iterate_refits(estimator, consensus, samples, model, best, opts, report);
     }
@@ -254,12 +283,22 @@ fn iterate_refits<E: Estimator, C: Consensus>(
     let mut previous_mask: Vec<bool> = Vec::new();
     for _ in 0..opts.lo_iterations {
         mask.clear();
-        mask.extend(samples.iter().map(|s| estimator.residual(&current, s) <= lo_t));
+        mask.extend(
+            samples
+                .iter()
+                .map(|s| estimator.residual(&current, s) <= lo_t),
+        );
         if mask == previous_mask {
             break;
         }
         inliers.clear();
-        inliers.extend(samples.iter().zip(&mask).filter(|(_, &m)| m).map(|(s, _)| s.clone()));
+        inliers.extend(
+            samples
+                .iter()
+                .zip(&mask)
+                .filter(|(_, &m)| m)
+                .map(|(s, _)| s.clone()),
+        );
         if inliers.len() <= E::SAMPLE_SIZE {
             break;
         }
@@ -269,7 +308,11 @@ fn iterate_refits<E: Estimator, C: Consensus>(
         let (score, support) = evaluate(estimator, consensus, &model, samples, t);
         report.num_lo_verifications += 1;
         if score > best.score {
-            best = Scored { model: model.clone(), score, support };
+            best = Scored {
+                model: model.clone(),
+                score,
+                support,
+            };
         }
         current = model;
         std::mem::swap(&mut mask, &mut previous_mask);
@@ -306,7 +349,10 @@ mod tests {
         fn refit(&self, s: &[(f64, f64)], _m: &Self::Model) -> Option<Self::Model> {
             // Total least squares.
             let n = s.len() as f64;
-            let (mx, my) = (s.iter().map(|p| p.0).sum::<f64>() / n, s.iter().map(|p| p.1).sum::<f64>() / n);
+            let (mx, my) = (
+                s.iter().map(|p| p.0).sum::<f64>() / n,
+                s.iter().map(|p| p.1).sum::<f64>() / n,
+            );
             let (mut sxx, mut sxy, mut syy) = (0.0, 0.0, 0.0);
             for p in s {
                 let (x, y) = (p.0 - mx, p.1 - my);
@@ -347,7 +393,10 @@ mod tests {
     #[test]
     fn finds_a_line_with_both_consensus_kinds() {
         let data = line_data(1);
-        let opts = RansacOptions { max_error: 0.1, ..Default::default() };
+        let opts = RansacOptions {
+            max_error: 0.1,
+            ..Default::default()
+        };
         for msac in [false, true] {
             let mut sampler = UniformSampler::new(opts.seed);
             let rep = if msac {
@@ -362,16 +411,30 @@ mod tests {
             let true_inliers = (0..100).filter(|i| i % 3 != 0).count();
             assert!(rep.support >= true_inliers);
             assert_eq!(rep.inlier_mask.iter().filter(|&&b| b).count(), rep.support);
-            assert!(rep.num_trials < 100, "adaptive stopping: {} trials", rep.num_trials);
+            assert!(
+                rep.num_trials < 100,
+                "adaptive stopping: {} trials",
+                rep.num_trials
+            );
         }
     }
 
     #[test]
     fn too_few_samples_and_invalid_options() {
         let mut sampler = UniformSampler::new(0);
-        let rep = run(&Line, &InlierCount, &mut sampler, &[(0.0, 0.0)], &RansacOptions::default()).expect("valid");
+        let rep = run(
+            &Line,
+            &InlierCount,
+            &mut sampler,
+            &[(0.0, 0.0)],
+            &RansacOptions::default(),
+        )
+        .expect("valid");
         assert!(!rep.success && rep.model.is_none() && rep.num_trials == 0);
-        let bad = RansacOptions { confidence: 2.0, ..Default::default() };
+        let bad = RansacOptions {
+            confidence: 2.0,
+            ..Default::default()
+        };
         assert!(run(&Line, &InlierCount, &mut sampler, &line_data(0), &bad).is_err());
     }
 }

@@ -25,7 +25,9 @@ pub struct ResectionEstimator {
 
 impl Default for ResectionEstimator {
     fn default() -> Self {
-        Self { refit_iterations: 3 }
+        Self {
+            refit_iterations: 3,
+        }
     }
 }
 
@@ -76,9 +78,15 @@ mod tests {
         let mut samples = Vec::new();
         let mut inlier = Vec::new();
         for i in 0..300 {
-            let m = Vector4::new(r.random_range(-1.5..1.5), r.random_range(-1.0..1.0), r.random_range(-1.0..1.0), 1.0);
+            let m = Vector4::new(
+                r.random_range(-1.5..1.5),
+                r.random_range(-1.0..1.0),
+                r.random_range(-1.0..1.0),
+                1.0,
+            );
             let q = p * m;
-            let mut x = Vector2::new(q.x / q.z, q.y / q.z) + Vector2::new(r.random_range(-0.5..0.5), r.random_range(-0.5..0.5));
+            let mut x = Vector2::new(q.x / q.z, q.y / q.z)
+                + Vector2::new(r.random_range(-0.5..0.5), r.random_range(-0.5..0.5));
             let out = i % 3 == 0;
             if out {
                 x = Vector2::new(r.random_range(0.0..640.0), r.random_range(0.0..480.0));
@@ -86,12 +94,34 @@ mod tests {
             inlier.push(!out);
             samples.push(Match2d3d { x, m });
         }
-        let opts = RansacOptions { max_error: 2.0, tdd: Some(1), seed: 5, ..Default::default() };
-        let rep = run(&ResectionEstimator::default(), &Msac, &mut UniformSampler::new(5), &samples, &opts).unwrap();
+        let opts = RansacOptions {
+            max_error: 2.0,
+            tdd: Some(1),
+            seed: 5,
+            ..Default::default()
+        };
+        let rep = run(
+            &ResectionEstimator::default(),
+            &Msac,
+            &mut UniformSampler::new(5),
+            &samples,
+            &opts,
+        )
+        .unwrap();
         assert!(rep.success);
-        let found = rep.inlier_mask.iter().zip(&inlier).filter(|(a, b)| **a && **b).count();
+        let found = rep
+            .inlier_mask
+            .iter()
+            .zip(&inlier)
+            .filter(|(a, b)| **a && **b)
+            .count();
         assert!(found >= 190, "found {found} of 200 inliers");
-        let wrong = rep.inlier_mask.iter().zip(&inlier).filter(|(a, b)| **a && !**b).count();
+        let wrong = rep
+            .inlier_mask
+            .iter()
+            .zip(&inlier)
+            .filter(|(a, b)| **a && !**b)
+            .count();
         assert!(wrong <= 3, "{wrong} outliers accepted");
         let est = rep.model.unwrap();
         // The estimate reprojects the exact points to well within the ±0.5 px noise.

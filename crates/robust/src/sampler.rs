@@ -23,7 +23,9 @@ pub struct UniformSampler {
 impl UniformSampler {
     /// A sampler whose draws are fully determined by `seed`.
     pub fn new(seed: u64) -> Self {
-        Self { rng: ChaCha8Rng::seed_from_u64(seed) }
+        Self {
+            rng: ChaCha8Rng::seed_from_u64(seed),
+        }
     }
 }
 

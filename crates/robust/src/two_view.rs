@@ -2,7 +2,8 @@
 //! wrapping the solvers of `handheld-geometry`. Only the glue lives here; the algorithms stay there.
 
 use handheld_geometry::{
-    fundamental_7point, fundamental_8point, homography_dlt, sampson_distance, symmetric_transfer_error_sq,
+    fundamental_7point, fundamental_8point, homography_dlt, sampson_distance,
+    symmetric_transfer_error_sq,
 };
 use nalgebra::{Matrix3, Vector2};
 

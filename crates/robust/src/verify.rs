@@ -8,7 +8,10 @@
 //! planar. Guided matching (step 4) needs descriptors and lives with the matcher, which calls
 //! [`refine_two_view`] again afterwards (step 5).
 
-use handheld_geometry::{gold_standard_fundamental, refine_fundamental, sampson_distance, view_distance, GoldStandardOptions, RefineFOptions};
+use handheld_geometry::{
+    gold_standard_fundamental, refine_fundamental, sampson_distance, view_distance,
+    GoldStandardOptions, RefineFOptions,
+};
 use nalgebra::{Matrix3, Vector2};
 
 use crate::consensus::Msac;
@@ -46,7 +49,10 @@ impl Default for TwoViewOptions {
             f_threshold_px: 1.5,
             h_threshold_px: 4.0,
             min_inliers: 15,
-            ransac: RansacOptions { tdd: Some(1), ..Default::default() },
+            ransac: RansacOptions {
+                tdd: Some(1),
+                ..Default::default()
+            },
             refine: true,
             min_sigma_px: 0.3,
             rotation_tolerance: 0.03,
@@ -60,7 +66,10 @@ impl TwoViewOptions {
             return Err("two-view thresholds must be positive".into());
         }
         if self.min_inliers < 8 {
-            return Err(format!("min_inliers must be at least 8, got {}", self.min_inliers));
+            return Err(format!(
+                "min_inliers must be at least 8, got {}",
+                self.min_inliers
+            ));
         }
         self.ransac.validate().map_err(|e| e.to_string())
     }
@@ -117,16 +126,28 @@ impl TwoViewGeometry {
 }
 
 fn inliers_of(f: &Matrix3<f64>, matches: &[Match2d2d], thr: f64) -> Vec<bool> {
-    matches.iter().map(|m| sampson_distance(f, &m.x1, &m.x2) <= thr).collect()
+    matches
+        .iter()
+        .map(|m| sampson_distance(f, &m.x1, &m.x2) <= thr)
+        .collect()
 }
 
 fn select(matches: &[Match2d2d], mask: &[bool]) -> (Vec<Vector2<f64>>, Vec<Vector2<f64>>) {
-    matches.iter().zip(mask).filter(|(_, &k)| k).map(|(m, _)| (m.x1, m.x2)).unzip()
+    matches
+        .iter()
+        .zip(mask)
+        .filter(|(_, &k)| k)
+        .map(|(m, _)| (m.x1, m.x2))
+        .unzip()
 }
 
 /// Table 1 steps 3 and 5: refines F on the matches it currently explains (eq. 12, then eq. 13) and
 /// re-collects its inliers. Returns the refined F and its inlier mask.
-pub fn refine_two_view(f: &Matrix3<f64>, matches: &[Match2d2d], threshold_px: f64) -> (Matrix3<f64>, Vec<bool>) {
+pub fn refine_two_view(
+    f: &Matrix3<f64>,
+    matches: &[Match2d2d],
+    threshold_px: f64,
+) -> (Matrix3<f64>, Vec<bool>) {
     let mask = inliers_of(f, matches, threshold_px);
     let (x1, x2) = select(matches, &mask);
     let mut best = *f;
@@ -154,7 +175,9 @@ pub fn is_rotation_homography(h: &Matrix3<f64>, tol: f64) -> bool {
     let hn = h / det.cbrt();
     let ev = hn.complex_eigenvalues();
     let mods: Vec<f64> = ev.iter().map(|c| c.norm()).collect();
-    let (lo, hi) = mods.iter().fold((f64::INFINITY, 0.0f64), |(lo, hi), &m| (lo.min(m), hi.max(m)));
+    let (lo, hi) = mods.iter().fold((f64::INFINITY, 0.0f64), |(lo, hi), &m| {
+        (lo.min(m), hi.max(m))
+    });
     lo > 0.0 && hi / lo - 1.0 < tol
 }
 
@@ -168,18 +191,36 @@ fn ransac<E: Estimator<Sample = Match2d2d>>(
 }
 
 /// Estimates the two-view geometry of putative matches (Table 1 steps 2–3 plus model selection).
-pub fn estimate_two_view_geometry(matches: &[Match2d2d], opts: &TwoViewOptions) -> Result<TwoViewGeometry, RansacError> {
+pub fn estimate_two_view_geometry(
+    matches: &[Match2d2d],
+    opts: &TwoViewOptions,
+) -> Result<TwoViewGeometry, RansacError> {
     let n = matches.len();
     if n < opts.min_inliers {
         return Ok(TwoViewGeometry::too_few(n));
     }
-    let f_rep = ransac(&FundamentalEstimator, matches, &RansacOptions { max_error: opts.f_threshold_px, ..opts.ransac.clone() })?;
+    let f_rep = ransac(
+        &FundamentalEstimator,
+        matches,
+        &RansacOptions {
+            max_error: opts.f_threshold_px,
+            ..opts.ransac.clone()
+        },
+    )?;
     // A 4-point sample needs far fewer draws; capping them stops a scene without a dominant plane
     // from spending the whole budget (1 000 draws give 99 % confidence down to 26 % inliers).
-    let h_opts = RansacOptions { max_error: opts.h_threshold_px, max_iterations: opts.ransac.max_iterations.min(1000), ..opts.ransac.clone() };
+    let h_opts = RansacOptions {
+        max_error: opts.h_threshold_px,
+        max_iterations: opts.ransac.max_iterations.min(1000),
+        ..opts.ransac.clone()
+    };
     let h_rep = ransac(&HomographyEstimator, matches, &h_opts)?;
-    let h = h_rep.model.filter(|_| h_rep.success && h_rep.support >= opts.min_inliers);
-    let f = f_rep.model.filter(|_| f_rep.success && f_rep.support >= opts.min_inliers);
+    let h = h_rep
+        .model
+        .filter(|_| h_rep.success && h_rep.support >= opts.min_inliers);
+    let f = f_rep
+        .model
+        .filter(|_| f_rep.success && f_rep.support >= opts.min_inliers);
     let (f, f_mask) = match f {
         Some(f0) if opts.refine => {
             let (f, m) = refine_two_view(&f0, matches, opts.f_threshold_px);
@@ -191,7 +232,12 @@ pub fn estimate_two_view_geometry(matches: &[Match2d2d], opts: &TwoViewOptions) 
     let f_sq = f.as_ref().map(|f| f_residuals_sq(f, matches));
     let sigma = match &f_sq {
         Some(e) => {
-            let inl: Vec<f64> = e.iter().zip(&f_mask).filter(|(_, &k)| k).map(|(v, _)| *v).collect();
+            let inl: Vec<f64> = e
+                .iter()
+                .zip(&f_mask)
+                .filter(|(_, &k)| k)
+                .map(|(v, _)| *v)
+                .collect();
             estimate_sigma(&inl, opts.min_sigma_px)
         }
         None => opts.min_sigma_px.max(opts.h_threshold_px / 4.0),
@@ -199,11 +245,30 @@ pub fn estimate_two_view_geometry(matches: &[Match2d2d], opts: &TwoViewOptions) 
     // GRIC over the matches that at least one model explains: gross outliers of both carry no
     // information on the choice, yet the capped ρ would charge H twice as much for each of them.
     let h_sq = h.as_ref().map(|h| h_residuals_sq(h, matches));
-    let used: Vec<bool> = (0..n).map(|i| f_mask[i] || h_rep.inlier_mask.get(i).copied().unwrap_or(false)).collect();
-    let pick = |e: &[f64]| e.iter().zip(&used).filter(|(_, &k)| k).map(|(v, _)| *v).collect::<Vec<f64>>();
-    let gric_f = f_sq.as_ref().map_or(f64::INFINITY, |e| gric(GricModel::Fundamental, &pick(e), sigma));
-    let gric_h = h_sq.as_ref().map_or(f64::INFINITY, |e| gric(GricModel::Homography, &pick(e), sigma));
-    let mut out = TwoViewGeometry { f, h, sigma_px: sigma, gric_f, gric_h, ..TwoViewGeometry::too_few(n) };
+    let used: Vec<bool> = (0..n)
+        .map(|i| f_mask[i] || h_rep.inlier_mask.get(i).copied().unwrap_or(false))
+        .collect();
+    let pick = |e: &[f64]| {
+        e.iter()
+            .zip(&used)
+            .filter(|(_, &k)| k)
+            .map(|(v, _)| *v)
+            .collect::<Vec<f64>>()
+    };
+    let gric_f = f_sq.as_ref().map_or(f64::INFINITY, |e| {
+        gric(GricModel::Fundamental, &pick(e), sigma)
+    });
+    let gric_h = h_sq.as_ref().map_or(f64::INFINITY, |e| {
+        gric(GricModel::Homography, &pick(e), sigma)
+    });
+    let mut out = TwoViewGeometry {
+        f,
+        h,
+        sigma_px: sigma,
+        gric_f,
+        gric_h,
+        ..TwoViewGeometry::too_few(n)
+    };
     if f.is_none() && h.is_none() {
         return Ok(out);
     }
@@ -220,7 +285,9 @@ pub fn estimate_two_view_geometry(matches: &[Match2d2d], opts: &TwoViewOptions) 
         out.inlier_mask = f_mask;
         if let Some(fm) = &f {
             let (x1, x2) = select(matches, &out.inlier_mask);
-            out.view_distance_px = view_distance(fm, &x1, &x2).ok().map(|v| v.median_transfer_px);
+            out.view_distance_px = view_distance(fm, &x1, &x2)
+                .ok()
+                .map(|v| v.median_transfer_px);
         }
     }
     out.num_inliers = out.inlier_mask.iter().filter(|&&k| k).count();

@@ -18,10 +18,16 @@ pub struct CorrespondenceGraph {
 
 impl CorrespondenceGraph {
     pub fn build(input: &SfmInput, min_matches: usize) -> Self {
-        let mut corr: Vec<Vec<Vec<(u32, u32)>>> = input.images.iter().map(|im| vec![Vec::new(); im.keypoints.len()]).collect();
+        let mut corr: Vec<Vec<Vec<(u32, u32)>>> = input
+            .images
+            .iter()
+            .map(|im| vec![Vec::new(); im.keypoints.len()])
+            .collect();
         let mut pair_matches = HashMap::new();
         for p in &input.pairs {
-            if p.configuration == TwoViewConfiguration::TooFewInliers || p.matches.len() < min_matches {
+            if p.configuration == TwoViewConfiguration::TooFewInliers
+                || p.matches.len() < min_matches
+            {
                 continue;
             }
             pair_matches.insert((p.a.min(p.b), p.a.max(p.b)), p.matches.len());
@@ -42,7 +48,10 @@ impl CorrespondenceGraph {
     }
 
     pub fn num_matches(&self, a: usize, b: usize) -> usize {
-        self.pair_matches.get(&(a.min(b), a.max(b))).copied().unwrap_or(0)
+        self.pair_matches
+            .get(&(a.min(b), a.max(b)))
+            .copied()
+            .unwrap_or(0)
     }
 
     /// Images connected to `image` by a verified pair.
@@ -50,7 +59,15 @@ impl CorrespondenceGraph {
         let mut v: Vec<usize> = self
             .pair_matches
             .keys()
-            .filter_map(|&(a, b)| if a == image { Some(b) } else if b == image { Some(a) } else { None })
+            .filter_map(|&(a, b)| {
+                if a == image {
+                    Some(b)
+                } else if b == image {
+                    Some(a)
+                } else {
+                    None
+                }
+            })
             .collect();
         v.sort_unstable();
         v

@@ -3,7 +3,10 @@
 //! by the optimal method of Hartley & Sturm (eqs. 17–18).
 
 use handheld_core::ProjectiveCamera;
-use handheld_geometry::{fundamental_8point, optimal_correction, sampson_distance, skew, triangulate_iterative, triangulate_linear};
+use handheld_geometry::{
+    fundamental_8point, optimal_correction, sampson_distance, skew, triangulate_iterative,
+    triangulate_linear,
+};
 use nalgebra::{Matrix3, Matrix3x4, Vector2, Vector3};
 
 use crate::projective::{Context, ProjectiveModel, NONE};
@@ -14,11 +17,16 @@ use crate::projective::{Context, ProjectiveModel, NONE};
 /// the cameras would be if `K_N` were the true calibration). This quasi-Euclidean frame (Beardsley,
 /// Zisserman & Murray 1997) keeps the later linear steps and the projective bundle adjustment well
 /// conditioned and makes orientation tests meaningful. Returns `P2` and the points' cheirality count.
-pub(crate) fn initial_cameras(f: &Matrix3<f64>, x1: &[Vector2<f64>], x2: &[Vector2<f64>]) -> Option<Matrix3x4<f64>> {
+pub(crate) fn initial_cameras(
+    f: &Matrix3<f64>,
+    x1: &[Vector2<f64>],
+    x2: &[Vector2<f64>],
+) -> Option<Matrix3x4<f64>> {
     let svd = f.svd(true, true);
     let (u, vt) = (svd.u?, svd.v_t?);
     // Singular values are not sorted by nalgebra's SVD for 3×3; find the smallest.
-    let smallest = (0..3).min_by(|&a, &b| svd.singular_values[a].total_cmp(&svd.singular_values[b]))?;
+    let smallest =
+        (0..3).min_by(|&a, &b| svd.singular_values[a].total_cmp(&svd.singular_values[b]))?;
     let mut d = Matrix3::identity();
     d[(smallest, smallest)] = 0.0;
     let e_mat = u * d * vt;
@@ -32,7 +40,11 @@ pub(crate) fn initial_cameras(f: &Matrix3<f64>, x1: &[Vector2<f64>], x2: &[Vecto
         o.sort_by(|&a, &b| esvd.singular_values[b].total_cmp(&esvd.singular_values[a]));
         o
     };
-    eu = Matrix3::from_columns(&[eu.column(order[0]), eu.column(order[1]), eu.column(order[2])]);
+    eu = Matrix3::from_columns(&[
+        eu.column(order[0]),
+        eu.column(order[1]),
+        eu.column(order[2]),
+    ]);
     evt = Matrix3::from_rows(&[evt.row(order[0]), evt.row(order[1]), evt.row(order[2])]);
     if eu.determinant() < 0.0 {
         eu = -eu;
@@ -90,19 +102,35 @@ pub(crate) fn initial_cameras(f: &Matrix3<f64>, x1: &[Vector2<f64>], x2: &[Vecto
 /// Sets up the initial frame from a verified pair (Table 2, steps 2.1–2.4). `None` when the pair
 /// gives too few well-triangulated points.
 pub(crate) fn initialize(ctx: &Context, a: usize, b: usize) -> Option<ProjectiveModel> {
-    let pair = ctx.input.pairs.iter().find(|p| (p.a == a && p.b == b) || (p.a == b && p.b == a))?;
+    let pair = ctx
+        .input
+        .pairs
+        .iter()
+        .find(|p| (p.a == a && p.b == b) || (p.a == b && p.b == a))?;
     let swap = pair.a != a;
-    let matches: Vec<(u32, u32)> = pair.matches.iter().map(|&(i, j)| if swap { (j, i) } else { (i, j) }).collect();
+    let matches: Vec<(u32, u32)> = pair
+        .matches
+        .iter()
+        .map(|&(i, j)| if swap { (j, i) } else { (i, j) })
+        .collect();
     let x1: Vec<Vector2<f64>> = matches.iter().map(|m| ctx.kps[a][m.0 as usize]).collect();
     let x2: Vec<Vector2<f64>> = matches.iter().map(|m| ctx.kps[b][m.1 as usize]).collect();
     let f = fundamental_8point(&x1, &x2).ok()?;
-    let f = handheld_geometry::refine_fundamental(&f, &x1, &x2, &Default::default()).map(|r| r.f).unwrap_or(f);
+    let f = handheld_geometry::refine_fundamental(&f, &x1, &x2, &Default::default())
+        .map(|r| r.f)
+        .unwrap_or(f);
     let thr = ctx.threshold(a).max(ctx.threshold(b));
-    let keep: Vec<usize> = (0..matches.len()).filter(|&k| sampson_distance(&f, &x1[k], &x2[k]) < thr).collect();
+    let keep: Vec<usize> = (0..matches.len())
+        .filter(|&k| sampson_distance(&f, &x1[k], &x2[k]) < thr)
+        .collect();
     let (k1, k2): (Vec<_>, Vec<_>) = keep.iter().map(|&k| (x1[k], x2[k])).unzip();
     let p2 = initial_cameras(&f, &k1, &k2)?;
     let p1 = Matrix3x4::identity();
-    let fc = handheld_geometry::fundamental_from_cameras(&ProjectiveCamera { P: p1 }, &ProjectiveCamera { P: p2 }).ok()?;
+    let fc = handheld_geometry::fundamental_from_cameras(
+        &ProjectiveCamera { P: p1 },
+        &ProjectiveCamera { P: p2 },
+    )
+    .ok()?;
     let mut model = ProjectiveModel::new(ctx);
     model.cams[a] = Some(p1);
     model.cams[b] = Some(p2);
@@ -114,10 +142,17 @@ pub(crate) fn initialize(ctx: &Context, a: usize, b: usize) -> Option<Projective
             continue;
         }
         // Hartley–Sturm (eq. 18) then the exact intersection of the corrected rays.
-        let Ok((c1, c2)) = optimal_correction(&fc, &x1[k], &x2[k]) else { continue };
-        let Ok(x) = triangulate_iterative(&[p1, p2], &[c1, c2], 0) else { continue };
+        let Ok((c1, c2)) = optimal_correction(&fc, &x1[k], &x2[k]) else {
+            continue;
+        };
+        let Ok(x) = triangulate_iterative(&[p1, p2], &[c1, c2], 0) else {
+            continue;
+        };
         let obs = vec![(a as u32, ia), (b as u32, ib)];
-        if obs.iter().all(|&(i, kp)| model.obs_error(ctx, &x, i, kp) < thr) {
+        if obs
+            .iter()
+            .all(|&(i, kp)| model.obs_error(ctx, &x, i, kp) < thr)
+        {
             model.add_point(x, obs);
         }
     }
@@ -135,7 +170,12 @@ pub(crate) fn initial_pair_candidates(ctx: &Context, allowed: &[bool]) -> Vec<(u
         .input
         .pairs
         .iter()
-        .filter(|p| allowed[p.a] && allowed[p.b] && p.configuration == C::General && p.matches.len() >= ctx.opts.init_min_points)
+        .filter(|p| {
+            allowed[p.a]
+                && allowed[p.b]
+                && p.configuration == C::General
+                && p.matches.len() >= ctx.opts.init_min_points
+        })
         .map(|p| {
             let d = p.view_distance_px.unwrap_or(1.0).max(1e-3);
             (p.a.min(p.b), p.a.max(p.b), p.matches.len() as f64 * d)
@@ -144,4 +184,3 @@ pub(crate) fn initial_pair_candidates(ctx: &Context, allowed: &[bool]) -> Vec<(u
     v.sort_by(|a, b| b.2.total_cmp(&a.2).then((a.0, a.1).cmp(&(b.0, b.1))));
     v
 }
-

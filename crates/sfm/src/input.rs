@@ -54,8 +54,15 @@ impl SfmInput {
             if im.width == 0 || im.height == 0 {
                 return Err(format!("image {} ({}) has zero size", im.id, im.name));
             }
-            if im.keypoints.iter().any(|k| !k.x.is_finite() || !k.y.is_finite()) {
-                return Err(format!("image {} ({}) has a non-finite keypoint", im.id, im.name));
+            if im
+                .keypoints
+                .iter()
+                .any(|k| !k.x.is_finite() || !k.y.is_finite())
+            {
+                return Err(format!(
+                    "image {} ({}) has a non-finite keypoint",
+                    im.id, im.name
+                ));
             }
         }
         for p in &self.pairs {
@@ -63,11 +70,17 @@ impl SfmInput {
                 return Err(format!("pair ({}, {}) refers to a missing image", p.a, p.b));
             };
             if p.a == p.b {
-                return Err(format!("pair ({}, {}) matches an image with itself", p.a, p.b));
+                return Err(format!(
+                    "pair ({}, {}) matches an image with itself",
+                    p.a, p.b
+                ));
             }
             for &(i, j) in &p.matches {
                 if i as usize >= a.keypoints.len() || j as usize >= b.keypoints.len() {
-                    return Err(format!("pair {} – {}: match ({i}, {j}) refers to a missing keypoint", a.name, b.name));
+                    return Err(format!(
+                        "pair {} – {}: match ({i}, {j}) refers to a missing keypoint",
+                        a.name, b.name
+                    ));
                 }
             }
         }

@@ -8,6 +8,7 @@
 //! a silent partial result.
 
 pub mod graph;
+mod hypotheses;
 mod init;
 pub mod input;
 pub mod metric;
@@ -89,10 +90,18 @@ pub struct SfmResult {
 }
 
 /// Runs Table 2 and §3.4 end to end. Deterministic for a given input and seed.
-pub fn reconstruct(input: &SfmInput, options: &SfmOptions, progress: &dyn Progress) -> Result<SfmResult, SfmError> {
+pub fn reconstruct(
+    input: &SfmInput,
+    options: &SfmOptions,
+    progress: &dyn Progress,
+) -> Result<SfmResult, SfmError> {
     options.validate().map_err(SfmError::InvalidOptions)?;
     input.validate().map_err(SfmError::InvalidInput)?;
-    let usable = input.images.iter().filter(|im| !im.keypoints.is_empty()).count();
+    let usable = input
+        .images
+        .iter()
+        .filter(|im| !im.keypoints.is_empty())
+        .count();
     if usable < 2 {
         return Err(SfmError::TooFewImages(usable));
     }
@@ -100,7 +109,11 @@ pub fn reconstruct(input: &SfmInput, options: &SfmOptions, progress: &dyn Progre
     let ctx = projective::Context::new(input, &graph, options);
     let estimate_aspect = options.estimate_aspect.unwrap_or(input.video);
     let n = input.images.len();
-    let mut allowed: Vec<bool> = input.images.iter().map(|im| !im.keypoints.is_empty()).collect();
+    let mut allowed: Vec<bool> = input
+        .images
+        .iter()
+        .map(|im| !im.keypoints.is_empty())
+        .collect();
     let mut models = Vec::new();
     let mut failures: BTreeMap<usize, String> = BTreeMap::new();
     let mut last_err = String::new();
@@ -142,27 +155,42 @@ pub fn reconstruct(input: &SfmInput, options: &SfmOptions, progress: &dyn Progre
         // semi-definite), the frame from the priors alone is adjusted too and the better-explaining
         // model kept: the paper's "fall back on the priors" without trusting either blindly.
         let mut candidates = vec![(up.rec, false)];
-        if report.degenerate.is_some() && !report.used_prior_fallback {
-            if let Ok(r) = metric::prior_frame(&ctx, &model, estimate_aspect) {
-                candidates.push((r, true));
-            }
-        }
-        let mut best: Option<(MetricReconstruction, Vec<MetricBaRecord>, bool)> = None;
-        for (mut rec, is_prior) in candidates {
-            match metric::refine_metric(&ctx, &mut rec, estimate_aspect) {
-                Ok(r) => {
-                    let score = |rec: &MetricReconstruction, r: &[MetricBaRecord]| {
-                        let rms = r.last().map_or(f64::INFINITY, |x| x.final_rms_px);
-                        (rec.points.len() as f64) / (1.0 + rms)
-                    };
-                    if best.as_ref().is_none_or(|b| score(&rec, &r) > score(&b.0, &b.1)) {
-                        best = Some((rec, r, is_prior));
-                    }
+        if report.degenerate.is_some() {
+            if !report.used_prior_fallback {
+                if let Ok(r) = metric::prior_frame(&ctx, &model, estimate_aspect) {
+                    candidates.push((r, true));
                 }
-                Err(e) => last_err = e,
+            }
+            // Critical motion leaves the focal free in eq. 26: try the focal lengths that the
+            // cameras fit best with the other priors exact (see `hypotheses`).
+            for h in hypotheses::focal_hypotheses(&model, 3) {
+                tracing::debug!(focal = h.focal, residual = h.residual, "focal hypothesis");
+                if let Ok(r) = metric::from_transform(&ctx, &model, &h.t, estimate_aspect) {
+                    candidates.push((r, true));
+                }
             }
         }
-        let Some((rec, metric_ba, is_prior)) = best else { continue };
+        // One candidate: adjust it. Several: keep the one a short adjustment explains best.
+        let (mut rec, is_prior) = if candidates.len() == 1 {
+            candidates.pop().expect("one candidate")
+        } else {
+            let scores: Vec<f64> = candidates
+                .iter()
+                .map(|(r, _)| metric::quick_score(&ctx, r, estimate_aspect))
+                .collect();
+            tracing::debug!(?scores, "metric frame candidates");
+            let best = (0..candidates.len())
+                .max_by(|&a, &b| scores[a].total_cmp(&scores[b]))
+                .unwrap_or(0);
+            candidates.swap_remove(best)
+        };
+        let metric_ba = match metric::refine_metric(&ctx, &mut rec, estimate_aspect) {
+            Ok(r) => r,
+            Err(e) => {
+                last_err = e;
+                continue;
+            }
+        };
         if is_prior {
             report.used_prior_fallback = true;
         }
@@ -177,14 +205,29 @@ pub fn reconstruct(input: &SfmInput, options: &SfmOptions, progress: &dyn Progre
             (None, Some("disabled".into()))
         };
         timings.insert("uncertainty".to_string(), t3.elapsed().as_secs_f64());
-        let summary = summarize(&ctx, &model, &rec, report, metric_ba, uncertainty, uncertainty_note, timings);
-        models.push(SfmModel { reconstruction: rec, summary });
+        let summary = summarize(
+            &ctx,
+            &model,
+            &rec,
+            report,
+            metric_ba,
+            uncertainty,
+            uncertainty_note,
+            timings,
+        );
+        models.push(SfmModel {
+            reconstruction: rec,
+            summary,
+        });
     }
     if models.is_empty() {
         return Err(SfmError::NoModel(last_err));
     }
     models.sort_by(|a, b| b.summary.registered.cmp(&a.summary.registered));
-    let registered: std::collections::BTreeSet<_> = models.iter().flat_map(|m| m.reconstruction.views.keys().copied()).collect();
+    let registered: std::collections::BTreeSet<_> = models
+        .iter()
+        .flat_map(|m| m.reconstruction.views.keys().copied())
+        .collect();
     let unregistered = (0..n)
         .filter(|&i| !registered.contains(&input.images[i].id))
         .map(|i| {
@@ -194,12 +237,18 @@ pub fn reconstruct(input: &SfmInput, options: &SfmOptions, progress: &dyn Progre
             } else if graph.neighbours(i).is_empty() {
                 "no verified matches with any other image".to_string()
             } else {
-                failures.get(&i).cloned().unwrap_or_else(|| "not connected to a model".to_string())
+                failures
+                    .get(&i)
+                    .cloned()
+                    .unwrap_or_else(|| "not connected to a model".to_string())
             };
             (im.name.clone(), why)
         })
         .collect();
-    Ok(SfmResult { models, unregistered })
+    Ok(SfmResult {
+        models,
+        unregistered,
+    })
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -241,7 +290,10 @@ fn summarize(
         observations,
         mean_track_length: observations as f64 / rec.points.len().max(1) as f64,
         mean_reprojection_error_px: rec.mean_reprojection_error(),
-        initial_pair: [names[model.init_pair.0].name.clone(), names[model.init_pair.1].name.clone()],
+        initial_pair: [
+            names[model.init_pair.0].name.clone(),
+            names[model.init_pair.1].name.clone(),
+        ],
         groups,
         self_calibration,
         projective_ba: model.ba.clone(),

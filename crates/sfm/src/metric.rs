@@ -7,10 +7,13 @@
 use std::collections::BTreeMap;
 
 use handheld_bundle::{
-    bundle_adjust_metric, metric_uncertainty, BundleOptions, GaussianPrior, IntrinsicParam, IntrinsicsMask, MetricBundleConfig,
-    RobustLoss,
+    bundle_adjust_metric, metric_uncertainty, BundleOptions, GaussianPrior, IntrinsicParam,
+    IntrinsicsMask, MetricBundleConfig, RobustLoss,
 };
-use handheld_core::{Camera, CameraId, ImageId, Intrinsics, MetricReconstruction, Observation, Point3D, PointId, Rigid3, Track, TrackElement, View};
+use handheld_core::{
+    Camera, CameraId, ImageId, Intrinsics, MetricReconstruction, Observation, Point3D, PointId,
+    Rigid3, Track, TrackElement, View,
+};
 use nalgebra::{Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector2, Vector3};
 use serde::Serialize;
 
@@ -53,7 +56,11 @@ fn median(v: &mut [f64]) -> f64 {
 }
 
 /// Applies eq. 27 and builds the [`MetricReconstruction`] with one camera per intrinsics group.
-pub(crate) fn upgrade(ctx: &Context, model: &ProjectiveModel, estimate_aspect: bool) -> Result<Upgraded, String> {
+pub(crate) fn upgrade(
+    ctx: &Context,
+    model: &ProjectiveModel,
+    estimate_aspect: bool,
+) -> Result<Upgraded, String> {
     let cams = cameras_in_order(model);
     let ps: Vec<_> = cams.iter().map(|c| c.1).collect();
     let mut sc_opts = ctx.opts.self_calibration.clone();
@@ -90,14 +97,32 @@ pub(crate) fn upgrade(ctx: &Context, model: &ProjectiveModel, estimate_aspect: b
         focal_before_ba_px: focal,
         aspect_before_ba: aspect,
     };
-    Ok(Upgraded { rec, report, selfcal: Some(sc) })
+    Ok(Upgraded {
+        rec,
+        report,
+        selfcal: Some(sc),
+    })
 }
 
 /// The metric frame from the priors alone: the quasi-Euclidean frame of the initial pair (`K = K_N`:
 /// f ≈ w + h, centred principal point, square pixels), kept by projective BA's fixed first camera.
-pub(crate) fn prior_frame(ctx: &Context, model: &ProjectiveModel, estimate_aspect: bool) -> Result<MetricReconstruction, String> {
+pub(crate) fn prior_frame(
+    ctx: &Context,
+    model: &ProjectiveModel,
+    estimate_aspect: bool,
+) -> Result<MetricReconstruction, String> {
+    from_transform(ctx, model, &nalgebra::Matrix4::identity(), estimate_aspect)
+}
+
+/// The metric reconstruction for a given upgrade `T` (eq. 27), before bundle adjustment.
+pub(crate) fn from_transform(
+    ctx: &Context,
+    model: &ProjectiveModel,
+    t: &nalgebra::Matrix4<f64>,
+    estimate_aspect: bool,
+) -> Result<MetricReconstruction, String> {
     let cams = cameras_in_order(model);
-    Ok(build_metric(ctx, model, &cams, &nalgebra::Matrix4::identity(), estimate_aspect)?.0)
+    Ok(build_metric(ctx, model, &cams, t, estimate_aspect)?.0)
 }
 
 type Groups = BTreeMap<u32, f64>;
@@ -109,12 +134,19 @@ fn build_metric(
     t: &nalgebra::Matrix4<f64>,
     estimate_aspect: bool,
 ) -> Result<(MetricReconstruction, Groups, Groups), String> {
-    let t_inv = t.try_inverse().ok_or("the upgrade transformation is singular")?;
+    let t_inv = t
+        .try_inverse()
+        .ok_or("the upgrade transformation is singular")?;
     // Eq. 27: P_M = P T⁻¹, M_M = T M; then P_M = K_N⁻¹ K [R | t] per view.
     let mut poses: BTreeMap<usize, (Matrix3<f64>, Matrix3<f64>, Vector3<f64>)> = BTreeMap::new();
     for &(img, p) in cams {
         let pm = p * t_inv;
-        let (kn_est, r, tt) = decompose_camera(&pm).ok_or_else(|| format!("camera of {} cannot be decomposed", ctx.input.images[img].name))?;
+        let (kn_est, r, tt) = decompose_camera(&pm).ok_or_else(|| {
+            format!(
+                "camera of {} cannot be decomposed",
+                ctx.input.images[img].name
+            )
+        })?;
         poses.insert(img, (ctx.kn[img] * kn_est, r, tt));
     }
     let mut xyz: Vec<Option<Point3<f64>>> = model
@@ -130,7 +162,9 @@ fn build_metric(
     // Orientation: a mirrored solution puts the points behind the cameras; reflect it.
     let (mut front, mut behind) = (0usize, 0usize);
     for (pt, x) in model.points.iter().zip(&xyz) {
-        let (Some(pt), Some(x)) = (pt, x) else { continue };
+        let (Some(pt), Some(x)) = (pt, x) else {
+            continue;
+        };
         for &(i, _) in &pt.obs {
             let (_, r, tt) = &poses[&(i as usize)];
             if (r * x.coords + tt).z > 0.0 {
@@ -152,35 +186,63 @@ fn build_metric(
     let mut group_of_key: BTreeMap<&str, u32> = BTreeMap::new();
     for &(img, _) in cams {
         let n = group_of_key.len() as u32;
-        group_of_key.entry(ctx.input.images[img].camera_key.as_str()).or_insert(n + 1);
+        group_of_key
+            .entry(ctx.input.images[img].camera_key.as_str())
+            .or_insert(n + 1);
     }
     let mut rec = MetricReconstruction::default();
     let mut focal = BTreeMap::new();
     let mut aspect = BTreeMap::new();
     for (key, &gid) in &group_of_key {
-        let members: Vec<usize> = cams.iter().map(|c| c.0).filter(|&i| ctx.input.images[i].camera_key == *key).collect();
+        let members: Vec<usize> = cams
+            .iter()
+            .map(|c| c.0)
+            .filter(|&i| ctx.input.images[i].camera_key == *key)
+            .collect();
         let mut fs: Vec<f64> = members.iter().map(|i| poses[i].0[(0, 0)]).collect();
-        let mut asp: Vec<f64> = members.iter().map(|i| poses[i].0[(1, 1)] / poses[i].0[(0, 0)]).collect();
+        let mut asp: Vec<f64> = members
+            .iter()
+            .map(|i| poses[i].0[(1, 1)] / poses[i].0[(0, 0)])
+            .collect();
         let f = median(&mut fs);
-        let a = if estimate_aspect { median(&mut asp) } else { 1.0 };
+        let a = if estimate_aspect {
+            median(&mut asp)
+        } else {
+            1.0
+        };
         let im = &ctx.input.images[members[0]];
         let intr = Intrinsics {
             f,
             aspect: a,
             skew: 0.0,
-            pp: Vector2::new((im.width as f64 - 1.0) / 2.0, (im.height as f64 - 1.0) / 2.0),
+            pp: Vector2::new(
+                (im.width as f64 - 1.0) / 2.0,
+                (im.height as f64 - 1.0) / 2.0,
+            ),
             k1: 0.0,
             k2: 0.0,
         };
         focal.insert(gid, f);
         aspect.insert(gid, median(&mut asp));
-        rec.cameras.insert(CameraId(gid), Camera { id: CameraId(gid), width: im.width, height: im.height, intrinsics: intr });
+        rec.cameras.insert(
+            CameraId(gid),
+            Camera {
+                id: CameraId(gid),
+                width: im.width,
+                height: im.height,
+                intrinsics: intr,
+            },
+        );
     }
     for &(img, _) in cams {
         let im = &ctx.input.images[img];
         let (_, r, tt) = &poses[&img];
         let rot = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(*r));
-        let observations = im.keypoints.iter().map(|&xy| Observation { xy, point_id: None }).collect();
+        let observations = im
+            .keypoints
+            .iter()
+            .map(|&xy| Observation { xy, point_id: None })
+            .collect();
         rec.views.insert(
             im.id,
             View {
@@ -195,18 +257,31 @@ fn build_metric(
     }
     let mut next = 0u64;
     for (pt, x) in model.points.iter().zip(&xyz) {
-        let (Some(pt), Some(x)) = (pt, x) else { continue };
+        let (Some(pt), Some(x)) = (pt, x) else {
+            continue;
+        };
         let id = PointId(next);
         next += 1;
         let mut track = Track::default();
         for &(i, k) in &pt.obs {
             let image_id = ctx.input.images[i as usize].id;
-            track.elements.push(TrackElement { image_id, point2d_idx: k });
+            track.elements.push(TrackElement {
+                image_id,
+                point2d_idx: k,
+            });
             if let Some(v) = rec.views.get_mut(&image_id) {
                 v.observations[k as usize].point_id = Some(id);
             }
         }
-        rec.points.insert(id, Point3D { xyz: *x, color: [128, 128, 128], error: 0.0, track });
+        rec.points.insert(
+            id,
+            Point3D {
+                xyz: *x,
+                color: [128, 128, 128],
+                error: 0.0,
+                track,
+            },
+        );
     }
     Ok((rec, focal, aspect))
 }
@@ -226,7 +301,11 @@ pub struct MetricBaRecord {
 
 /// Removes observations whose reprojection error exceeds `max_px` (or that lie behind their
 /// camera) and points left with fewer than `min_track` views. Returns (observations, points) removed.
-pub(crate) fn filter_metric(rec: &mut MetricReconstruction, max_px: f64, min_track: usize) -> (usize, usize) {
+pub(crate) fn filter_metric(
+    rec: &mut MetricReconstruction,
+    max_px: f64,
+    min_track: usize,
+) -> (usize, usize) {
     let mut bad_obs = Vec::new();
     for (pid, pt) in &rec.points {
         for el in &pt.track.elements {
@@ -249,7 +328,12 @@ pub(crate) fn filter_metric(rec: &mut MetricReconstruction, max_px: f64, min_tra
             v.observations[el.point2d_idx as usize].point_id = None;
         }
     }
-    let short: Vec<PointId> = rec.points.iter().filter(|(_, p)| p.track.len() < min_track).map(|(id, _)| *id).collect();
+    let short: Vec<PointId> = rec
+        .points
+        .iter()
+        .filter(|(_, p)| p.track.len() < min_track)
+        .map(|(id, _)| *id)
+        .collect();
     for id in &short {
         if let Some(p) = rec.points.remove(id) {
             for el in p.track.elements {
@@ -272,8 +356,20 @@ pub(crate) fn refine_metric(
 ) -> Result<Vec<MetricBaRecord>, String> {
     let o = ctx.opts;
     let mut records = Vec::new();
-    let base = IntrinsicsMask { f: true, aspect: estimate_aspect, skew: false, principal_point: false, k1: o.distortion != Distortion::None, k2: false };
-    let full = IntrinsicsMask { principal_point: o.refine_principal_point, k2: o.distortion == Distortion::K1K2, ..base };
+    let distortion = o.distortion != Distortion::None && !long_lens(rec);
+    let base = IntrinsicsMask {
+        f: true,
+        aspect: estimate_aspect,
+        skew: false,
+        principal_point: false,
+        k1: distortion,
+        k2: false,
+    };
+    let full = IntrinsicsMask {
+        principal_point: o.refine_principal_point,
+        k2: distortion && o.distortion == Distortion::K1K2,
+        ..base
+    };
     let mut priors = focal_priors(ctx, rec);
     // A soft prior keeps the principal point near the image centre (σ = principal_point_prior ·
     // (w + h), eq. 25's u ≈ v ≈ 0 in K_N units): free where the views determine it (wide-angle,
@@ -282,8 +378,20 @@ pub(crate) fn refine_metric(
         for cam in rec.cameras.values() {
             let s = o.principal_point_prior * (cam.width + cam.height) as f64;
             let e = priors.entry(cam.id).or_default();
-            e.push((IntrinsicParam::Ppx, GaussianPrior { mean: (cam.width as f64 - 1.0) / 2.0, sigma: s }));
-            e.push((IntrinsicParam::Ppy, GaussianPrior { mean: (cam.height as f64 - 1.0) / 2.0, sigma: s }));
+            e.push((
+                IntrinsicParam::Ppx,
+                GaussianPrior {
+                    mean: (cam.width as f64 - 1.0) / 2.0,
+                    sigma: s,
+                },
+            ));
+            e.push((
+                IntrinsicParam::Ppy,
+                GaussianPrior {
+                    mean: (cam.height as f64 - 1.0) / 2.0,
+                    sigma: s,
+                },
+            ));
         }
     }
     let steps: [(&str, IntrinsicsMask, f64, usize); 3] = [
@@ -292,7 +400,11 @@ pub(crate) fn refine_metric(
         ("final", full, o.final_max_error_px, 100),
     ];
     for (name, mask, thr, iters) in steps {
-        let config = MetricBundleConfig { refine: mask, priors: priors.clone(), ..Default::default() };
+        let config = MetricBundleConfig {
+            refine: mask,
+            priors: priors.clone(),
+            ..Default::default()
+        };
         let bopts = BundleOptions {
             max_iterations: iters,
             loss: RobustLoss::Huber(o.loss_scale_px),
@@ -301,7 +413,8 @@ pub(crate) fn refine_metric(
             parameter_tolerance: if name == "final" { 1e-10 } else { 1e-8 },
             ..Default::default()
         };
-        let s = bundle_adjust_metric(rec, &config, &bopts).map_err(|e| format!("metric bundle adjustment ({name}): {e}"))?;
+        let s = bundle_adjust_metric(rec, &config, &bopts)
+            .map_err(|e| format!("metric bundle adjustment ({name}): {e}"))?;
         let (ro, rp) = filter_metric(rec, thr, o.min_track_length);
         records.push(MetricBaRecord {
             step: name.to_string(),
@@ -316,20 +429,110 @@ pub(crate) fn refine_metric(
     Ok(records)
 }
 
+/// Normalized radius `r = ½ diagonal / f` below which radial distortion is not estimated.
+///
+/// Eq. 3's displacement `k₁ r²` is unobservable at small `r`: it trades off against the focal length
+/// and the principal point (on templeSparseRing, `r ≈ 0.26`, a spurious `k₁ ≈ −0.25` costs half the
+/// rotation accuracy), and long lenses hardly distort. 0.3 is a diagonal field of view of ~33°, a
+/// 70 mm-equivalent lens.
+const MIN_DISTORTION_RADIUS: f64 = 0.3;
+
+/// True when every intrinsics group has a narrow field of view (see [`MIN_DISTORTION_RADIUS`]).
+fn long_lens(rec: &MetricReconstruction) -> bool {
+    !rec.cameras.is_empty()
+        && rec.cameras.values().all(|c| {
+            let half_diag = 0.5 * f64::from(c.width).hypot(f64::from(c.height));
+            half_diag / c.intrinsics.f.abs().max(1e-9) < MIN_DISTORTION_RADIUS
+        })
+}
+
+/// A cheap comparison of candidate metric frames (different upgrades `T`): a short adjustment of
+/// poses, points and focal lengths, then the number of observations within the metric threshold,
+/// discounted by their RMS. Higher is better; the candidate is left unchanged.
+pub(crate) fn quick_score(ctx: &Context, rec: &MetricReconstruction, estimate_aspect: bool) -> f64 {
+    let mut r = rec.clone();
+    let config = MetricBundleConfig {
+        refine: IntrinsicsMask {
+            f: true,
+            aspect: estimate_aspect,
+            skew: false,
+            principal_point: false,
+            k1: false,
+            k2: false,
+        },
+        ..Default::default()
+    };
+    let bopts = BundleOptions {
+        max_iterations: 25,
+        loss: RobustLoss::Huber(ctx.opts.loss_scale_px),
+        function_tolerance: 1e-5,
+        ..Default::default()
+    };
+    if bundle_adjust_metric(&mut r, &config, &bopts).is_err() {
+        return f64::NEG_INFINITY;
+    }
+    let thr = ctx.opts.metric_max_error_px;
+    let (mut n, mut sq) = (0usize, 0.0);
+    for pt in r.points.values() {
+        for el in &pt.track.elements {
+            let Some(v) = r.views.get(&el.image_id) else {
+                continue;
+            };
+            let Some(cam) = r.cameras.get(&v.camera_id) else {
+                continue;
+            };
+            let Some(px) = cam.project(&v.cam_from_world, &pt.xyz) else {
+                continue;
+            };
+            let e = (px - v.observations[el.point2d_idx as usize].xy).norm();
+            if e <= thr {
+                n += 1;
+                sq += e * e;
+            }
+        }
+    }
+    if n == 0 {
+        return f64::NEG_INFINITY;
+    }
+    n as f64 / (1.0 + (sq / n as f64).sqrt())
+}
+
 /// EXIF focal lengths are only priors (σ = 10 %), per group, when every member agrees.
-fn focal_priors(ctx: &Context, rec: &MetricReconstruction) -> BTreeMap<CameraId, Vec<(IntrinsicParam, GaussianPrior)>> {
+fn focal_priors(
+    ctx: &Context,
+    rec: &MetricReconstruction,
+) -> BTreeMap<CameraId, Vec<(IntrinsicParam, GaussianPrior)>> {
     let mut out = BTreeMap::new();
-    let by_id: BTreeMap<ImageId, usize> = ctx.input.images.iter().enumerate().map(|(k, im)| (im.id, k)).collect();
+    let by_id: BTreeMap<ImageId, usize> = ctx
+        .input
+        .images
+        .iter()
+        .enumerate()
+        .map(|(k, im)| (im.id, k))
+        .collect();
     for cam in rec.cameras.values() {
         let priors: Vec<f64> = rec
             .views
             .values()
             .filter(|v| v.camera_id == cam.id)
-            .filter_map(|v| by_id.get(&v.id).and_then(|&k| ctx.input.images[k].focal_prior_px))
+            .filter_map(|v| {
+                by_id
+                    .get(&v.id)
+                    .and_then(|&k| ctx.input.images[k].focal_prior_px)
+            })
             .collect();
         if let Some(&f) = priors.first() {
             if priors.iter().all(|p| (p - f).abs() < 1e-6 * f) {
-                out.insert(cam.id, vec![(IntrinsicParam::F, GaussianPrior { mean: f, sigma: 0.1 * f })]);
+                out.insert(
+                    cam.id,
+                    vec![(
+                        IntrinsicParam::F,
+                        GaussianPrior {
+                            mean: f,
+                            sigma: 0.1 * f,
+                        },
+                    )],
+                );
             }
         }
     }
@@ -348,7 +551,10 @@ pub struct UncertaintyReport {
     pub variance_factor: f64,
 }
 
-pub(crate) fn uncertainty(ctx: &Context, rec: &MetricReconstruction) -> Result<UncertaintyReport, String> {
+pub(crate) fn uncertainty(
+    ctx: &Context,
+    rec: &MetricReconstruction,
+) -> Result<UncertaintyReport, String> {
     let o = ctx.opts;
     let full = IntrinsicsMask {
         f: true,
@@ -358,8 +564,12 @@ pub(crate) fn uncertainty(ctx: &Context, rec: &MetricReconstruction) -> Result<U
         k1: o.distortion != Distortion::None,
         k2: o.distortion == Distortion::K1K2,
     };
-    let config = MetricBundleConfig { refine: full, ..Default::default() };
-    let u = metric_uncertainty(rec, &config, &BundleOptions::default()).map_err(|e| e.to_string())?;
+    let config = MetricBundleConfig {
+        refine: full,
+        ..Default::default()
+    };
+    let u =
+        metric_uncertainty(rec, &config, &BundleOptions::default()).map_err(|e| e.to_string())?;
     let mut sig: Vec<f64> = Vec::new();
     let mut rel: Vec<f64> = Vec::new();
     for (id, p) in &u.points {
@@ -383,7 +593,11 @@ pub(crate) fn uncertainty(ctx: &Context, rec: &MetricReconstruction) -> Result<U
     Ok(UncertaintyReport {
         points: n,
         median_sigma: if n > 0 { sig[n / 2] } else { f64::NAN },
-        p90_sigma: if n > 0 { sig[(n * 9 / 10).min(n - 1)] } else { f64::NAN },
+        p90_sigma: if n > 0 {
+            sig[(n * 9 / 10).min(n - 1)]
+        } else {
+            f64::NAN
+        },
         median_relative_sigma: median(&mut rel),
         variance_factor: u.variance_factor,
     })

@@ -101,19 +101,34 @@ impl SfmOptions {
             }
         }
         if self.init_min_points < 8 {
-            return Err(format!("init_min_points must be at least 8, got {}", self.init_min_points));
+            return Err(format!(
+                "init_min_points must be at least 8, got {}",
+                self.init_min_points
+            ));
         }
         if self.min_resection_inliers < 6 {
-            return Err(format!("min_resection_inliers must be at least 6, got {}", self.min_resection_inliers));
+            return Err(format!(
+                "min_resection_inliers must be at least 6, got {}",
+                self.min_resection_inliers
+            ));
         }
         if self.max_initial_pairs == 0 || self.max_resection_attempts == 0 || self.max_models == 0 {
-            return Err("max_initial_pairs, max_resection_attempts and max_models must be at least 1".into());
+            return Err(
+                "max_initial_pairs, max_resection_attempts and max_models must be at least 1"
+                    .into(),
+            );
         }
         if !(self.ba_growth_factor.is_finite() && self.ba_growth_factor > 1.0) {
-            return Err(format!("ba_growth_factor must be > 1, got {}", self.ba_growth_factor));
+            return Err(format!(
+                "ba_growth_factor must be > 1, got {}",
+                self.ba_growth_factor
+            ));
         }
         if self.min_track_length < 2 {
-            return Err(format!("min_track_length must be at least 2, got {}", self.min_track_length));
+            return Err(format!(
+                "min_track_length must be at least 2, got {}",
+                self.min_track_length
+            ));
         }
         self.self_calibration.validate().map_err(|e| e.to_string())
     }

@@ -13,10 +13,17 @@
 
 use std::collections::BTreeMap;
 
-use handheld_bundle::{bundle_adjust_projective, BundleOptions, ProjectiveBundleConfig, RobustLoss};
-use handheld_core::{ImageId, PointId, ProjectiveCamera, ProjectivePoint, ProjectiveReconstruction, Track, TrackElement};
+use handheld_bundle::{
+    bundle_adjust_projective, BundleOptions, ProjectiveBundleConfig, RobustLoss,
+};
+use handheld_core::{
+    ImageId, PointId, ProjectiveCamera, ProjectivePoint, ProjectiveReconstruction, Track,
+    TrackElement,
+};
 use handheld_geometry::{reprojection_distance, resection_iterative, triangulate_iterative};
-use handheld_robust::{run as ransac, Match2d3d, Msac, RansacOptions, ResectionEstimator, UniformSampler};
+use handheld_robust::{
+    run as ransac, Match2d3d, Msac, RansacOptions, ResectionEstimator, UniformSampler,
+};
 use nalgebra::{Matrix3, Matrix3x4, Vector2, Vector4};
 
 use crate::graph::CorrespondenceGraph;
@@ -49,7 +56,11 @@ pub(crate) struct Context<'a> {
 
 impl<'a> Context<'a> {
     pub fn new(input: &'a SfmInput, graph: &'a CorrespondenceGraph, opts: &'a SfmOptions) -> Self {
-        let kn: Vec<Matrix3<f64>> = input.images.iter().map(|im| crate::selfcal::normalization_matrix(im.width, im.height)).collect();
+        let kn: Vec<Matrix3<f64>> = input
+            .images
+            .iter()
+            .map(|im| crate::selfcal::normalization_matrix(im.width, im.height))
+            .collect();
         let kps = input
             .images
             .iter()
@@ -57,11 +68,21 @@ impl<'a> Context<'a> {
             .map(|(im, k)| {
                 let s = k[(0, 0)];
                 let (cx, cy) = (k[(0, 2)], k[(1, 2)]);
-                im.keypoints.iter().map(|p| Vector2::new((p.x - cx) / s, (p.y - cy) / s)).collect()
+                im.keypoints
+                    .iter()
+                    .map(|p| Vector2::new((p.x - cx) / s, (p.y - cy) / s))
+                    .collect()
             })
             .collect();
         let scale = kn.iter().map(|k| 1.0 / k[(0, 0)]).collect();
-        Self { input, graph, opts, kps, kn, scale }
+        Self {
+            input,
+            graph,
+            opts,
+            kps,
+            kn,
+            scale,
+        }
     }
 
     /// The projective inlier threshold of an image in normalised units.
@@ -105,7 +126,12 @@ impl ProjectiveModel {
         let n = ctx.input.images.len();
         Self {
             cams: vec![None; n],
-            kp_point: ctx.input.images.iter().map(|im| vec![NONE; im.keypoints.len()]).collect(),
+            kp_point: ctx
+                .input
+                .images
+                .iter()
+                .map(|im| vec![NONE; im.keypoints.len()])
+                .collect(),
             points: Vec::new(),
             order: Vec::new(),
             init_pair: (0, 0),
@@ -136,7 +162,9 @@ impl ProjectiveModel {
 
     /// Reprojection error (normalised units) and orientation of one observation.
     pub(crate) fn obs_error(&self, ctx: &Context, m: &Vector4<f64>, image: u32, kp: u32) -> f64 {
-        let Some(p) = &self.cams[image as usize] else { return f64::INFINITY };
+        let Some(p) = &self.cams[image as usize] else {
+            return f64::INFINITY;
+        };
         if (p.row(2) * m)[0] <= 0.0 {
             return f64::INFINITY;
         }
@@ -174,7 +202,13 @@ impl ProjectiveModel {
         let cand = self.candidates(ctx, image);
         let all: Vec<Match2d3d> = cand
             .iter()
-            .map(|&(kp, pid, _)| Match2d3d { x: ctx.kps[image][kp as usize], m: self.points[pid as usize].as_ref().map(|p| p.m).unwrap_or_default() })
+            .map(|&(kp, pid, _)| Match2d3d {
+                x: ctx.kps[image][kp as usize],
+                m: self.points[pid as usize]
+                    .as_ref()
+                    .map(|p| p.m)
+                    .unwrap_or_default(),
+            })
             .collect();
         let min = ctx.opts.min_resection_inliers;
         if all.len() < min {
@@ -184,7 +218,11 @@ impl ProjectiveModel {
         // was matched to two or more observations of the same point) when there are enough of them:
         // a false pairwise match rarely repeats, so their inlier ratio is far higher.
         let strong: Vec<usize> = (0..cand.len()).filter(|&k| cand[k].2 >= 2).collect();
-        let sample_idx: Vec<usize> = if strong.len() >= min.max(30) { strong } else { (0..cand.len()).collect() };
+        let sample_idx: Vec<usize> = if strong.len() >= min.max(30) {
+            strong
+        } else {
+            (0..cand.len()).collect()
+        };
         let samples: Vec<Match2d3d> = sample_idx.iter().map(|&k| all[k]).collect();
         let thr = ctx.threshold(image);
         let ropts = RansacOptions {
@@ -195,8 +233,14 @@ impl ProjectiveModel {
             max_iterations: 5000,
             ..Default::default()
         };
-        let rep = ransac(&ResectionEstimator::default(), &Msac, &mut UniformSampler::new(ropts.seed), &samples, &ropts)
-            .map_err(|e| e.to_string())?;
+        let rep = ransac(
+            &ResectionEstimator::default(),
+            &Msac,
+            &mut UniformSampler::new(ropts.seed),
+            &samples,
+            &ropts,
+        )
+        .map_err(|e| e.to_string())?;
         let Some(mut p) = rep.model.filter(|_| rep.success) else {
             return Err(format!(
                 "resection RANSAC found no camera among {} 2D–3D correspondences (best support {}, {} trials, {} T(d,d) rejections)",
@@ -210,7 +254,9 @@ impl ProjectiveModel {
         let thr_all = thr;
         let mut inl: Vec<usize> = Vec::new();
         for _ in 0..2 {
-            let next: Vec<usize> = (0..all.len()).filter(|&k| reprojection_distance(&p, &all[k].m, &all[k].x) < thr_all).collect();
+            let next: Vec<usize> = (0..all.len())
+                .filter(|&k| reprojection_distance(&p, &all[k].m, &all[k].x) < thr_all)
+                .collect();
             if next.len() < 6 {
                 break;
             }
@@ -232,7 +278,11 @@ impl ProjectiveModel {
             .iter()
             .map(|&k| {
                 let (kp, pid, _) = cand[k];
-                (self.obs_error(ctx, &samples[k].m, image as u32, kp), kp, pid)
+                (
+                    self.obs_error(ctx, &samples[k].m, image as u32, kp),
+                    kp,
+                    pid,
+                )
             })
             .filter(|s| s.0 < thr)
             .collect();
@@ -242,7 +292,9 @@ impl ProjectiveModel {
             if self.kp_point[image][kp as usize] != NONE {
                 continue;
             }
-            let Some(pt) = self.points[pid as usize].as_mut() else { continue };
+            let Some(pt) = self.points[pid as usize].as_mut() else {
+                continue;
+            };
             if pt.obs.iter().any(|&(i, _)| i as usize == image) {
                 continue;
             }
@@ -262,7 +314,9 @@ impl ProjectiveModel {
                 *v = NONE;
             }
             self.cams[image] = None;
-            return Err(format!("only {n_inliers} consistent resection inliers, need {min}"));
+            return Err(format!(
+                "only {n_inliers} consistent resection inliers, need {min}"
+            ));
         }
         // Step 3.2: refine the touched points with eq. 20 over all their views.
         for pid in touched {
@@ -277,14 +331,28 @@ impl ProjectiveModel {
     /// Re-triangulates a point from all its observations (eq. 20); keeps the new position only if every
     /// observation stays within the threshold, else drops the worst observations.
     fn refine_point(&mut self, ctx: &Context, pid: usize) {
-        let Some(pt) = self.points[pid].clone() else { return };
-        let cams: Vec<Matrix3x4<f64>> = pt.obs.iter().filter_map(|&(i, _)| self.cams[i as usize]).collect();
-        let xs: Vec<Vector2<f64>> = pt.obs.iter().map(|&(i, k)| ctx.kps[i as usize][k as usize]).collect();
+        let Some(pt) = self.points[pid].clone() else {
+            return;
+        };
+        let cams: Vec<Matrix3x4<f64>> = pt
+            .obs
+            .iter()
+            .filter_map(|&(i, _)| self.cams[i as usize])
+            .collect();
+        let xs: Vec<Vector2<f64>> = pt
+            .obs
+            .iter()
+            .map(|&(i, k)| ctx.kps[i as usize][k as usize])
+            .collect();
         if cams.len() != xs.len() {
             return;
         }
         if let Ok(m) = triangulate_iterative(&cams, &xs, ctx.opts.triangulation_iterations) {
-            if pt.obs.iter().all(|&(i, k)| self.obs_error(ctx, &m, i, k) < ctx.threshold(i as usize)) {
+            if pt
+                .obs
+                .iter()
+                .all(|&(i, k)| self.obs_error(ctx, &m, i, k) < ctx.threshold(i as usize))
+            {
                 if let Some(p) = self.points[pid].as_mut() {
                     p.m = m;
                 }
@@ -292,7 +360,12 @@ impl ProjectiveModel {
             }
         }
         // Keep the old position; drop observations that it does not explain.
-        let bad: Vec<(u32, u32)> = pt.obs.iter().copied().filter(|&(i, k)| self.obs_error(ctx, &pt.m, i, k) >= ctx.threshold(i as usize)).collect();
+        let bad: Vec<(u32, u32)> = pt
+            .obs
+            .iter()
+            .copied()
+            .filter(|&(i, k)| self.obs_error(ctx, &pt.m, i, k) >= ctx.threshold(i as usize))
+            .collect();
         for (i, k) in bad {
             self.kp_point[i as usize][k as usize] = NONE;
             if let Some(p) = self.points[pid].as_mut() {
@@ -312,7 +385,10 @@ impl ProjectiveModel {
             }
             let mut obs = vec![(image as u32, kp as u32)];
             for &(oi, ok) in ctx.graph.correspondences(image, kp) {
-                if self.cams[oi as usize].is_some() && self.kp_point[oi as usize][ok as usize] == NONE && !obs.iter().any(|o| o.0 == oi) {
+                if self.cams[oi as usize].is_some()
+                    && self.kp_point[oi as usize][ok as usize] == NONE
+                    && !obs.iter().any(|o| o.0 == oi)
+                {
                     obs.push((oi, ok));
                 }
             }
@@ -325,11 +401,26 @@ impl ProjectiveModel {
 
     fn try_add_point(&mut self, ctx: &Context, mut obs: Vec<(u32, u32)>) {
         loop {
-            let cams: Vec<Matrix3x4<f64>> = obs.iter().filter_map(|&(i, _)| self.cams[i as usize]).collect();
-            let xs: Vec<Vector2<f64>> = obs.iter().map(|&(i, k)| ctx.kps[i as usize][k as usize]).collect();
-            let Ok(m) = triangulate_iterative(&cams, &xs, ctx.opts.triangulation_iterations) else { return };
-            let errs: Vec<f64> = obs.iter().map(|&(i, k)| self.obs_error(ctx, &m, i, k) / ctx.threshold(i as usize)).collect();
-            let (worst, &we) = errs.iter().enumerate().max_by(|a, b| a.1.total_cmp(b.1)).unwrap_or((0, &0.0));
+            let cams: Vec<Matrix3x4<f64>> = obs
+                .iter()
+                .filter_map(|&(i, _)| self.cams[i as usize])
+                .collect();
+            let xs: Vec<Vector2<f64>> = obs
+                .iter()
+                .map(|&(i, k)| ctx.kps[i as usize][k as usize])
+                .collect();
+            let Ok(m) = triangulate_iterative(&cams, &xs, ctx.opts.triangulation_iterations) else {
+                return;
+            };
+            let errs: Vec<f64> = obs
+                .iter()
+                .map(|&(i, k)| self.obs_error(ctx, &m, i, k) / ctx.threshold(i as usize))
+                .collect();
+            let (worst, &we) = errs
+                .iter()
+                .enumerate()
+                .max_by(|a, b| a.1.total_cmp(b.1))
+                .unwrap_or((0, &0.0));
             if we < 1.0 {
                 self.add_point(m, obs);
                 return;
@@ -346,8 +437,15 @@ impl ProjectiveModel {
     fn filter(&mut self, ctx: &Context) -> usize {
         let mut removed = 0;
         for pid in 0..self.points.len() {
-            let Some(pt) = self.points[pid].clone() else { continue };
-            let bad: Vec<(u32, u32)> = pt.obs.iter().copied().filter(|&(i, k)| self.obs_error(ctx, &pt.m, i, k) >= ctx.threshold(i as usize)).collect();
+            let Some(pt) = self.points[pid].clone() else {
+                continue;
+            };
+            let bad: Vec<(u32, u32)> = pt
+                .obs
+                .iter()
+                .copied()
+                .filter(|&(i, k)| self.obs_error(ctx, &pt.m, i, k) >= ctx.threshold(i as usize))
+                .collect();
             if bad.is_empty() {
                 continue;
             }
@@ -360,7 +458,8 @@ impl ProjectiveModel {
                 self.kp_point[i as usize][k as usize] = NONE;
             }
             if let Some(p) = self.points[pid].as_mut() {
-                p.obs.retain(|&(i, k)| self.kp_point[i as usize][k as usize] == pid as u32);
+                p.obs
+                    .retain(|&(i, k)| self.kp_point[i as usize][k as usize] == pid as u32);
             }
         }
         removed
@@ -371,17 +470,31 @@ impl ProjectiveModel {
         let mut rec = ProjectiveReconstruction::default();
         for &i in &self.order {
             if let Some(p) = self.cams[i] {
-                rec.cameras.insert(ImageId(i as u32), ProjectiveCamera { P: p });
+                rec.cameras
+                    .insert(ImageId(i as u32), ProjectiveCamera { P: p });
             }
         }
         for (pid, pt) in self.points.iter().enumerate() {
             if let Some(pt) = pt {
-                let track = Track { elements: pt.obs.iter().map(|&(i, k)| TrackElement { image_id: ImageId(i), point2d_idx: k }).collect() };
-                rec.points.insert(PointId(pid as u64), (ProjectivePoint { X: pt.m }, track));
+                let track = Track {
+                    elements: pt
+                        .obs
+                        .iter()
+                        .map(|&(i, k)| TrackElement {
+                            image_id: ImageId(i),
+                            point2d_idx: k,
+                        })
+                        .collect(),
+                };
+                rec.points
+                    .insert(PointId(pid as u64), (ProjectivePoint { X: pt.m }, track));
             }
         }
-        let keypoints: BTreeMap<ImageId, Vec<Vector2<f64>>> =
-            self.order.iter().map(|&i| (ImageId(i as u32), ctx.kps[i].clone())).collect();
+        let keypoints: BTreeMap<ImageId, Vec<Vector2<f64>>> = self
+            .order
+            .iter()
+            .map(|&i| (ImageId(i as u32), ctx.kps[i].clone()))
+            .collect();
         let config = ProjectiveBundleConfig {
             fix_first_camera: false,
             constant_cameras: [ImageId(self.init_pair.0 as u32)].into_iter().collect(),
@@ -391,7 +504,8 @@ impl ProjectiveModel {
             loss: RobustLoss::Huber(ctx.opts.loss_scale_px * ctx.median_scale()),
             ..Default::default()
         };
-        let summary = bundle_adjust_projective(&mut rec, &keypoints, &config, &bopts).map_err(|e| e.to_string())?;
+        let summary = bundle_adjust_projective(&mut rec, &keypoints, &config, &bopts)
+            .map_err(|e| e.to_string())?;
         for (id, cam) in &rec.cameras {
             self.cams[id.0 as usize] = Some(cam.P);
         }
@@ -423,14 +537,19 @@ pub(crate) fn reconstruct_projective(
 ) -> Result<ProjectiveModel, String> {
     let candidates = crate::init::initial_pair_candidates(ctx, allowed);
     if candidates.is_empty() {
-        return Err("no image pair has enough verified, non-degenerate matches to start a model".into());
+        return Err(
+            "no image pair has enough verified, non-degenerate matches to start a model".into(),
+        );
     }
     let n_allowed = allowed.iter().filter(|a| **a).count();
     let mut last_err = String::new();
     let mut best: Option<ProjectiveModel> = None;
     for &(a, b, _) in candidates.iter().take(ctx.opts.max_initial_pairs) {
         let Some(mut model) = crate::init::initialize(ctx, a, b) else {
-            last_err = format!("initial pair ({}, {}) gave too few points", ctx.input.images[a].name, ctx.input.images[b].name);
+            last_err = format!(
+                "initial pair ({}, {}) gave too few points",
+                ctx.input.images[a].name, ctx.input.images[b].name
+            );
             tracing::debug!("{last_err}");
             continue;
         };
@@ -444,24 +563,39 @@ pub(crate) fn reconstruct_projective(
             "initial pair ({}, {}) could not be extended",
             ctx.input.images[a].name, ctx.input.images[b].name
         );
-        if best.as_ref().is_none_or(|b| model.order.len() > b.order.len()) {
+        if best
+            .as_ref()
+            .is_none_or(|b| model.order.len() > b.order.len())
+        {
             best = Some(model);
         }
     }
     best.ok_or(last_err)
 }
 
-fn grow(ctx: &Context, model: &mut ProjectiveModel, allowed: &[bool], progress: &dyn handheld_core::Progress) -> Result<(), String> {
+fn grow(
+    ctx: &Context,
+    model: &mut ProjectiveModel,
+    allowed: &[bool],
+    progress: &dyn handheld_core::Progress,
+) -> Result<(), String> {
     let mut last_ba = model.order.len();
     let mut attempts = vec![0usize; ctx.input.images.len()];
     let mut structure_changed = true;
-    progress.start("projective reconstruction", allowed.iter().filter(|a| **a).count() as u64);
+    progress.start(
+        "projective reconstruction",
+        allowed.iter().filter(|a| **a).count() as u64,
+    );
     progress.inc(2);
     while structure_changed {
         structure_changed = false;
         // Unregistered images by number of 2D–3D candidates, best first.
         let mut cands: Vec<(usize, usize)> = (0..ctx.input.images.len())
-            .filter(|&i| allowed[i] && model.cams[i].is_none() && attempts[i] < ctx.opts.max_resection_attempts)
+            .filter(|&i| {
+                allowed[i]
+                    && model.cams[i].is_none()
+                    && attempts[i] < ctx.opts.max_resection_attempts
+            })
             .map(|i| (i, model.candidates(ctx, i).len()))
             .filter(|c| c.1 >= ctx.opts.min_resection_inliers)
             .collect();
@@ -500,5 +634,9 @@ fn grow(ctx: &Context, model: &mut ProjectiveModel, allowed: &[bool], progress: 
 
 /// The projective cameras (normalised coordinates) in registration order.
 pub(crate) fn cameras_in_order(model: &ProjectiveModel) -> Vec<(usize, Matrix3x4<f64>)> {
-    model.order.iter().filter_map(|&i| model.cams[i].map(|p| (i, p))).collect()
+    model
+        .order
+        .iter()
+        .filter_map(|&i| model.cams[i].map(|p| (i, p)))
+        .collect()
 }

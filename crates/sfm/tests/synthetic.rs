@@ -50,11 +50,25 @@ fn input_from(set: &MultiViewOptions) -> (SfmInput, MetricReconstruction) {
                 })
                 .collect();
             if matches.len() >= 16 {
-                pairs.push(SfmPair { a, b, matches, f: None, configuration: TwoViewConfiguration::General, view_distance_px: Some((b - a) as f64) });
+                pairs.push(SfmPair {
+                    a,
+                    b,
+                    matches,
+                    f: None,
+                    configuration: TwoViewConfiguration::General,
+                    view_distance_px: Some((b - a) as f64),
+                });
             }
         }
     }
-    (SfmInput { images, pairs, video: false }, gt)
+    (
+        SfmInput {
+            images,
+            pairs,
+            video: false,
+        },
+        gt,
+    )
 }
 
 /// Median rotation error after a similarity fit of the camera centres (as `eval_sfm.py` reports), degrees.
@@ -67,7 +81,9 @@ fn median_aligned_rotation_error_deg(est: &MetricReconstruction, gt: &MetricReco
         .iter()
         .map(|i| {
             let r = sim.transform_pose(&est.views[i].cam_from_world).rotation;
-            (r * gt.views[i].cam_from_world.rotation.inverse()).angle().to_degrees()
+            (r * gt.views[i].cam_from_world.rotation.inverse())
+                .angle()
+                .to_degrees()
         })
         .collect();
     e.sort_by(f64::total_cmp);
@@ -80,8 +96,10 @@ fn max_relative_rotation_error_deg(est: &MetricReconstruction, gt: &MetricRecons
     let mut worst = 0.0f64;
     for (k, a) in ids.iter().enumerate() {
         for b in &ids[k + 1..] {
-            let re = est.views[a].cam_from_world.rotation * est.views[b].cam_from_world.rotation.inverse();
-            let rg = gt.views[a].cam_from_world.rotation * gt.views[b].cam_from_world.rotation.inverse();
+            let re = est.views[a].cam_from_world.rotation
+                * est.views[b].cam_from_world.rotation.inverse();
+            let rg =
+                gt.views[a].cam_from_world.rotation * gt.views[b].cam_from_world.rotation.inverse();
             worst = worst.max((re * rg.inverse()).angle().to_degrees());
         }
     }
@@ -107,14 +125,29 @@ fn uncalibrated_sfm_recovers_cameras_and_focal() {
         // The scene (a 1.5 m ball seen from 6 m) does not determine the principal point: refining it
         // trades 0.3–0.4° of rotation against it even when started from the truth (see
         // `ba_from_truth_reference`), so it stays at the centre here (truth within ±4 px).
-        let sfm = SfmOptions { distortion: Distortion::K1K2, refine_principal_point: false, ..Default::default() };
+        let sfm = SfmOptions {
+            distortion: Distortion::K1K2,
+            refine_principal_point: false,
+            ..Default::default()
+        };
         let out = reconstruct(&input, &sfm, &NoProgress).expect("reconstruction");
         let model = &out.models[0];
         let rec = &model.reconstruction;
-        assert_eq!(rec.views.len(), 10, "seed {seed}: all views registered ({:?})", out.unregistered);
+        assert_eq!(
+            rec.views.len(),
+            10,
+            "seed {seed}: all views registered ({:?})",
+            out.unregistered
+        );
         let f_true = gt.cameras.values().next().unwrap().intrinsics.f;
         let f_est = rec.cameras.values().next().unwrap().intrinsics.f;
-        let f_selfcal = *model.summary.self_calibration.focal_before_ba_px.values().next().unwrap();
+        let f_selfcal = *model
+            .summary
+            .self_calibration
+            .focal_before_ba_px
+            .values()
+            .next()
+            .unwrap();
         let rot_max = max_relative_rotation_error_deg(rec, &gt);
         let rot = median_aligned_rotation_error_deg(rec, &gt);
         eprintln!("  max relative rotation error {rot_max:.4}°");
@@ -122,10 +155,20 @@ fn uncalibrated_sfm_recovers_cameras_and_focal() {
         let selfcal_err = (f_selfcal / f_true - 1.0).abs();
         for v in rec.views.values() {
             let c = v.center();
-            let n = v.observations.iter().filter(|o| o.point_id.is_some()).count();
-            eprintln!("  view {} obs {n} center {:.3} {:.3} {:.3}", v.id, c.x, c.y, c.z);
+            let n = v
+                .observations
+                .iter()
+                .filter(|o| o.point_id.is_some())
+                .count();
+            eprintln!(
+                "  view {} obs {n} center {:.3} {:.3} {:.3}",
+                v.id, c.x, c.y, c.z
+            );
         }
-        eprintln!("  groups {:?}\n  ba {:?}", model.summary.groups, model.summary.metric_ba);
+        eprintln!(
+            "  groups {:?}\n  ba {:?}",
+            model.summary.groups, model.summary.metric_ba
+        );
         eprintln!("seed {seed}: rotation error max {rot:.4}°, focal error {:.3} % (self-calibration before BA {:.2} %), reprojection {:.3} px",
             100.0 * focal_err, 100.0 * selfcal_err, model.summary.mean_reprojection_error_px);
         // Bounds for this geometry: a principal point a few pixels off the centre already costs
@@ -133,26 +176,46 @@ fn uncalibrated_sfm_recovers_cameras_and_focal() {
         // hand-held sequence by `handheld demo`.
         assert!(rot < 0.5, "seed {seed}: rotation error {rot}°");
         assert!(focal_err < 0.01, "seed {seed}: focal error {focal_err}");
-        assert!(selfcal_err < 0.20, "seed {seed}: self-calibration focal error {selfcal_err}");
+        assert!(
+            selfcal_err < 0.20,
+            "seed {seed}: self-calibration focal error {selfcal_err}"
+        );
     }
 }
 
 #[test]
 fn too_few_images_and_bad_options_are_clear_errors() {
-    let (mut input, _) = input_from(&MultiViewOptions { num_views: 3, num_points: 100, ..Default::default() });
+    let (mut input, _) = input_from(&MultiViewOptions {
+        num_views: 3,
+        num_points: 100,
+        ..Default::default()
+    });
     input.images.truncate(1);
     input.pairs.clear();
     let err = reconstruct(&input, &SfmOptions::default(), &NoProgress).unwrap_err();
     assert!(err.to_string().contains("at least 2 images"), "{err}");
-    let (input, _) = input_from(&MultiViewOptions { num_views: 3, num_points: 100, ..Default::default() });
-    let bad = SfmOptions { projective_max_error_px: -1.0, ..Default::default() };
+    let (input, _) = input_from(&MultiViewOptions {
+        num_views: 3,
+        num_points: 100,
+        ..Default::default()
+    });
+    let bad = SfmOptions {
+        projective_max_error_px: -1.0,
+        ..Default::default()
+    };
     let err = reconstruct(&input, &bad, &NoProgress).unwrap_err();
     assert!(err.to_string().contains("projective_max_error_px"), "{err}");
 }
 
 #[test]
 fn same_seed_same_model() {
-    let opts = MultiViewOptions { num_views: 6, num_points: 400, noise_px: 1.0, seed: 7, ..Default::default() };
+    let opts = MultiViewOptions {
+        num_views: 6,
+        num_points: 400,
+        noise_px: 1.0,
+        seed: 7,
+        ..Default::default()
+    };
     let (input, _) = input_from(&opts);
     let a = reconstruct(&input, &SfmOptions::default(), &NoProgress).unwrap();
     let b = reconstruct(&input, &SfmOptions::default(), &NoProgress).unwrap();
@@ -162,14 +225,50 @@ fn same_seed_same_model() {
 #[test]
 #[ignore]
 fn ba_from_truth_reference() {
-    use handheld_bundle::{bundle_adjust_metric, BundleOptions, IntrinsicsMask, MetricBundleConfig, RobustLoss};
-    let opts = MultiViewOptions { num_views: 10, num_points: 1500, noise_px: 1.0, outlier_fraction: 0.0, radial_distortion: true, shared_intrinsics: true, min_track_len: 2, seed: 1, width: 1024, height: 768 };
+    use handheld_bundle::{
+        bundle_adjust_metric, BundleOptions, IntrinsicsMask, MetricBundleConfig, RobustLoss,
+    };
+    let opts = MultiViewOptions {
+        num_views: 10,
+        num_points: 1500,
+        noise_px: 1.0,
+        outlier_fraction: 0.0,
+        radial_distortion: true,
+        shared_intrinsics: true,
+        min_track_len: 2,
+        seed: 1,
+        width: 1024,
+        height: 768,
+    };
     let mv = multi_view_set(&opts).unwrap();
     let gt = mv.ground_truth();
     for pp in [false, true] {
         let mut rec = mv.reconstruction.clone();
-        let cfg = MetricBundleConfig { refine: IntrinsicsMask { f: true, k1: true, k2: true, principal_point: pp, ..IntrinsicsMask::none() }, ..Default::default() };
-        bundle_adjust_metric(&mut rec, &cfg, &BundleOptions { loss: RobustLoss::Huber(1.5), ..Default::default() }).unwrap();
-        eprintln!("pp {pp}: median {:.4} max rel {:.4} f {:.2} vs {:.2}", median_aligned_rotation_error_deg(&rec, &gt), max_relative_rotation_error_deg(&rec, &gt), rec.cameras.values().next().unwrap().intrinsics.f, gt.cameras.values().next().unwrap().intrinsics.f);
+        let cfg = MetricBundleConfig {
+            refine: IntrinsicsMask {
+                f: true,
+                k1: true,
+                k2: true,
+                principal_point: pp,
+                ..IntrinsicsMask::none()
+            },
+            ..Default::default()
+        };
+        bundle_adjust_metric(
+            &mut rec,
+            &cfg,
+            &BundleOptions {
+                loss: RobustLoss::Huber(1.5),
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        eprintln!(
+            "pp {pp}: median {:.4} max rel {:.4} f {:.2} vs {:.2}",
+            median_aligned_rotation_error_deg(&rec, &gt),
+            max_relative_rotation_error_deg(&rec, &gt),
+            rec.cameras.values().next().unwrap().intrinsics.f,
+            gt.cameras.values().next().unwrap().intrinsics.f
+        );
     }
 }

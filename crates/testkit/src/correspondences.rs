@@ -50,7 +50,15 @@ pub struct TwoViewOptions {
 
 impl Default for TwoViewOptions {
     fn default() -> Self {
-        Self { n: 200, noise_px: 0.5, outlier_fraction: 0.0, kind: TwoViewKind::General, seed: 0, width: 640, height: 480 }
+        Self {
+            n: 200,
+            noise_px: 0.5,
+            outlier_fraction: 0.0,
+            kind: TwoViewKind::General,
+            seed: 0,
+            width: 640,
+            height: 480,
+        }
     }
 }
 
@@ -109,7 +117,8 @@ impl TwoViewSet {
     pub fn essential_matrix(&self) -> Option<Matrix3<f64>> {
         let rel = self.relative_pose();
         let t = rel.translation.vector;
-        (t.norm() > 1e-12).then(|| normalized(skew(&t) * rel.rotation.to_rotation_matrix().matrix()))
+        (t.norm() > 1e-12)
+            .then(|| normalized(skew(&t) * rel.rotation.to_rotation_matrix().matrix()))
     }
 
     /// `F = K2⁻ᵀ E K1⁻¹` in pixels (`x2ᵀ F x1 = 0`), unit Frobenius norm; `None` without baseline.
@@ -150,9 +159,16 @@ impl TwoViewSet {
 }
 
 /// A camera looking at `target` from `eye` with a roll of `roll` radians about its optical axis.
-pub(crate) fn aimed_pose(eye: &Point3<f64>, target: &Point3<f64>, roll: f64) -> Result<Rigid3, String> {
+pub(crate) fn aimed_pose(
+    eye: &Point3<f64>,
+    target: &Point3<f64>,
+    roll: f64,
+) -> Result<Rigid3, String> {
     let r = look_at(eye, target, &Vector3::z()).ok_or("degenerate viewing direction")?;
-    Ok(cam_from_world_from_center(&(r * Rotation3::from_axis_angle(&Vector3::z_axis(), roll)), eye))
+    Ok(cam_from_world_from_center(
+        &(r * Rotation3::from_axis_angle(&Vector3::z_axis(), roll)),
+        eye,
+    ))
 }
 
 /// A random viewpoint at `distance` from the origin on the `−y` side, elevation in `elev` degrees.
@@ -163,14 +179,26 @@ pub(crate) fn random_eye(rng: &mut ChaCha8Rng, distance: f64, elev: (f64, f64)) 
 }
 
 pub(crate) fn random_vec(rng: &mut ChaCha8Rng, half: f64) -> Vector3<f64> {
-    Vector3::new(rng.random_range(-half..half), rng.random_range(-half..half), rng.random_range(-half..half))
+    Vector3::new(
+        rng.random_range(-half..half),
+        rng.random_range(-half..half),
+        rng.random_range(-half..half),
+    )
 }
 
 /// A uniform random pixel whose error under `bad` exceeds `min_err` (50 tries, then the last one).
-pub(crate) fn outlier_pixel(rng: &mut ChaCha8Rng, cam: &Camera, min_err: f64, err: impl Fn(&Vector2<f64>) -> f64) -> Vector2<f64> {
+pub(crate) fn outlier_pixel(
+    rng: &mut ChaCha8Rng,
+    cam: &Camera,
+    min_err: f64,
+    err: impl Fn(&Vector2<f64>) -> f64,
+) -> Vector2<f64> {
     let mut p = Vector2::zeros();
     for _ in 0..50 {
-        p = Vector2::new(rng.random_range(0.0..cam.width as f64 - 1.0), rng.random_range(0.0..cam.height as f64 - 1.0));
+        p = Vector2::new(
+            rng.random_range(0.0..cam.width as f64 - 1.0),
+            rng.random_range(0.0..cam.height as f64 - 1.0),
+        );
         if err(&p) > min_err {
             break;
         }
@@ -186,13 +214,17 @@ fn check_common(n: usize, noise: f64, outliers: f64) -> Result<(), String> {
         return Err("noise_px must be finite and non-negative".into());
     }
     if !(0.0..=1.0).contains(&outliers) {
-        return Err(format!("outlier_fraction must be in [0, 1], got {outliers}"));
+        return Err(format!(
+            "outlier_fraction must be in [0, 1], got {outliers}"
+        ));
     }
     Ok(())
 }
 
 fn inside(cam: &Camera, p: &Option<Vector2<f64>>) -> bool {
-    p.is_some_and(|p| p.x >= 2.0 && p.y >= 2.0 && p.x <= cam.width as f64 - 3.0 && p.y <= cam.height as f64 - 3.0)
+    p.is_some_and(|p| {
+        p.x >= 2.0 && p.y >= 2.0 && p.x <= cam.width as f64 - 3.0 && p.y <= cam.height as f64 - 3.0
+    })
 }
 
 /// Generates a two-view correspondence set.
@@ -213,14 +245,22 @@ pub fn two_view_set(opts: &TwoViewOptions) -> Result<TwoViewSet, String> {
         intrinsics: Intrinsics::pinhole(0.88 * w, w / 2.0 - 3.0, h / 2.0 + 1.0),
     };
     let c1 = random_eye(&mut rng, 6.0, (5.0, 30.0));
-    let pose1 = aimed_pose(&c1, &Point3::from(random_vec(&mut rng, 0.2)), rng.random_range(-0.15..0.15))?;
+    let pose1 = aimed_pose(
+        &c1,
+        &Point3::from(random_vec(&mut rng, 0.2)),
+        rng.random_range(-0.15..0.15),
+    )?;
     let axis1 = pose1.rotation.inverse() * Vector3::z();
     let pose2 = match opts.kind {
         TwoViewKind::General | TwoViewKind::Planar => {
             let mut b = random_vec(&mut rng, 1.0);
             b -= axis1 * (0.8 * b.dot(&axis1));
             let b = b.normalize() * rng.random_range(1.0..1.5);
-            aimed_pose(&(c1 + b), &Point3::from(random_vec(&mut rng, 0.3)), rng.random_range(-0.15..0.15))?
+            aimed_pose(
+                &(c1 + b),
+                &Point3::from(random_vec(&mut rng, 0.3)),
+                rng.random_range(-0.15..0.15),
+            )?
         }
         TwoViewKind::PureRotation => {
             let mut off = random_vec(&mut rng, 1.0);
@@ -249,14 +289,23 @@ pub fn two_view_set(opts: &TwoViewOptions) -> Result<TwoViewSet, String> {
         }
         let x = match plane {
             Some((n, d)) => {
-                let u = n.cross(&Vector3::z()).try_normalize(1e-9).unwrap_or_else(Vector3::x);
+                let u = n
+                    .cross(&Vector3::z())
+                    .try_normalize(1e-9)
+                    .unwrap_or_else(Vector3::x);
                 let v = n.cross(&u);
-                Point3::from(n * d + u * rng.random_range(-2.5..2.5) + v * rng.random_range(-2.5..2.5))
+                Point3::from(
+                    n * d + u * rng.random_range(-2.5..2.5) + v * rng.random_range(-2.5..2.5),
+                )
             }
             None => Point3::from(random_vec(&mut rng, 1.5)),
         };
         let (p1, p2) = (camera1.project(&pose1, &x), camera2.project(&pose2, &x));
-        if !inside(&camera1, &p1) || !inside(&camera2, &p2) || pose1.transform_point(&x).z < 0.5 || pose2.transform_point(&x).z < 0.5 {
+        if !inside(&camera1, &p1)
+            || !inside(&camera2, &p2)
+            || pose1.transform_point(&x).z < 0.5
+            || pose2.transform_point(&x).z < 0.5
+        {
             continue;
         }
         if let (Some(p1), Some(p2)) = (p1, p2) {
@@ -281,8 +330,16 @@ pub fn two_view_set(opts: &TwoViewOptions) -> Result<TwoViewSet, String> {
     };
     let (f, hmg) = (set.fundamental_matrix(), set.homography());
     let noise = opts.noise_px;
-    set.x1 = set.x1_exact.iter().map(|p| p + Vector2::new(gaussian(&mut rng), gaussian(&mut rng)) * noise).collect();
-    set.x2 = set.x2_exact.iter().map(|p| p + Vector2::new(gaussian(&mut rng), gaussian(&mut rng)) * noise).collect();
+    set.x1 = set
+        .x1_exact
+        .iter()
+        .map(|p| p + Vector2::new(gaussian(&mut rng), gaussian(&mut rng)) * noise)
+        .collect();
+    set.x2 = set
+        .x2_exact
+        .iter()
+        .map(|p| p + Vector2::new(gaussian(&mut rng), gaussian(&mut rng)) * noise)
+        .collect();
     let n_out = (opts.outlier_fraction * opts.n as f64).round() as usize;
     let mut idx: Vec<usize> = (0..opts.n).collect();
     idx.shuffle(&mut rng);
@@ -317,7 +374,17 @@ pub struct ResectionOptions {
 
 impl Default for ResectionOptions {
     fn default() -> Self {
-        Self { n: 100, noise_px: 0.5, outlier_fraction: 0.0, seed: 0, width: 640, height: 480, k1: 0.0, k2: 0.0, planar: false }
+        Self {
+            n: 100,
+            noise_px: 0.5,
+            outlier_fraction: 0.0,
+            seed: 0,
+            width: 640,
+            height: 480,
+            k1: 0.0,
+            k2: 0.0,
+            planar: false,
+        }
     }
 }
 
@@ -354,15 +421,35 @@ pub fn resection_set(opts: &ResectionOptions) -> Result<ResectionSet, String> {
         f: w * rng.random_range(0.85..1.1),
         aspect: 1.0,
         skew: 0.0,
-        pp: Vector2::new(w / 2.0 + rng.random_range(-5.0..5.0), h / 2.0 + rng.random_range(-5.0..5.0)),
+        pp: Vector2::new(
+            w / 2.0 + rng.random_range(-5.0..5.0),
+            h / 2.0 + rng.random_range(-5.0..5.0),
+        ),
         k1: opts.k1,
         k2: opts.k2,
     };
     intrinsics.validate()?;
-    let camera = Camera { id: CameraId(0), width: opts.width, height: opts.height, intrinsics };
+    let camera = Camera {
+        id: CameraId(0),
+        width: opts.width,
+        height: opts.height,
+        intrinsics,
+    };
     let dist = rng.random_range(5.0..7.0);
-    let eye = random_eye(&mut rng, dist, if opts.planar { (25.0, 60.0) } else { (5.0, 40.0) });
-    let pose = aimed_pose(&eye, &Point3::from(random_vec(&mut rng, 0.2)), rng.random_range(-0.2..0.2))?;
+    let eye = random_eye(
+        &mut rng,
+        dist,
+        if opts.planar {
+            (25.0, 60.0)
+        } else {
+            (5.0, 40.0)
+        },
+    );
+    let pose = aimed_pose(
+        &eye,
+        &Point3::from(random_vec(&mut rng, 0.2)),
+        rng.random_range(-0.2..0.2),
+    )?;
     let (mut points3d, mut x_exact) = (Vec::with_capacity(opts.n), Vec::with_capacity(opts.n));
     let mut tries = 0usize;
     while points3d.len() < opts.n {
@@ -383,7 +470,10 @@ pub fn resection_set(opts: &ResectionOptions) -> Result<ResectionSet, String> {
         }
     }
     let noise = opts.noise_px;
-    let mut x: Vec<Vector2<f64>> = x_exact.iter().map(|p| p + Vector2::new(gaussian(&mut rng), gaussian(&mut rng)) * noise).collect();
+    let mut x: Vec<Vector2<f64>> = x_exact
+        .iter()
+        .map(|p| p + Vector2::new(gaussian(&mut rng), gaussian(&mut rng)) * noise)
+        .collect();
     let mut is_inlier = vec![true; opts.n];
     let n_out = (opts.outlier_fraction * opts.n as f64).round() as usize;
     let mut idx: Vec<usize> = (0..opts.n).collect();
@@ -394,7 +484,14 @@ pub fn resection_set(opts: &ResectionOptions) -> Result<ResectionSet, String> {
         x[i] = outlier_pixel(&mut rng, &camera, min_err, |p| (p - exact).norm());
         is_inlier[i] = false;
     }
-    Ok(ResectionSet { camera, pose, points3d, x, x_exact, is_inlier })
+    Ok(ResectionSet {
+        camera,
+        pose,
+        points3d,
+        x,
+        x_exact,
+        is_inlier,
+    })
 }
 
 #[cfg(test)]
@@ -403,7 +500,12 @@ mod tests {
 
     #[test]
     fn pure_translation_epipole_is_near_the_principal_point() {
-        let set = two_view_set(&TwoViewOptions { kind: TwoViewKind::PureTranslation, noise_px: 0.0, ..Default::default() }).expect("valid");
+        let set = two_view_set(&TwoViewOptions {
+            kind: TwoViewKind::PureTranslation,
+            noise_px: 0.0,
+            ..Default::default()
+        })
+        .expect("valid");
         let f = set.fundamental_matrix().expect("has baseline");
         // The epipole in image 1 is the right null vector of F.
         let e = f.svd(false, true).v_t.expect("svd").row(2).transpose();
@@ -414,8 +516,20 @@ mod tests {
 
     #[test]
     fn invalid_options_are_rejected() {
-        assert!(two_view_set(&TwoViewOptions { n: 0, ..Default::default() }).is_err());
-        assert!(two_view_set(&TwoViewOptions { outlier_fraction: 1.5, ..Default::default() }).is_err());
-        assert!(resection_set(&ResectionOptions { noise_px: -1.0, ..Default::default() }).is_err());
+        assert!(two_view_set(&TwoViewOptions {
+            n: 0,
+            ..Default::default()
+        })
+        .is_err());
+        assert!(two_view_set(&TwoViewOptions {
+            outlier_fraction: 1.5,
+            ..Default::default()
+        })
+        .is_err());
+        assert!(resection_set(&ResectionOptions {
+            noise_px: -1.0,
+            ..Default::default()
+        })
+        .is_err());
     }
 }

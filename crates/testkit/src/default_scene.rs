@@ -34,8 +34,11 @@ impl Scene {
             let is_box = i < n_boxes;
             for _attempt in 0..1000 {
                 let (half, radius) = if is_box {
-                    let h: Vector3<f64> =
-                        Vector3::new(rng.random_range(0.18..0.45), rng.random_range(0.18..0.45), rng.random_range(0.15..0.5));
+                    let h: Vector3<f64> = Vector3::new(
+                        rng.random_range(0.18..0.45),
+                        rng.random_range(0.18..0.45),
+                        rng.random_range(0.15..0.5),
+                    );
                     (h, h.x.hypot(h.y))
                 } else {
                     let r = rng.random_range(0.22..0.4);
@@ -44,7 +47,10 @@ impl Scene {
                 let x = rng.random_range(-1.5 + radius..1.5 - radius);
                 let y = rng.random_range(-1.1 + radius..1.3 - radius);
                 let yaw = rng.random_range(0.0..std::f64::consts::PI);
-                if placed.iter().any(|&(px, py, pr)| (px - x).hypot(py - y) < pr + radius + 0.15) {
+                if placed
+                    .iter()
+                    .any(|&(px, py, pr)| (px - x).hypot(py - y) < pr + radius + 0.15)
+                {
                     continue;
                 }
                 placed.push((x, y, radius));
@@ -57,7 +63,11 @@ impl Scene {
                         texture,
                     }
                 } else {
-                    Primitive::Sphere { center: Point3::new(x, y, half.z), radius: half.z, texture }
+                    Primitive::Sphere {
+                        center: Point3::new(x, y, half.z),
+                        radius: half.z,
+                        texture,
+                    }
                 });
                 break;
             }

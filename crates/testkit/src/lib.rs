@@ -25,14 +25,17 @@ pub mod scene;
 pub mod texture;
 mod util;
 
-pub use correspondences::{resection_set, two_view_set, ResectionOptions, ResectionSet, TwoViewKind, TwoViewOptions, TwoViewSet};
+pub use correspondences::{
+    resection_set, two_view_set, ResectionOptions, ResectionSet, TwoViewKind, TwoViewOptions,
+    TwoViewSet,
+};
 pub use mesh::{distance_to_mesh, point_triangle_distance};
 pub use multiview::{multi_view_set, MultiViewOptions, MultiViewSet};
 pub use path::{CameraPath, PathOptions, Trajectory};
-pub use ring::{ring_set, RingOptions, RingSet};
 pub use render::{
-    ground_truth, landmark_projection, pixel_ray, render_frame, render_frame_with_rays, render_sequence, render_sequence_with_scene,
-    RayTable, SequenceOptions, SyntheticSequence,
+    ground_truth, landmark_projection, pixel_ray, render_frame, render_frame_with_rays,
+    render_sequence, render_sequence_with_scene, RayTable, SequenceOptions, SyntheticSequence,
 };
+pub use ring::{ring_set, RingOptions, RingSet};
 pub use scene::{FaceRect, Hit, Landmark, Primitive, Scene};
 pub use texture::{FaceTexture, LANDMARK_HALF_SQUARE, LANDMARK_RADIUS};

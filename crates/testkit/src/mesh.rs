@@ -12,7 +12,9 @@ use nalgebra::{Point3, Vector2, Vector3};
 use crate::scene::{Primitive, Scene};
 
 fn push_vertex(mesh: &mut TriMesh, p: &Point3<f64>) -> u32 {
-    mesh.vertices.positions.push([p.x as f32, p.y as f32, p.z as f32]);
+    mesh.vertices
+        .positions
+        .push([p.x as f32, p.y as f32, p.z as f32]);
     (mesh.vertices.positions.len() - 1) as u32
 }
 
@@ -20,17 +22,32 @@ impl Scene {
     /// The scene as a triangle mesh; `resolution` (≥ 3) is the number of latitude rings per sphere.
     pub fn to_mesh(&self, resolution: usize) -> TriMesh {
         let res = resolution.max(3);
-        let mut mesh = TriMesh { vertices: PointCloud::default(), uvs: Vec::new(), faces: Vec::new() };
+        let mut mesh = TriMesh {
+            vertices: PointCloud::default(),
+            uvs: Vec::new(),
+            faces: Vec::new(),
+        };
         for (k, prim) in self.primitives().iter().enumerate() {
             match prim {
                 Primitive::Plane { .. } | Primitive::Box { .. } => {
-                    let n_faces = if matches!(prim, Primitive::Plane { .. }) { 1 } else { 6 };
+                    let n_faces = if matches!(prim, Primitive::Plane { .. }) {
+                        1
+                    } else {
+                        6
+                    };
                     for f in 0..n_faces {
-                        let Some(r) = self.face_rect(k, f) else { continue };
+                        let Some(r) = self.face_rect(k, f) else {
+                            continue;
+                        };
                         let corners = [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0)];
                         let ids: Vec<u32> = corners
                             .iter()
-                            .map(|&(a, b)| push_vertex(&mut mesh, &r.point(&Vector2::new(a * r.size.x, b * r.size.y))))
+                            .map(|&(a, b)| {
+                                push_vertex(
+                                    &mut mesh,
+                                    &r.point(&Vector2::new(a * r.size.x, b * r.size.y)),
+                                )
+                            })
                             .collect();
                         mesh.faces.push([ids[0], ids[1], ids[2]]);
                         mesh.faces.push([ids[0], ids[2], ids[3]]);
@@ -39,14 +56,22 @@ impl Scene {
                 Primitive::Sphere { center, radius, .. } => {
                     let segs = 2 * res;
                     let at = |theta: f64, phi: f64| {
-                        center + Vector3::new(theta.sin() * phi.cos(), theta.sin() * phi.sin(), theta.cos()) * *radius
+                        center
+                            + Vector3::new(
+                                theta.sin() * phi.cos(),
+                                theta.sin() * phi.sin(),
+                                theta.cos(),
+                            ) * *radius
                     };
                     let top = push_vertex(&mut mesh, &at(0.0, 0.0));
                     let first = mesh.vertices.positions.len() as u32;
                     for i in 1..res {
                         let theta = std::f64::consts::PI * i as f64 / res as f64;
                         for j in 0..segs {
-                            push_vertex(&mut mesh, &at(theta, std::f64::consts::TAU * j as f64 / segs as f64));
+                            push_vertex(
+                                &mut mesh,
+                                &at(theta, std::f64::consts::TAU * j as f64 / segs as f64),
+                            );
                         }
                     }
                     let bottom = push_vertex(&mut mesh, &at(std::f64::consts::PI, 0.0));
@@ -54,11 +79,13 @@ impl Scene {
                     for j in 0..segs {
                         mesh.faces.push([top, idx(1, j), idx(1, j + 1)]);
                         for i in 1..res - 1 {
-                            let (a, b, c, d) = (idx(i, j), idx(i + 1, j), idx(i + 1, j + 1), idx(i, j + 1));
+                            let (a, b, c, d) =
+                                (idx(i, j), idx(i + 1, j), idx(i + 1, j + 1), idx(i, j + 1));
                             mesh.faces.push([a, b, c]);
                             mesh.faces.push([a, c, d]);
                         }
-                        mesh.faces.push([idx(res - 1, j), bottom, idx(res - 1, j + 1)]);
+                        mesh.faces
+                            .push([idx(res - 1, j), bottom, idx(res - 1, j + 1)]);
                     }
                 }
             }
@@ -69,7 +96,12 @@ impl Scene {
 }
 
 /// Distance from `p` to the triangle `(a, b, c)` (Ericson, *Real-Time Collision Detection*, 5.1.5).
-pub fn point_triangle_distance(p: &Point3<f64>, a: &Point3<f64>, b: &Point3<f64>, c: &Point3<f64>) -> f64 {
+pub fn point_triangle_distance(
+    p: &Point3<f64>,
+    a: &Point3<f64>,
+    b: &Point3<f64>,
+    c: &Point3<f64>,
+) -> f64 {
     let (ab, ac, ap) = (b - a, c - a, p - a);
     let (d1, d2) = (ab.dot(&ap), ac.dot(&ap));
     if d1 <= 0.0 && d2 <= 0.0 {
@@ -111,7 +143,10 @@ pub fn distance_to_mesh(mesh: &TriMesh, p: &Point3<f64>) -> f64 {
         let q = mesh.vertices.positions[i as usize];
         Point3::new(q[0] as f64, q[1] as f64, q[2] as f64)
     };
-    mesh.faces.iter().map(|f| point_triangle_distance(p, &v(f[0]), &v(f[1]), &v(f[2]))).fold(f64::INFINITY, f64::min)
+    mesh.faces
+        .iter()
+        .map(|f| point_triangle_distance(p, &v(f[0]), &v(f[1]), &v(f[2])))
+        .fold(f64::INFINITY, f64::min)
 }
 
 #[cfg(test)]
@@ -138,7 +173,11 @@ mod tests {
             let centroid = Point3::from((a.coords + b.coords + c.coords) / 3.0);
             for prim in scene.primitives() {
                 let centre = match prim {
-                    Primitive::Sphere { center, radius, .. } if ((centroid - center).norm() - radius).abs() < 0.05 => *center,
+                    Primitive::Sphere { center, radius, .. }
+                        if ((centroid - center).norm() - radius).abs() < 0.05 =>
+                    {
+                        *center
+                    }
                     _ => continue,
                 };
                 assert!(n.dot(&(centroid - centre)) > 0.0);
@@ -150,10 +189,26 @@ mod tests {
 
     #[test]
     fn point_triangle_distance_regions() {
-        let (a, b, c) = (Point3::new(0.0, 0.0, 0.0), Point3::new(1.0, 0.0, 0.0), Point3::new(0.0, 1.0, 0.0));
-        assert!((point_triangle_distance(&Point3::new(0.2, 0.2, 0.5), &a, &b, &c) - 0.5).abs() < 1e-12);
-        assert!((point_triangle_distance(&Point3::new(-1.0, -1.0, 0.0), &a, &b, &c) - 2f64.sqrt()).abs() < 1e-12);
-        assert!((point_triangle_distance(&Point3::new(0.5, -2.0, 0.0), &a, &b, &c) - 2.0).abs() < 1e-12);
-        assert!((point_triangle_distance(&Point3::new(1.0, 1.0, 0.0), &a, &b, &c) - 0.5f64.sqrt()).abs() < 1e-12);
+        let (a, b, c) = (
+            Point3::new(0.0, 0.0, 0.0),
+            Point3::new(1.0, 0.0, 0.0),
+            Point3::new(0.0, 1.0, 0.0),
+        );
+        assert!(
+            (point_triangle_distance(&Point3::new(0.2, 0.2, 0.5), &a, &b, &c) - 0.5).abs() < 1e-12
+        );
+        assert!(
+            (point_triangle_distance(&Point3::new(-1.0, -1.0, 0.0), &a, &b, &c) - 2f64.sqrt())
+                .abs()
+                < 1e-12
+        );
+        assert!(
+            (point_triangle_distance(&Point3::new(0.5, -2.0, 0.0), &a, &b, &c) - 2.0).abs() < 1e-12
+        );
+        assert!(
+            (point_triangle_distance(&Point3::new(1.0, 1.0, 0.0), &a, &b, &c) - 0.5f64.sqrt())
+                .abs()
+                < 1e-12
+        );
     }
 }

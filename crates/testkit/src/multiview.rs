@@ -12,7 +12,8 @@
 use std::collections::BTreeMap;
 
 use handheld_core::{
-    Camera, CameraId, ImageId, Intrinsics, MetricReconstruction, Observation, Point3D, PointId, Track, TrackElement, View,
+    Camera, CameraId, ImageId, Intrinsics, MetricReconstruction, Observation, Point3D, PointId,
+    Track, TrackElement, View,
 };
 use nalgebra::{Point3, Vector2};
 use rand::seq::SliceRandom;
@@ -86,19 +87,33 @@ pub fn multi_view_set(opts: &MultiViewOptions) -> Result<MultiViewSet, String> {
     if opts.num_views == 0 || opts.num_points == 0 {
         return Err("need at least one view and one point".into());
     }
-    if !(opts.noise_px >= 0.0 && opts.noise_px.is_finite() && (0.0..=1.0).contains(&opts.outlier_fraction)) {
+    if !(opts.noise_px >= 0.0
+        && opts.noise_px.is_finite()
+        && (0.0..=1.0).contains(&opts.outlier_fraction))
+    {
         return Err("noise_px must be non-negative and outlier_fraction in [0, 1]".into());
     }
     let mut rng = ChaCha8Rng::seed_from_u64(opts.seed ^ 0x3A17_0000);
     let (w, h) = (opts.width as f64, opts.height as f64);
-    let (k1, k2) = if opts.radial_distortion { (-0.08, 0.01) } else { (0.0, 0.0) };
+    let (k1, k2) = if opts.radial_distortion {
+        (-0.08, 0.01)
+    } else {
+        (0.0, 0.0)
+    };
     let make_intrinsics = |rng: &mut ChaCha8Rng, vary: bool| {
-        let s = if vary { rng.random_range(0.9..1.1) } else { 1.0 };
+        let s = if vary {
+            rng.random_range(0.9..1.1)
+        } else {
+            1.0
+        };
         Intrinsics {
             f: 0.95 * w * s,
             aspect: 1.0,
             skew: 0.0,
-            pp: Vector2::new(w / 2.0 + rng.random_range(-4.0..4.0), h / 2.0 + rng.random_range(-4.0..4.0)),
+            pp: Vector2::new(
+                w / 2.0 + rng.random_range(-4.0..4.0),
+                h / 2.0 + rng.random_range(-4.0..4.0),
+            ),
             k1,
             k2,
         }
@@ -107,24 +122,53 @@ pub fn multi_view_set(opts: &MultiViewOptions) -> Result<MultiViewSet, String> {
     let shared = make_intrinsics(&mut rng, false);
     let n = opts.num_views;
     for i in 0..n {
-        let camera_id = if opts.shared_intrinsics { CameraId(0) } else { CameraId(i as u32) };
+        let camera_id = if opts.shared_intrinsics {
+            CameraId(0)
+        } else {
+            CameraId(i as u32)
+        };
         if let std::collections::btree_map::Entry::Vacant(slot) = rec.cameras.entry(camera_id) {
-            let intrinsics = if opts.shared_intrinsics { shared } else { make_intrinsics(&mut rng, true) };
-            slot.insert(Camera { id: camera_id, width: opts.width, height: opts.height, intrinsics });
+            let intrinsics = if opts.shared_intrinsics {
+                shared
+            } else {
+                make_intrinsics(&mut rng, true)
+            };
+            slot.insert(Camera {
+                id: camera_id,
+                width: opts.width,
+                height: opts.height,
+                intrinsics,
+            });
         }
-        let s = if n > 1 { i as f64 / (n - 1) as f64 } else { 0.5 };
+        let s = if n > 1 {
+            i as f64 / (n - 1) as f64
+        } else {
+            0.5
+        };
         let az = ((s - 0.5) * 90.0 + rng.random_range(-3.0..3.0)).to_radians();
         let el = rng.random_range(10.0f64..30.0).to_radians();
         let d = rng.random_range(5.5..6.5);
         let eye = Point3::new(az.sin() * el.cos(), -az.cos() * el.cos(), el.sin()) * d;
-        let pose = aimed_pose(&eye, &Point3::from(random_vec(&mut rng, 0.2)), rng.random_range(-0.1..0.1))?;
+        let pose = aimed_pose(
+            &eye,
+            &Point3::from(random_vec(&mut rng, 0.2)),
+            rng.random_range(-0.1..0.1),
+        )?;
         let id = ImageId(i as u32);
         rec.views.insert(
             id,
-            View { id, name: format!("view_{i:04}.png"), camera_id, cam_from_world: pose, observations: Vec::new(), frame: None },
+            View {
+                id,
+                name: format!("view_{i:04}.png"),
+                camera_id,
+                cam_from_world: pose,
+                observations: Vec::new(),
+                frame: None,
+            },
         );
     }
-    let mut exact: BTreeMap<ImageId, Vec<Vector2<f64>>> = rec.views.keys().map(|id| (*id, Vec::new())).collect();
+    let mut exact: BTreeMap<ImageId, Vec<Vector2<f64>>> =
+        rec.views.keys().map(|id| (*id, Vec::new())).collect();
     let mut next_point = 0u64;
     let min_track = opts.min_track_len.max(1);
     for _ in 0..opts.num_points {
@@ -140,7 +184,8 @@ pub fn multi_view_set(opts: &MultiViewOptions) -> Result<MultiViewSet, String> {
             .filter_map(|v| {
                 let cam = rec.cameras.get(&v.camera_id)?;
                 let p = cam.project(&v.cam_from_world, &x)?;
-                (cam.contains(&p) && v.cam_from_world.transform_point(&x).z > 0.5).then_some((v.id, p))
+                (cam.contains(&p) && v.cam_from_world.transform_point(&x).z > 0.5)
+                    .then_some((v.id, p))
             })
             .collect();
         if seen.len() < min_track {
@@ -150,27 +195,62 @@ pub fn multi_view_set(opts: &MultiViewOptions) -> Result<MultiViewSet, String> {
         next_point += 1;
         let mut elements = Vec::with_capacity(seen.len());
         for (image_id, p) in seen {
-            let (Some(view), Some(ex)) = (rec.views.get_mut(&image_id), exact.get_mut(&image_id)) else { continue };
-            elements.push(TrackElement { image_id, point2d_idx: view.observations.len() as u32 });
+            let (Some(view), Some(ex)) = (rec.views.get_mut(&image_id), exact.get_mut(&image_id))
+            else {
+                continue;
+            };
+            elements.push(TrackElement {
+                image_id,
+                point2d_idx: view.observations.len() as u32,
+            });
             let noisy = p + Vector2::new(gaussian(&mut rng), gaussian(&mut rng)) * opts.noise_px;
-            view.observations.push(Observation { xy: noisy, point_id: Some(pid) });
+            view.observations.push(Observation {
+                xy: noisy,
+                point_id: Some(pid),
+            });
             ex.push(p);
         }
-        rec.points.insert(pid, Point3D { xyz: x, color: [128; 3], error: -1.0, track: Track { elements } });
+        rec.points.insert(
+            pid,
+            Point3D {
+                xyz: x,
+                color: [128; 3],
+                error: -1.0,
+                track: Track { elements },
+            },
+        );
     }
-    let mut is_inlier: BTreeMap<ImageId, Vec<bool>> = exact.iter().map(|(id, e)| (*id, vec![true; e.len()])).collect();
-    let mut all: Vec<(ImageId, usize)> = exact.iter().flat_map(|(id, e)| (0..e.len()).map(move |k| (*id, k))).collect();
+    let mut is_inlier: BTreeMap<ImageId, Vec<bool>> = exact
+        .iter()
+        .map(|(id, e)| (*id, vec![true; e.len()]))
+        .collect();
+    let mut all: Vec<(ImageId, usize)> = exact
+        .iter()
+        .flat_map(|(id, e)| (0..e.len()).map(move |k| (*id, k)))
+        .collect();
     let n_out = (opts.outlier_fraction * all.len() as f64).round() as usize;
     all.shuffle(&mut rng);
     let min_err = OUTLIER_MIN_ERROR_PX.max(10.0 * opts.noise_px);
     for &(id, k) in &all[..n_out] {
-        let (Some(view), Some(ex), Some(inl)) = (rec.views.get_mut(&id), exact.get(&id), is_inlier.get_mut(&id)) else { continue };
-        let Some(cam) = rec.cameras.get(&view.camera_id) else { continue };
+        let (Some(view), Some(ex), Some(inl)) = (
+            rec.views.get_mut(&id),
+            exact.get(&id),
+            is_inlier.get_mut(&id),
+        ) else {
+            continue;
+        };
+        let Some(cam) = rec.cameras.get(&view.camera_id) else {
+            continue;
+        };
         let truth = ex[k];
         view.observations[k].xy = outlier_pixel(&mut rng, cam, min_err, |p| (p - truth).norm());
         inl[k] = false;
     }
-    Ok(MultiViewSet { reconstruction: rec, exact, is_inlier })
+    Ok(MultiViewSet {
+        reconstruction: rec,
+        exact,
+        is_inlier,
+    })
 }
 
 #[cfg(test)]
@@ -179,8 +259,12 @@ mod tests {
 
     #[test]
     fn exact_set_reprojects_perfectly_and_noisy_one_matches_noise() {
-        let set =
-            multi_view_set(&MultiViewOptions { radial_distortion: true, shared_intrinsics: false, ..Default::default() }).expect("valid");
+        let set = multi_view_set(&MultiViewOptions {
+            radial_distortion: true,
+            shared_intrinsics: false,
+            ..Default::default()
+        })
+        .expect("valid");
         let gt = set.ground_truth();
         gt.validate().expect("consistent");
         assert!(gt.mean_reprojection_error() < 1e-9);
@@ -194,9 +278,17 @@ mod tests {
 
     #[test]
     fn outlier_fraction_is_respected() {
-        let set = multi_view_set(&MultiViewOptions { outlier_fraction: 0.2, ..Default::default() }).expect("valid");
+        let set = multi_view_set(&MultiViewOptions {
+            outlier_fraction: 0.2,
+            ..Default::default()
+        })
+        .expect("valid");
         let total: usize = set.is_inlier.values().map(|v| v.len()).sum();
-        let out: usize = set.is_inlier.values().map(|v| v.iter().filter(|b| !**b).count()).sum();
+        let out: usize = set
+            .is_inlier
+            .values()
+            .map(|v| v.iter().filter(|b| !**b).count())
+            .sum();
         assert_eq!(out, (0.2 * total as f64).round() as usize);
         for (id, view) in &set.reconstruction.views {
             for (k, o) in view.observations.iter().enumerate() {

@@ -101,7 +101,16 @@ impl PathOptions {
         if self.num_frames == 0 {
             return Err("a path needs at least one frame".into());
         }
-        let vals = [self.distance, self.height, self.sweep, self.jitter_pos, self.jitter_rot, self.target.x, self.target.y, self.target.z];
+        let vals = [
+            self.distance,
+            self.height,
+            self.sweep,
+            self.jitter_pos,
+            self.jitter_rot,
+            self.target.x,
+            self.target.y,
+            self.target.z,
+        ];
         if vals.iter().any(|v| !v.is_finite()) {
             return Err("path parameters must be finite".into());
         }
@@ -113,7 +122,10 @@ impl PathOptions {
         }
         let start_range = (self.distance.powi(2) + (self.height - self.target.z).powi(2)).sqrt();
         if self.kind == CameraPath::Forward && start_range - self.sweep < 0.5 {
-            return Err(format!("forward travel {} leaves less than 0.5 m to the target at {start_range}", self.sweep));
+            return Err(format!(
+                "forward travel {} leaves less than 0.5 m to the target at {start_range}",
+                self.sweep
+            ));
         }
         if self.kind == CameraPath::Orbit && self.sweep.abs() >= 360.0 {
             return Err("an orbit sweep must be below 360 degrees".into());
@@ -138,15 +150,29 @@ impl PathOptions {
         let mut poses = Vec::with_capacity(n);
         let mut factors = Vec::with_capacity(n);
         for i in 0..n {
-            let s = if n > 1 { i as f64 / (n - 1) as f64 } else { 0.5 };
+            let s = if n > 1 {
+                i as f64 / (n - 1) as f64
+            } else {
+                0.5
+            };
             let (eye, look) = match self.kind {
                 CameraPath::Orbit => {
                     let az = (s - 0.5) * self.sweep.to_radians();
-                    (Point3::new(t.x + self.distance * az.sin(), t.y - self.distance * az.cos(), self.height), t)
+                    (
+                        Point3::new(
+                            t.x + self.distance * az.sin(),
+                            t.y - self.distance * az.cos(),
+                            self.height,
+                        ),
+                        t,
+                    )
                 }
                 CameraPath::WalkThrough => {
                     let x = (s - 0.5) * self.sweep;
-                    (Point3::new(t.x + x, t.y - self.distance, self.height), t + Vector3::new(0.5 * x, 0.0, 0.0))
+                    (
+                        Point3::new(t.x + x, t.y - self.distance, self.height),
+                        t + Vector3::new(0.5 * x, 0.0, 0.0),
+                    )
                 }
                 CameraPath::Forward => {
                     let eye = start + forward_dir * (s * self.sweep / forward_dir.norm());
@@ -155,7 +181,8 @@ impl PathOptions {
             };
             let bob = Vector3::new(0.0, 0.0, 0.01 * (std::f64::consts::TAU * 3.0 * s).sin());
             let eye = eye + bob + gaussian_vec3(&mut rng, self.jitter_pos);
-            let r = look_at(&eye, &look, &up).ok_or_else(|| format!("frame {i}: degenerate viewing direction"))?;
+            let r = look_at(&eye, &look, &up)
+                .ok_or_else(|| format!("frame {i}: degenerate viewing direction"))?;
             let r = r * small_rotation(&gaussian_vec3(&mut rng, self.jitter_rot.to_radians()));
             poses.push(cam_from_world_from_center(&r, &eye));
             factors.push(match self.zoom {
@@ -163,7 +190,10 @@ impl PathOptions {
                 None => 1.0,
             });
         }
-        Ok(Trajectory { cam_from_world: poses, focal_factor: factors })
+        Ok(Trajectory {
+            cam_from_world: poses,
+            focal_factor: factors,
+        })
     }
 }
 
@@ -174,7 +204,11 @@ mod tests {
 
     #[test]
     fn every_kind_looks_at_the_target() {
-        for opts in [PathOptions::orbit(9), PathOptions::walk_through(9), PathOptions::forward(9)] {
+        for opts in [
+            PathOptions::orbit(9),
+            PathOptions::walk_through(9),
+            PathOptions::forward(9),
+        ] {
             let traj = opts.generate().expect("valid");
             assert_eq!(traj.cam_from_world.len(), 9);
             for pose in &traj.cam_from_world {
@@ -212,6 +246,11 @@ mod tests {
         assert_ne!(a, b);
         let d = (center_of(&a.cam_from_world[2]) - center_of(&b.cam_from_world[2])).norm();
         assert!(d < 0.2, "{d}");
-        assert!(PathOptions { num_frames: 0, ..PathOptions::default() }.validate().is_err());
+        assert!(PathOptions {
+            num_frames: 0,
+            ..PathOptions::default()
+        }
+        .validate()
+        .is_err());
     }
 }

@@ -23,8 +23,8 @@ use std::collections::BTreeMap;
 
 use handheld_core::pose::center_of;
 use handheld_core::{
-    Camera, CameraId, FloatMap, ImageId, Intrinsics, MetricReconstruction, Observation, Point3D, PointId, Rigid3, TrackElement, TriMesh,
-    View,
+    Camera, CameraId, FloatMap, ImageId, Intrinsics, MetricReconstruction, Observation, Point3D,
+    PointId, Rigid3, TrackElement, TriMesh, View,
 };
 use image::RgbImage;
 use nalgebra::{Point3, Vector2, Vector3};
@@ -99,7 +99,10 @@ impl SequenceOptions {
             f: self.focal() * factor,
             aspect: 1.0,
             skew: 0.0,
-            pp: Vector2::new((self.width as f64 - 1.0) / 2.0, (self.height as f64 - 1.0) / 2.0),
+            pp: Vector2::new(
+                (self.width as f64 - 1.0) / 2.0,
+                (self.height as f64 - 1.0) / 2.0,
+            ),
             k1: self.k1,
             k2: self.k2,
         }
@@ -107,18 +110,28 @@ impl SequenceOptions {
 
     /// The path actually used: `path` with this sequence's frame count and a seed mixed with `seed`.
     pub fn effective_path(&self) -> PathOptions {
-        PathOptions { num_frames: self.num_frames, seed: hash_words(&[self.seed, self.path.seed]), ..self.path.clone() }
+        PathOptions {
+            num_frames: self.num_frames,
+            seed: hash_words(&[self.seed, self.path.seed]),
+            ..self.path.clone()
+        }
     }
 
     pub fn validate(&self) -> Result<(), String> {
         if self.width < 8 || self.height < 8 || self.width > 16384 || self.height > 16384 {
-            return Err(format!("image size {}x{} out of range", self.width, self.height));
+            return Err(format!(
+                "image size {}x{} out of range",
+                self.width, self.height
+            ));
         }
         if self.num_frames == 0 {
             return Err("num_frames must be at least 1".into());
         }
         if !(1..=16).contains(&self.samples_per_axis) {
-            return Err(format!("samples_per_axis must be in 1..=16, got {}", self.samples_per_axis));
+            return Err(format!(
+                "samples_per_axis must be in 1..=16, got {}",
+                self.samples_per_axis
+            ));
         }
         if !(self.image_noise_sigma >= 0.0 && self.image_noise_sigma.is_finite()) {
             return Err("image_noise_sigma must be finite and non-negative".into());
@@ -135,7 +148,10 @@ impl SequenceOptions {
             for i in 0..=100 {
                 let r2 = (r_max * i as f64 / 100.0).powi(2);
                 if 1.0 + 3.0 * k.k1 * r2 + 5.0 * k.k2 * r2 * r2 <= 0.0 {
-                    return Err(format!("radial distortion (k1 {}, k2 {}) folds over inside the image", k.k1, k.k2));
+                    return Err(format!(
+                        "radial distortion (k1 {}, k2 {}) folds over inside the image",
+                        k.k1, k.k2
+                    ));
                 }
             }
         }
@@ -164,13 +180,25 @@ impl SyntheticSequence {
 
 /// World-space ray through pixel `px` (distorted pixel coordinates): origin at the camera centre and a
 /// direction whose camera-frame `z` is 1, so the hit parameter `t` is the depth.
-pub fn pixel_ray(camera: &Camera, cam_from_world: &Rigid3, px: Vector2<f64>) -> (Point3<f64>, Vector3<f64>) {
+pub fn pixel_ray(
+    camera: &Camera,
+    cam_from_world: &Rigid3,
+    px: Vector2<f64>,
+) -> (Point3<f64>, Vector3<f64>) {
     let n = camera.intrinsics.pixel_to_normalized(px);
-    (center_of(cam_from_world), cam_from_world.rotation.inverse() * Vector3::new(n.x, n.y, 1.0))
+    (
+        center_of(cam_from_world),
+        cam_from_world.rotation.inverse() * Vector3::new(n.x, n.y, 1.0),
+    )
 }
 
 /// Linear radiance in `[0, 1]` of the first hit along a ray, or of the sky.
-fn radiance(scene: &Scene, origin: &Point3<f64>, dir: &Vector3<f64>, light: &Vector3<f64>) -> ([f64; 3], f64) {
+fn radiance(
+    scene: &Scene,
+    origin: &Point3<f64>,
+    dir: &Vector3<f64>,
+    light: &Vector3<f64>,
+) -> ([f64; 3], f64) {
     match scene.intersect(origin, dir) {
         Some(hit) => {
             let a = scene.albedo(&hit);
@@ -216,14 +244,24 @@ impl RayTable {
                     let x = xx as f64 - 1.0;
                     for oy in &offsets {
                         for ox in &offsets {
-                            row.push(camera.intrinsics.pixel_to_normalized(Vector2::new(x + ox, y + oy)));
+                            row.push(
+                                camera
+                                    .intrinsics
+                                    .pixel_to_normalized(Vector2::new(x + ox, y + oy)),
+                            );
                         }
                     }
                 }
                 row
             })
             .collect();
-        Self { intrinsics: camera.intrinsics, samples_per_axis: n, width: w, height: h, normalized: rows.concat() }
+        Self {
+            intrinsics: camera.intrinsics,
+            samples_per_axis: n,
+            width: w,
+            height: h,
+            normalized: rows.concat(),
+        }
     }
 }
 
@@ -236,7 +274,14 @@ pub fn render_frame(
     noise_sigma: f64,
     noise_seed: u64,
 ) -> (RgbImage, FloatMap) {
-    render_frame_with_rays(scene, camera, cam_from_world, &RayTable::new(camera, samples_per_axis), noise_sigma, noise_seed)
+    render_frame_with_rays(
+        scene,
+        camera,
+        cam_from_world,
+        &RayTable::new(camera, samples_per_axis),
+        noise_sigma,
+        noise_seed,
+    )
 }
 
 /// [`render_frame`] with a precomputed [`RayTable`] (recomputed here if it does not match `camera`).
@@ -265,7 +310,10 @@ pub fn render_frame_with_rays(
     // 1D tent weights of the samples of a pixel for itself and its two neighbours; the 1D sum is the
     // normalisation (it equals n for the symmetric grid).
     let tent = |d: f64| (1.0 - d.abs()).max(0.0);
-    let norm_1d: f64 = [-1.0, 0.0, 1.0].iter().flat_map(|m| offsets.iter().map(move |o| tent(m + o))).sum();
+    let norm_1d: f64 = [-1.0, 0.0, 1.0]
+        .iter()
+        .flat_map(|m| offsets.iter().map(move |o| tent(m + o)))
+        .sum();
     let centre_idx = (n % 2 == 1).then_some((n / 2) * n + n / 2);
     let world_from_cam = cam_from_world.rotation.inverse().to_rotation_matrix();
     let origin = center_of(cam_from_world);
@@ -289,7 +337,9 @@ pub fn render_frame_with_rays(
                     }
                     // Target pixels xx−1, xx, xx+1 in padded coordinates → image x = target − 1.
                     for m in 0..3usize {
-                        let Some(tx) = (xx + m).checked_sub(2) else { continue };
+                        let Some(tx) = (xx + m).checked_sub(2) else {
+                            continue;
+                        };
                         if tx >= w {
                             continue;
                         }
@@ -305,7 +355,11 @@ pub fn render_frame_with_rays(
             }
             if inner_row && centre_idx.is_none() {
                 for (x, d) in depth.iter_mut().enumerate() {
-                    let (o, dir) = pixel_ray(camera, cam_from_world, Vector2::new(x as f64, (yy - 1) as f64));
+                    let (o, dir) = pixel_ray(
+                        camera,
+                        cam_from_world,
+                        Vector2::new(x as f64, (yy - 1) as f64),
+                    );
                     *d = scene.intersect(&o, &dir).map_or(0.0, |hit| hit.t as f32);
                 }
             }
@@ -334,26 +388,40 @@ pub fn render_frame_with_rays(
                     }
                 }
                 for a in acc {
-                    let noise = if noise_sigma > 0.0 { noise_sigma * gaussian(&mut rng) } else { 0.0 };
+                    let noise = if noise_sigma > 0.0 {
+                        noise_sigma * gaussian(&mut rng)
+                    } else {
+                        0.0
+                    };
                     rgb.push((a * scale + noise).round().clamp(0.0, 255.0) as u8);
                 }
             }
             rgb
         })
         .collect();
-    let mut depth = FloatMap { width: w, height: h, channels: 1, data: Vec::with_capacity(w * h) };
+    let mut depth = FloatMap {
+        width: w,
+        height: h,
+        channels: 1,
+        data: Vec::with_capacity(w * h),
+    };
     for (_, d) in &filtered[1..=h] {
         depth.data.extend_from_slice(d);
     }
     // The buffer has exactly 3·w·h bytes by construction.
-    let image =
-        RgbImage::from_raw(camera.width, camera.height, rows.concat()).unwrap_or_else(|| RgbImage::new(camera.width, camera.height));
+    let image = RgbImage::from_raw(camera.width, camera.height, rows.concat())
+        .unwrap_or_else(|| RgbImage::new(camera.width, camera.height));
     (image, depth)
 }
 
 /// Exact projection of a landmark when it is visible: in front of the camera, inside the image and
 /// inside the distortion model's valid radius, front-facing, and not occluded.
-pub fn landmark_projection(scene: &Scene, camera: &Camera, cam_from_world: &Rigid3, lm: &Landmark) -> Option<Vector2<f64>> {
+pub fn landmark_projection(
+    scene: &Scene,
+    camera: &Camera,
+    cam_from_world: &Rigid3,
+    lm: &Landmark,
+) -> Option<Vector2<f64>> {
     let c = center_of(cam_from_world);
     if lm.normal.dot(&(c - lm.position)) <= 0.0 {
         return None;
@@ -363,10 +431,13 @@ pub fn landmark_projection(scene: &Scene, camera: &Camera, cam_from_world: &Rigi
         return None;
     }
     let k = &camera.intrinsics;
-    let corner = k
-        .pixel_to_normalized(Vector2::new(-0.5, -0.5))
-        .norm()
-        .max(k.pixel_to_normalized(Vector2::new(camera.width as f64 - 0.5, camera.height as f64 - 0.5)).norm());
+    let corner = k.pixel_to_normalized(Vector2::new(-0.5, -0.5)).norm().max(
+        k.pixel_to_normalized(Vector2::new(
+            camera.width as f64 - 0.5,
+            camera.height as f64 - 0.5,
+        ))
+        .norm(),
+    );
     if Vector2::new(p.x / p.z, p.y / p.z).norm() > 1.05 * corner {
         return None;
     }
@@ -375,15 +446,21 @@ pub fn landmark_projection(scene: &Scene, camera: &Camera, cam_from_world: &Rigi
         return None;
     }
     let hit = scene.intersect(&c, &(lm.position - c))?;
-    ((hit.t - 1.0).abs() < 1e-6 && hit.primitive == lm.primitive && hit.face == lm.face).then_some(px)
+    ((hit.t - 1.0).abs() < 1e-6 && hit.primitive == lm.primitive && hit.face == lm.face)
+        .then_some(px)
 }
 
 /// The ground-truth reconstruction of a scene seen by the given frames.
 pub fn ground_truth(scene: &Scene, frames: &[(Camera, Rigid3)]) -> MetricReconstruction {
     let mut rec = MetricReconstruction::default();
     for (i, (cam, pose)) in frames.iter().enumerate() {
-        let existing =
-            rec.cameras.values().find(|c| c.intrinsics == cam.intrinsics && c.width == cam.width && c.height == cam.height).map(|c| c.id);
+        let existing = rec
+            .cameras
+            .values()
+            .find(|c| {
+                c.intrinsics == cam.intrinsics && c.width == cam.width && c.height == cam.height
+            })
+            .map(|c| c.id);
         let camera_id = existing.unwrap_or_else(|| {
             let id = CameraId(rec.cameras.len() as u32);
             rec.cameras.insert(id, Camera { id, ..cam.clone() });
@@ -392,7 +469,14 @@ pub fn ground_truth(scene: &Scene, frames: &[(Camera, Rigid3)]) -> MetricReconst
         let id = ImageId(i as u32);
         rec.views.insert(
             id,
-            View { id, name: format!("frame_{i:04}.png"), camera_id, cam_from_world: *pose, observations: Vec::new(), frame: None },
+            View {
+                id,
+                name: format!("frame_{i:04}.png"),
+                camera_id,
+                cam_from_world: *pose,
+                observations: Vec::new(),
+                frame: None,
+            },
         );
     }
     let min_track = frames.len().min(2);
@@ -401,7 +485,9 @@ pub fn ground_truth(scene: &Scene, frames: &[(Camera, Rigid3)]) -> MetricReconst
         let seen: Vec<(ImageId, Vector2<f64>)> = frames
             .iter()
             .enumerate()
-            .filter_map(|(i, (cam, pose))| landmark_projection(scene, cam, pose, lm).map(|px| (ImageId(i as u32), px)))
+            .filter_map(|(i, (cam, pose))| {
+                landmark_projection(scene, cam, pose, lm).map(|px| (ImageId(i as u32), px))
+            })
             .collect();
         if seen.len() < min_track || seen.is_empty() {
             continue;
@@ -409,11 +495,27 @@ pub fn ground_truth(scene: &Scene, frames: &[(Camera, Rigid3)]) -> MetricReconst
         let pid = PointId(li as u64);
         let mut elements = Vec::with_capacity(seen.len());
         for (image_id, px) in seen {
-            let Some(view) = rec.views.get_mut(&image_id) else { continue };
-            elements.push(TrackElement { image_id, point2d_idx: view.observations.len() as u32 });
-            view.observations.push(Observation { xy: px, point_id: Some(pid) });
+            let Some(view) = rec.views.get_mut(&image_id) else {
+                continue;
+            };
+            elements.push(TrackElement {
+                image_id,
+                point2d_idx: view.observations.len() as u32,
+            });
+            view.observations.push(Observation {
+                xy: px,
+                point_id: Some(pid),
+            });
         }
-        rec.points.insert(pid, Point3D { xyz: lm.position, color: [grey; 3], error: 0.0, track: handheld_core::Track { elements } });
+        rec.points.insert(
+            pid,
+            Point3D {
+                xyz: lm.position,
+                color: [grey; 3],
+                error: 0.0,
+                track: handheld_core::Track { elements },
+            },
+        );
     }
     rec
 }
@@ -424,7 +526,10 @@ pub fn render_sequence(opts: &SequenceOptions) -> Result<SyntheticSequence, Stri
 }
 
 /// Renders a sequence of a given scene.
-pub fn render_sequence_with_scene(scene: Scene, opts: &SequenceOptions) -> Result<SyntheticSequence, String> {
+pub fn render_sequence_with_scene(
+    scene: Scene,
+    opts: &SequenceOptions,
+) -> Result<SyntheticSequence, String> {
     opts.validate()?;
     let traj = opts.effective_path().generate()?;
     let frames: Vec<(Camera, Rigid3)> = traj
@@ -432,7 +537,15 @@ pub fn render_sequence_with_scene(scene: Scene, opts: &SequenceOptions) -> Resul
         .iter()
         .zip(&traj.focal_factor)
         .map(|(pose, &factor)| {
-            (Camera { id: CameraId(0), width: opts.width, height: opts.height, intrinsics: opts.intrinsics(factor) }, *pose)
+            (
+                Camera {
+                    id: CameraId(0),
+                    width: opts.width,
+                    height: opts.height,
+                    intrinsics: opts.intrinsics(factor),
+                },
+                *pose,
+            )
         })
         .collect();
     let gt = ground_truth(&scene, &frames);
@@ -447,17 +560,44 @@ pub fn render_sequence_with_scene(scene: Scene, opts: &SequenceOptions) -> Resul
         if stale {
             table = Some((cam.intrinsics, RayTable::new(cam, opts.samples_per_axis)));
         }
-        let Some((_, rays)) = table.as_ref() else { continue };
-        let (img, depth) =
-            render_frame_with_rays(&scene, cam, pose, rays, opts.image_noise_sigma, hash_words(&[opts.seed, 0x1A6E, i as u64]));
+        let Some((_, rays)) = table.as_ref() else {
+            continue;
+        };
+        let (img, depth) = render_frame_with_rays(
+            &scene,
+            cam,
+            pose,
+            rays,
+            opts.image_noise_sigma,
+            hash_words(&[opts.seed, 0x1A6E, i as u64]),
+        );
         images.push(img);
         depths.push(depth);
     }
     let mesh = scene.to_mesh(opts.mesh_resolution);
-    Ok(SyntheticSequence { scene, gt, images, depths, mesh })
+    Ok(SyntheticSequence {
+        scene,
+        gt,
+        images,
+        depths,
+        mesh,
+    })
 }
 
 /// Per-view lists of `(PointId, exact pixel)` — a convenience for matching tests.
-pub fn observations_by_view(gt: &MetricReconstruction) -> BTreeMap<ImageId, Vec<(PointId, Vector2<f64>)>> {
-    gt.views.iter().map(|(id, v)| (*id, v.observations.iter().filter_map(|o| o.point_id.map(|p| (p, o.xy))).collect())).collect()
+pub fn observations_by_view(
+    gt: &MetricReconstruction,
+) -> BTreeMap<ImageId, Vec<(PointId, Vector2<f64>)>> {
+    gt.views
+        .iter()
+        .map(|(id, v)| {
+            (
+                *id,
+                v.observations
+                    .iter()
+                    .filter_map(|o| o.point_id.map(|p| (p, o.xy)))
+                    .collect(),
+            )
+        })
+        .collect()
 }

@@ -5,7 +5,10 @@
 //! observations grows linearly, so 1000 cameras and 200 000 points stay about a million observations.
 
 use handheld_core::pose::cam_from_world_from_center;
-use handheld_core::{Camera, CameraId, ImageId, Intrinsics, MetricReconstruction, Observation, Point3D, PointId, Track, TrackElement, View};
+use handheld_core::{
+    Camera, CameraId, ImageId, Intrinsics, MetricReconstruction, Observation, Point3D, PointId,
+    Track, TrackElement, View,
+};
 use nalgebra::{Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector2, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -30,7 +33,15 @@ pub struct RingOptions {
 
 impl Default for RingOptions {
     fn default() -> Self {
-        Self { num_views: 100, num_points: 10_000, noise_px: 0.5, pose_noise_rad: 0.002, position_noise: 0.05, focal_noise: 0.01, seed: 0 }
+        Self {
+            num_views: 100,
+            num_points: 10_000,
+            noise_px: 0.5,
+            pose_noise_rad: 0.002,
+            position_noise: 0.05,
+            focal_noise: 0.01,
+            seed: 0,
+        }
     }
 }
 
@@ -60,7 +71,8 @@ pub fn ring_set(opts: &RingOptions) -> Result<RingSet, String> {
         // Camera z radial outwards, y down (world −z), x = y × z; rows of R are the camera axes.
         let z = Vector3::new(th.cos(), th.sin(), 0.0);
         let y = Vector3::new(0.0, 0.0, -1.0);
-        let r_cam_from_world = Matrix3::from_rows(&[y.cross(&z).transpose(), y.transpose(), z.transpose()]);
+        let r_cam_from_world =
+            Matrix3::from_rows(&[y.cross(&z).transpose(), y.transpose(), z.transpose()]);
         let rot = Rotation3::from_matrix_unchecked(r_cam_from_world);
         let pose = cam_from_world_from_center(&rot.inverse(), &Point3::from(z * radius));
         let intrinsics = Intrinsics {
@@ -72,16 +84,38 @@ pub fn ring_set(opts: &RingOptions) -> Result<RingSet, String> {
             k2: 0.01,
         };
         let id = CameraId(i as u32);
-        truth.cameras.insert(id, Camera { id, width: WIDTH, height: HEIGHT, intrinsics });
+        truth.cameras.insert(
+            id,
+            Camera {
+                id,
+                width: WIDTH,
+                height: HEIGHT,
+                intrinsics,
+            },
+        );
         let vid = ImageId(i as u32);
-        truth.views.insert(vid, View { id: vid, name: format!("ring_{i:05}.png"), camera_id: id, cam_from_world: pose, observations: Vec::new(), frame: None });
+        truth.views.insert(
+            vid,
+            View {
+                id: vid,
+                name: format!("ring_{i:05}.png"),
+                camera_id: id,
+                cam_from_world: pose,
+                observations: Vec::new(),
+                frame: None,
+            },
+        );
     }
     let mut next = 0u64;
     for _ in 0..opts.num_points {
         let c0 = rng.random_range(0..nc);
         let v0 = &truth.views[&ImageId(c0 as u32)];
         let depth = rng.random_range(8.0..12.0);
-        let p_cam = Point3::new(rng.random_range(-0.4..0.4) * depth, rng.random_range(-0.3..0.3) * depth, depth);
+        let p_cam = Point3::new(
+            rng.random_range(-0.4..0.4) * depth,
+            rng.random_range(-0.3..0.3) * depth,
+            depth,
+        );
         let xw = v0.cam_from_world.inverse_transform_point(&p_cam);
         let len = rng.random_range(3..9usize);
         let mut obs = Vec::new();
@@ -89,11 +123,16 @@ pub fn ring_set(opts: &RingOptions) -> Result<RingSet, String> {
             let c = (c0 + nc + k - len / 2) % nc;
             let view = &truth.views[&ImageId(c as u32)];
             let cam = &truth.cameras[&view.camera_id];
-            let Some(px) = cam.project(&view.cam_from_world, &xw) else { continue };
+            let Some(px) = cam.project(&view.cam_from_world, &xw) else {
+                continue;
+            };
             if view.cam_from_world.transform_point(&xw).z < 1.0 || !cam.contains(&px) {
                 continue;
             }
-            obs.push((c, px + Vector2::new(gaussian(&mut rng), gaussian(&mut rng)) * opts.noise_px));
+            obs.push((
+                c,
+                px + Vector2::new(gaussian(&mut rng), gaussian(&mut rng)) * opts.noise_px,
+            ));
         }
         if obs.len() < 2 {
             continue;
@@ -102,17 +141,37 @@ pub fn ring_set(opts: &RingOptions) -> Result<RingSet, String> {
         next += 1;
         let mut track = Track::default();
         for (c, px) in obs {
-            let view = truth.views.get_mut(&ImageId(c as u32)).ok_or("view vanished")?;
-            track.elements.push(TrackElement { image_id: view.id, point2d_idx: view.observations.len() as u32 });
-            view.observations.push(Observation { xy: px, point_id: Some(pid) });
+            let view = truth
+                .views
+                .get_mut(&ImageId(c as u32))
+                .ok_or("view vanished")?;
+            track.elements.push(TrackElement {
+                image_id: view.id,
+                point2d_idx: view.observations.len() as u32,
+            });
+            view.observations.push(Observation {
+                xy: px,
+                point_id: Some(pid),
+            });
         }
-        truth.points.insert(pid, Point3D { xyz: xw, color: [128, 128, 128], error: -1.0, track });
+        truth.points.insert(
+            pid,
+            Point3D {
+                xyz: xw,
+                color: [128, 128, 128],
+                error: -1.0,
+                track,
+            },
+        );
     }
     let mut initial = truth.clone();
     for view in initial.views.values_mut() {
-        let d = Vector3::new(gaussian(&mut rng), gaussian(&mut rng), gaussian(&mut rng)) * opts.pose_noise_rad;
+        let d = Vector3::new(gaussian(&mut rng), gaussian(&mut rng), gaussian(&mut rng))
+            * opts.pose_noise_rad;
         let rot = UnitQuaternion::from_scaled_axis(d) * view.cam_from_world.rotation;
-        let t = view.cam_from_world.translation.vector + Vector3::new(gaussian(&mut rng), gaussian(&mut rng), gaussian(&mut rng)) * opts.position_noise;
+        let t = view.cam_from_world.translation.vector
+            + Vector3::new(gaussian(&mut rng), gaussian(&mut rng), gaussian(&mut rng))
+                * opts.position_noise;
         view.cam_from_world = nalgebra::Isometry3::from_parts(Translation3::from(t), rot);
     }
     for cam in initial.cameras.values_mut() {
@@ -121,7 +180,8 @@ pub fn ring_set(opts: &RingOptions) -> Result<RingSet, String> {
         cam.intrinsics.k2 = 0.0;
     }
     for p in initial.points.values_mut() {
-        p.xyz += Vector3::new(gaussian(&mut rng), gaussian(&mut rng), gaussian(&mut rng)) * opts.position_noise;
+        p.xyz += Vector3::new(gaussian(&mut rng), gaussian(&mut rng), gaussian(&mut rng))
+            * opts.position_noise;
     }
     Ok(RingSet { truth, initial })
 }
@@ -132,7 +192,13 @@ mod tests {
 
     #[test]
     fn observations_grow_linearly_and_truth_is_exact_up_to_noise() {
-        let set = ring_set(&RingOptions { num_views: 50, num_points: 2000, noise_px: 0.0, ..Default::default() }).unwrap();
+        let set = ring_set(&RingOptions {
+            num_views: 50,
+            num_points: 2000,
+            noise_px: 0.0,
+            ..Default::default()
+        })
+        .unwrap();
         set.truth.validate().unwrap();
         let n_obs: usize = set.truth.views.values().map(|v| v.observations.len()).sum();
         assert!(set.truth.points.len() > 1500, "{}", set.truth.points.len());

@@ -85,9 +85,20 @@ pub struct Landmark {
 
 #[derive(Clone, Debug)]
 enum Prepared {
-    Plane { rect: FaceRect },
-    Box { center: Point3<f64>, world_from_box: Matrix3<f64>, box_from_world: Matrix3<f64>, half: Vector3<f64>, bound_r2: f64 },
-    Sphere { center: Point3<f64>, radius: f64 },
+    Plane {
+        rect: FaceRect,
+    },
+    Box {
+        center: Point3<f64>,
+        world_from_box: Matrix3<f64>,
+        box_from_world: Matrix3<f64>,
+        half: Vector3<f64>,
+        bound_r2: f64,
+    },
+    Sphere {
+        center: Point3<f64>,
+        radius: f64,
+    },
 }
 
 /// A scene ready for ray casting. Construct with [`Scene::new`] or [`Scene::default_scene`].
@@ -118,28 +129,56 @@ impl Scene {
         let mut textures = Vec::with_capacity(primitives.len());
         for (k, p) in primitives.iter().enumerate() {
             match p {
-                Primitive::Plane { origin, edge_u, edge_v, texture } => {
+                Primitive::Plane {
+                    origin,
+                    edge_u,
+                    edge_v,
+                    texture,
+                } => {
                     let (lu, lv) = (edge_u.norm(), edge_v.norm());
-                    if !(lu > 0.0 && lv > 0.0 && lu.is_finite() && lv.is_finite() && origin.coords.iter().all(|c| c.is_finite())) {
+                    if !(lu > 0.0
+                        && lv > 0.0
+                        && lu.is_finite()
+                        && lv.is_finite()
+                        && origin.coords.iter().all(|c| c.is_finite()))
+                    {
                         return Err(format!("plane {k}: degenerate or non-finite"));
                     }
                     if edge_u.dot(edge_v).abs() > 1e-9 * lu * lv {
                         return Err(format!("plane {k}: edges are not orthogonal"));
                     }
                     let (u, v) = (edge_u / lu, edge_v / lv);
-                    let rect = FaceRect { origin: *origin, u, v, normal: u.cross(&v), size: Vector2::new(lu, lv) };
+                    let rect = FaceRect {
+                        origin: *origin,
+                        u,
+                        v,
+                        normal: u.cross(&v),
+                        size: Vector2::new(lu, lv),
+                    };
                     textures.push(vec![FaceTexture::new(*texture, 0, rect.size, true)]);
                     prepared.push(Prepared::Plane { rect });
                 }
-                Primitive::Box { center, half_extents, rotation, texture } => {
-                    if !half_extents.iter().all(|h| *h > 0.0 && h.is_finite()) || !center.coords.iter().all(|c| c.is_finite()) {
+                Primitive::Box {
+                    center,
+                    half_extents,
+                    rotation,
+                    texture,
+                } => {
+                    if !half_extents.iter().all(|h| *h > 0.0 && h.is_finite())
+                        || !center.coords.iter().all(|c| c.is_finite())
+                    {
                         return Err(format!("box {k}: half extents must be positive and finite"));
                     }
                     let r = *rotation.to_rotation_matrix().matrix();
                     let faces = (0..6)
                         .map(|f| {
                             let (_, _, ua, va) = box_face_axes(f);
-                            FaceTexture::new(*texture, f, Vector2::new(2.0 * half_extents[ua], 2.0 * half_extents[va]), true)
+                            FaceTexture::new(
+                                *texture,
+                                f,
+                                Vector2::new(2.0 * half_extents[ua], 2.0 * half_extents[va]),
+                                true,
+                            )
                         })
                         .collect();
                     textures.push(faces);
@@ -151,17 +190,35 @@ impl Scene {
                         bound_r2: half_extents.norm_squared() * (1.0 + 1e-9),
                     });
                 }
-                Primitive::Sphere { center, radius, texture } => {
-                    if !(*radius > 0.0 && radius.is_finite() && center.coords.iter().all(|c| c.is_finite())) {
+                Primitive::Sphere {
+                    center,
+                    radius,
+                    texture,
+                } => {
+                    if !(*radius > 0.0
+                        && radius.is_finite()
+                        && center.coords.iter().all(|c| c.is_finite()))
+                    {
                         return Err(format!("sphere {k}: radius must be positive and finite"));
                     }
-                    let size = Vector2::new(std::f64::consts::TAU * radius, std::f64::consts::PI * radius);
+                    let size = Vector2::new(
+                        std::f64::consts::TAU * radius,
+                        std::f64::consts::PI * radius,
+                    );
                     textures.push(vec![FaceTexture::new(*texture, 0, size, false)]);
-                    prepared.push(Prepared::Sphere { center: *center, radius: *radius });
+                    prepared.push(Prepared::Sphere {
+                        center: *center,
+                        radius: *radius,
+                    });
                 }
             }
         }
-        let mut scene = Self { primitives, prepared, textures, landmarks: Vec::new() };
+        let mut scene = Self {
+            primitives,
+            prepared,
+            textures,
+            landmarks: Vec::new(),
+        };
         scene.landmarks = scene.place_landmarks();
         Ok(scene)
     }
@@ -174,7 +231,12 @@ impl Scene {
     pub fn face_rect(&self, k: usize, face: u32) -> Option<FaceRect> {
         match self.prepared.get(k)? {
             Prepared::Plane { rect } => (face == 0).then_some(*rect),
-            Prepared::Box { center, world_from_box, half, .. } => {
+            Prepared::Box {
+                center,
+                world_from_box,
+                half,
+                ..
+            } => {
                 if face >= 6 {
                     return None;
                 }
@@ -183,7 +245,10 @@ impl Scene {
                 o[a] = if positive { half[a] } else { -half[a] };
                 o[ua] = -half[ua];
                 o[va] = -half[va];
-                let (u, v) = (world_from_box.column(ua).into_owned(), world_from_box.column(va).into_owned());
+                let (u, v) = (
+                    world_from_box.column(ua).into_owned(),
+                    world_from_box.column(va).into_owned(),
+                );
                 Some(FaceRect {
                     origin: center + world_from_box * o,
                     u,
@@ -204,7 +269,12 @@ impl Scene {
             }
             match pr {
                 Prepared::Plane { .. } => false,
-                Prepared::Box { center, box_from_world, half, .. } => {
+                Prepared::Box {
+                    center,
+                    box_from_world,
+                    half,
+                    ..
+                } => {
                     let l = box_from_world * (p - center);
                     (0..3).all(|a| l[a].abs() < half[a])
                 }
@@ -219,7 +289,9 @@ impl Scene {
         let mut out = Vec::new();
         for k in 0..self.prepared.len() {
             for (f, tex) in self.textures[k].iter().enumerate() {
-                let Some(rect) = self.face_rect(k, f as u32) else { continue };
+                let Some(rect) = self.face_rect(k, f as u32) else {
+                    continue;
+                };
                 if matches!(self.prepared[k], Prepared::Box { .. }) && rect.normal.z < -0.9 {
                     continue;
                 }
@@ -232,7 +304,13 @@ impl Scene {
                         })
                     });
                     if !buried {
-                        out.push(Landmark { position: rect.point(&uv), normal: rect.normal, primitive: k, face: f as u32, uv });
+                        out.push(Landmark {
+                            position: rect.point(&uv),
+                            normal: rect.normal,
+                            primitive: k,
+                            face: f as u32,
+                            uv,
+                        });
                     }
                 }
             }
@@ -268,7 +346,13 @@ impl Scene {
                 let (s, w) = (q.dot(&rect.u), q.dot(&rect.v));
                 (s >= 0.0 && s <= rect.size.x && w >= 0.0 && w <= rect.size.y).then_some((t, 0))
             }
-            Prepared::Box { center, box_from_world, half, bound_r2, .. } => {
+            Prepared::Box {
+                center,
+                box_from_world,
+                half,
+                bound_r2,
+                ..
+            } => {
                 // Bounding-sphere rejection first: most rays miss most boxes.
                 let oc = ro - center;
                 let (b, c) = (oc.dot(d), oc.norm_squared() - bound_r2);
@@ -352,29 +436,66 @@ impl Scene {
         Some(match &self.prepared[k] {
             Prepared::Plane { rect } => {
                 let q = point - rect.origin;
-                Hit { t, point, normal: rect.normal, primitive: k, face: 0, uv: Vector2::new(q.dot(&rect.u), q.dot(&rect.v)) }
+                Hit {
+                    t,
+                    point,
+                    normal: rect.normal,
+                    primitive: k,
+                    face: 0,
+                    uv: Vector2::new(q.dot(&rect.u), q.dot(&rect.v)),
+                }
             }
-            Prepared::Box { center, world_from_box, box_from_world, half, .. } => {
+            Prepared::Box {
+                center,
+                world_from_box,
+                box_from_world,
+                half,
+                ..
+            } => {
                 let l = box_from_world * (point - center);
                 let positive = l[aux] >= 0.0;
                 let face = 2 * aux as u32 + u32::from(!positive);
                 let (_, _, ua, va) = box_face_axes(face);
                 let mut n = Vector3::zeros();
                 n[aux] = if positive { 1.0 } else { -1.0 };
-                let uv = Vector2::new((l[ua] + half[ua]).clamp(0.0, 2.0 * half[ua]), (l[va] + half[va]).clamp(0.0, 2.0 * half[va]));
-                Hit { t, point, normal: world_from_box * n, primitive: k, face, uv }
+                let uv = Vector2::new(
+                    (l[ua] + half[ua]).clamp(0.0, 2.0 * half[ua]),
+                    (l[va] + half[va]).clamp(0.0, 2.0 * half[va]),
+                );
+                Hit {
+                    t,
+                    point,
+                    normal: world_from_box * n,
+                    primitive: k,
+                    face,
+                    uv,
+                }
             }
             Prepared::Sphere { center, radius } => {
                 let n = (point - center) / *radius;
-                let uv = Vector2::new(radius * (n.y.atan2(n.x) + std::f64::consts::PI), radius * n.z.clamp(-1.0, 1.0).acos());
-                Hit { t, point, normal: n, primitive: k, face: 0, uv }
+                let uv = Vector2::new(
+                    radius * (n.y.atan2(n.x) + std::f64::consts::PI),
+                    radius * n.z.clamp(-1.0, 1.0).acos(),
+                );
+                Hit {
+                    t,
+                    point,
+                    normal: n,
+                    primitive: k,
+                    face: 0,
+                    uv,
+                }
             }
         })
     }
 
     /// RGB albedo in `[0, 1]` at a hit.
     pub fn albedo(&self, hit: &Hit) -> [f64; 3] {
-        match self.textures.get(hit.primitive).and_then(|f| f.get(hit.face as usize)) {
+        match self
+            .textures
+            .get(hit.primitive)
+            .and_then(|f| f.get(hit.face as usize))
+        {
             Some(t) => t.albedo(&hit.uv),
             None => [0.5; 3],
         }
@@ -392,10 +513,17 @@ impl Scene {
             match pr {
                 Prepared::Plane { rect } => {
                     for (a, b) in [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0)] {
-                        add(rect.point(&Vector2::new(a * rect.size.x, b * rect.size.y)).coords);
+                        add(rect
+                            .point(&Vector2::new(a * rect.size.x, b * rect.size.y))
+                            .coords);
                     }
                 }
-                Prepared::Box { center, world_from_box, half, .. } => {
+                Prepared::Box {
+                    center,
+                    world_from_box,
+                    half,
+                    ..
+                } => {
                     let ext = world_from_box.abs() * half;
                     add(center.coords - ext);
                     add(center.coords + ext);
@@ -438,20 +566,32 @@ mod tests {
                 rotation: UnitQuaternion::identity(),
                 texture: 2,
             },
-            Primitive::Sphere { center: Point3::new(3.0, 0.0, 1.0), radius: 0.5, texture: 3 },
+            Primitive::Sphere {
+                center: Point3::new(3.0, 0.0, 1.0),
+                radius: 0.5,
+                texture: 3,
+            },
         ])
         .expect("valid");
-        let h = s.intersect(&Point3::new(0.0, 0.0, 5.0), &Vector3::new(0.0, 0.0, -2.0)).expect("hits box top");
+        let h = s
+            .intersect(&Point3::new(0.0, 0.0, 5.0), &Vector3::new(0.0, 0.0, -2.0))
+            .expect("hits box top");
         assert_eq!((h.primitive, h.face), (1, 4));
         assert!((h.t - 2.0).abs() < 1e-12 && (h.normal - Vector3::z()).norm() < 1e-12);
         assert!((h.uv - Vector2::new(0.2, 0.3)).norm() < 1e-12);
-        let h = s.intersect(&Point3::new(0.7, 0.7, 5.0), &Vector3::new(0.0, 0.0, -1.0)).expect("hits ground");
+        let h = s
+            .intersect(&Point3::new(0.7, 0.7, 5.0), &Vector3::new(0.0, 0.0, -1.0))
+            .expect("hits ground");
         assert_eq!(h.primitive, 0);
         assert!((h.uv - Vector2::new(1.7, 1.7)).norm() < 1e-12);
-        let h = s.intersect(&Point3::new(3.0, -5.0, 1.0), &Vector3::new(0.0, 1.0, 0.0)).expect("hits sphere");
+        let h = s
+            .intersect(&Point3::new(3.0, -5.0, 1.0), &Vector3::new(0.0, 1.0, 0.0))
+            .expect("hits sphere");
         assert_eq!(h.primitive, 2);
         assert!((h.point - Point3::new(3.0, -0.5, 1.0)).norm() < 1e-12);
-        assert!(s.intersect(&Point3::new(5.0, 5.0, 5.0), &Vector3::new(0.0, 0.0, 1.0)).is_none());
+        assert!(s
+            .intersect(&Point3::new(5.0, 5.0, 5.0), &Vector3::new(0.0, 0.0, 1.0))
+            .is_none());
     }
 
     #[test]
@@ -467,7 +607,9 @@ mod tests {
             let r = s.face_rect(0, f).expect("box face");
             let uv = Vector2::new(0.3 * r.size.x, 0.6 * r.size.y);
             let p = r.point(&uv);
-            let h = s.intersect(&(p + r.normal * 2.0), &(-r.normal)).expect("face is hit from outside");
+            let h = s
+                .intersect(&(p + r.normal * 2.0), &(-r.normal))
+                .expect("face is hit from outside");
             assert_eq!(h.face, f);
             assert!((h.uv - uv).norm() < 1e-9 && (h.normal - r.normal).norm() < 1e-12);
         }

@@ -69,7 +69,8 @@ impl FaceTexture {
         let mut offsets = [[0i64; 2]; 6];
         for (o, off) in offsets.iter_mut().enumerate() {
             for (a, v) in off.iter_mut().enumerate() {
-                *v = (hash_words(&[seed, 100 + o as u64, a as u64]) % (1u64 << OCTAVE_SHIFTS[o])) as i64;
+                *v = (hash_words(&[seed, 100 + o as u64, a as u64]) % (1u64 << OCTAVE_SHIFTS[o]))
+                    as i64;
             }
         }
         let min_cell = 2.0 * (LANDMARK_HALF_SQUARE + LANDMARK_GAP);
@@ -88,7 +89,14 @@ impl FaceTexture {
                 cells = [0, 0];
             }
         }
-        Self { seed, size, cells, cell_size, offsets, inv_cell_size: cell_size.map(|c| 1.0 / c) }
+        Self {
+            seed,
+            size,
+            cells,
+            cell_size,
+            offsets,
+            inv_cell_size: cell_size.map(|c| 1.0 / c),
+        }
     }
 
     /// The landmark centre of cell `(i, j)`, if that cell holds one.
@@ -131,8 +139,12 @@ impl FaceTexture {
         if self.cells[0] == 0 {
             return None;
         }
-        let i = (uv.x * self.inv_cell_size.x).floor().clamp(0.0, (self.cells[0] - 1) as f64) as u32;
-        let j = (uv.y * self.inv_cell_size.y).floor().clamp(0.0, (self.cells[1] - 1) as f64) as u32;
+        let i = (uv.x * self.inv_cell_size.x)
+            .floor()
+            .clamp(0.0, (self.cells[0] - 1) as f64) as u32;
+        let j = (uv.y * self.inv_cell_size.y)
+            .floor()
+            .clamp(0.0, (self.cells[1] - 1) as f64) as u32;
         self.landmark_in_cell(i, j)
     }
 
@@ -141,7 +153,11 @@ impl FaceTexture {
         if let Some(c) = self.landmark_near(uv) {
             let d = uv - c;
             if d.x.abs() < LANDMARK_HALF_SQUARE && d.y.abs() < LANDMARK_HALF_SQUARE {
-                let g = if d.norm_squared() < LANDMARK_RADIUS * LANDMARK_RADIUS { LANDMARK_DARK } else { LANDMARK_BRIGHT };
+                let g = if d.norm_squared() < LANDMARK_RADIUS * LANDMARK_RADIUS {
+                    LANDMARK_DARK
+                } else {
+                    LANDMARK_BRIGHT
+                };
                 return [g, g, g];
             }
         }
@@ -151,13 +167,15 @@ impl FaceTexture {
         for o in 0..OCTAVE_SHIFTS.len() {
             let i = (qu + self.offsets[o][0]) >> OCTAVE_SHIFTS[o];
             let j = (qv + self.offsets[o][1]) >> OCTAVE_SHIFTS[o];
-            g += OCTAVE_AMPLITUDES[o] * (unit_from_hash(hash_cell(self.seed, o as u64, i, j)) - 0.5);
+            g +=
+                OCTAVE_AMPLITUDES[o] * (unit_from_hash(hash_cell(self.seed, o as u64, i, j)) - 0.5);
         }
         let g = g.clamp(0.04, 0.96);
         let th = hash_cell(self.seed, 0x7147, qu >> TINT_SHIFT, qv >> TINT_SHIFT);
         let mut rgb = [g; 3];
         for (k, c) in rgb.iter_mut().enumerate() {
-            *c *= 0.55 + 0.45 * ((th >> (21 * k)) & 0x1F_FFFF) as i64 as f64 * (1.0 / (1u64 << 21) as f64);
+            *c *= 0.55
+                + 0.45 * ((th >> (21 * k)) & 0x1F_FFFF) as i64 as f64 * (1.0 / (1u64 << 21) as f64);
         }
         rgb
     }
@@ -175,7 +193,9 @@ mod tests {
         assert!(lms.len() > 10, "{} landmarks", lms.len());
         for c in &lms {
             for a in 0..2 {
-                assert!(c[a] - LANDMARK_HALF_SQUARE >= 0.0 && c[a] + LANDMARK_HALF_SQUARE <= t.size[a]);
+                assert!(
+                    c[a] - LANDMARK_HALF_SQUARE >= 0.0 && c[a] + LANDMARK_HALF_SQUARE <= t.size[a]
+                );
             }
             assert_eq!(t.albedo(c), [LANDMARK_DARK; 3]);
             let edge = c + Vector2::new(LANDMARK_HALF_SQUARE * 0.9, 0.0);
@@ -203,7 +223,9 @@ mod tests {
     fn texture_has_contrast_at_fine_scale() {
         let t = FaceTexture::new(5, 0, Vector2::new(2.0, 2.0), false);
         // Along a 10 cm segment the finest octave (2 cm) must produce several distinct values.
-        let mut vals: Vec<f64> = (0..100).map(|k| t.albedo(&Vector2::new(0.7 + 0.001 * k as f64, 0.9))[0]).collect();
+        let mut vals: Vec<f64> = (0..100)
+            .map(|k| t.albedo(&Vector2::new(0.7 + 0.001 * k as f64, 0.9))[0])
+            .collect();
         vals.dedup();
         assert!(vals.len() >= 4, "{vals:?}");
     }

@@ -18,7 +18,9 @@ pub fn mix64(mut x: u64) -> u64 {
 
 /// Hash of a list of words (order-sensitive).
 pub fn hash_words(words: &[u64]) -> u64 {
-    words.iter().fold(0x51_7CC1_B727_220A_u64, |h, &w| mix64(h ^ w))
+    words
+        .iter()
+        .fold(0x51_7CC1_B727_220A_u64, |h, &w| mix64(h ^ w))
 }
 
 /// A one-round hash of an integer cell `(i, j)` of layer `layer` under `seed` (for the texture's inner
@@ -53,11 +55,17 @@ pub fn gaussian_vec3(rng: &mut ChaCha8Rng, sigma: f64) -> Vector3<f64> {
 /// `world_from_cam` rotation of a camera at `eye` looking at `target`, with world `up` projecting
 /// upwards in the image (camera y points down). `None` when the view direction is degenerate
 /// (zero or parallel to `up`).
-pub fn look_at(eye: &Point3<f64>, target: &Point3<f64>, up: &Vector3<f64>) -> Option<Rotation3<f64>> {
+pub fn look_at(
+    eye: &Point3<f64>,
+    target: &Point3<f64>,
+    up: &Vector3<f64>,
+) -> Option<Rotation3<f64>> {
     let z = (target - eye).try_normalize(1e-12)?;
     let x = z.cross(up).try_normalize(1e-9)?;
     let y = z.cross(&x);
-    Some(Rotation3::from_matrix_unchecked(Matrix3::from_columns(&[x, y, z])))
+    Some(Rotation3::from_matrix_unchecked(Matrix3::from_columns(&[
+        x, y, z,
+    ])))
 }
 
 /// A rotation by a small axis-angle vector (radians).
@@ -88,7 +96,10 @@ mod tests {
         let s: Vec<f64> = (0..20000).map(|_| gaussian(&mut rng)).collect();
         let mean = s.iter().sum::<f64>() / s.len() as f64;
         let var = s.iter().map(|v| (v - mean) * (v - mean)).sum::<f64>() / s.len() as f64;
-        assert!(mean.abs() < 0.03 && (var - 1.0).abs() < 0.05, "mean {mean} var {var}");
+        assert!(
+            mean.abs() < 0.03 && (var - 1.0).abs() < 0.05,
+            "mean {mean} var {var}"
+        );
     }
 
     #[test]

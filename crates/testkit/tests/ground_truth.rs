@@ -7,15 +7,22 @@ use std::sync::OnceLock;
 use handheld_core::pose::center_of;
 use handheld_core::ImageId;
 use handheld_testkit::{
-    distance_to_mesh, pixel_ray, render_sequence, CameraPath, PathOptions, Primitive, SequenceOptions, SyntheticSequence,
-    LANDMARK_HALF_SQUARE, LANDMARK_RADIUS,
+    distance_to_mesh, pixel_ray, render_sequence, CameraPath, PathOptions, Primitive,
+    SequenceOptions, SyntheticSequence, LANDMARK_HALF_SQUARE, LANDMARK_RADIUS,
 };
 use nalgebra::{Point3, Vector2};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 fn small_options() -> SequenceOptions {
-    SequenceOptions { width: 320, height: 240, num_frames: 3, samples_per_axis: 4, seed: 11, ..SequenceOptions::default() }
+    SequenceOptions {
+        width: 320,
+        height: 240,
+        num_frames: 3,
+        samples_per_axis: 4,
+        seed: 11,
+        ..SequenceOptions::default()
+    }
 }
 
 fn sequence() -> &'static SyntheticSequence {
@@ -26,7 +33,9 @@ fn sequence() -> &'static SyntheticSequence {
 /// Distance from `p` to the convex quadrilateral `q` (corners in order), 0 inside.
 fn dist_to_quad(p: &Vector2<f64>, q: &[Vector2<f64>; 4]) -> f64 {
     let cross = |a: &Vector2<f64>, b: &Vector2<f64>| a.x * b.y - a.y * b.x;
-    let signs: Vec<f64> = (0..4).map(|i| cross(&(q[(i + 1) % 4] - q[i]), &(p - q[i]))).collect();
+    let signs: Vec<f64> = (0..4)
+        .map(|i| cross(&(q[(i + 1) % 4] - q[i]), &(p - q[i])))
+        .collect();
     if signs.iter().all(|s| *s >= 0.0) || signs.iter().all(|s| *s <= 0.0) {
         return 0.0;
     }
@@ -42,14 +51,21 @@ fn dist_to_quad(p: &Vector2<f64>, q: &[Vector2<f64>; 4]) -> f64 {
 /// Area centroid of the exact image of landmark `lm_idx`'s disk in `frame` (its boundary projected
 /// with distortion as a 720-gon): the disk centroid without the renderer, to separate the perspective
 /// offset between a disk's image centroid and its centre's projection from rendering errors.
-fn projected_disk_centroid(seq: &SyntheticSequence, frame: usize, lm_idx: usize) -> Option<Vector2<f64>> {
+fn projected_disk_centroid(
+    seq: &SyntheticSequence,
+    frame: usize,
+    lm_idx: usize,
+) -> Option<Vector2<f64>> {
     let (cam, pose) = seq.frame(frame)?;
     let lm = seq.scene.landmark_info()[lm_idx];
     let rect = seq.scene.face_rect(lm.primitive, lm.face)?;
     let poly: Vec<Vector2<f64>> = (0..720)
         .map(|k| {
             let a = std::f64::consts::TAU * k as f64 / 720.0;
-            cam.project(pose, &(lm.position + (rect.u * a.cos() + rect.v * a.sin()) * LANDMARK_RADIUS))
+            cam.project(
+                pose,
+                &(lm.position + (rect.u * a.cos() + rect.v * a.sin()) * LANDMARK_RADIUS),
+            )
         })
         .collect::<Option<_>>()?;
     let (mut area, mut c) = (0.0, Vector2::zeros());
@@ -65,7 +81,12 @@ fn projected_disk_centroid(seq: &SyntheticSequence, frame: usize, lm_idx: usize)
 /// Measures the centre of landmark `point_idx`'s disk in frame `frame` as the background-subtracted
 /// darkness centroid over the pixels that overlap the disk. `None` when the disk is not cleanly
 /// measurable (grazing view, near the image border, bright square occluded or cut by the window).
-fn measure_disk(seq: &SyntheticSequence, frame: usize, lm_idx: usize, predicted: Vector2<f64>) -> Option<Vector2<f64>> {
+fn measure_disk(
+    seq: &SyntheticSequence,
+    frame: usize,
+    lm_idx: usize,
+    predicted: Vector2<f64>,
+) -> Option<Vector2<f64>> {
     let (cam, pose) = seq.frame(frame)?;
     let lm = seq.scene.landmark_info()[lm_idx];
     let c = center_of(pose);
@@ -77,7 +98,11 @@ fn measure_disk(seq: &SyntheticSequence, frame: usize, lm_idx: usize, predicted:
     let r_px = cam.intrinsics.f * LANDMARK_RADIUS / z;
     let half = (1.3 * r_px).ceil() as i64 + 3;
     let (cx, cy) = (predicted.x.round() as i64, predicted.y.round() as i64);
-    if cx - half < 0 || cy - half < 0 || cx + half >= cam.width as i64 || cy + half >= cam.height as i64 {
+    if cx - half < 0
+        || cy - half < 0
+        || cx + half >= cam.width as i64
+        || cy + half >= cam.height as i64
+    {
         return None;
     }
     let img = &seq.images[frame];
@@ -87,13 +112,17 @@ fn measure_disk(seq: &SyntheticSequence, frame: usize, lm_idx: usize, predicted:
         for x in (cx - half)..=(cx + half) {
             let mut in_square = true;
             let mut corners = [Vector2::zeros(); 4];
-            for (k, (dx, dy)) in [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)].iter().enumerate() {
+            for (k, (dx, dy)) in [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)]
+                .iter()
+                .enumerate()
+            {
                 let (o, d) = pixel_ray(cam, pose, Vector2::new(x as f64 + dx, y as f64 + dy));
                 match seq.scene.intersect(&o, &d) {
                     Some(h) if h.primitive == lm.primitive && h.face == lm.face => {
                         corners[k] = h.uv;
                         let duv = h.uv - lm.uv;
-                        in_square &= duv.x.abs() < LANDMARK_HALF_SQUARE && duv.y.abs() < LANDMARK_HALF_SQUARE;
+                        in_square &= duv.x.abs() < LANDMARK_HALF_SQUARE
+                            && duv.y.abs() < LANDMARK_HALF_SQUARE;
                     }
                     _ => in_square = false,
                 }
@@ -110,7 +139,11 @@ fn measure_disk(seq: &SyntheticSequence, frame: usize, lm_idx: usize, predicted:
                     bg_n += 1;
                 }
                 (true, true) if !border => disk.push((x as f64, y as f64, grey)),
-                (false, _) if !border && dist_to_quad(&lm.uv, &corners) < LANDMARK_RADIUS + 1e-3 => return None,
+                (false, _)
+                    if !border && dist_to_quad(&lm.uv, &corners) < LANDMARK_RADIUS + 1e-3 =>
+                {
+                    return None
+                }
                 (true, true) => return None,
                 _ => {}
             }
@@ -138,7 +171,10 @@ fn landmarks_project_onto_rendered_disks() {
         for el in &point.track.elements {
             let (frame, lm) = (el.image_id.0 as usize, pid.0 as usize);
             let predicted = seq.gt.views[&el.image_id].observations[el.point2d_idx as usize].xy;
-            assert!((seq.gt.project(el.image_id, &point.xyz).expect("in front") - predicted).norm() < 1e-9);
+            assert!(
+                (seq.gt.project(el.image_id, &point.xyz).expect("in front") - predicted).norm()
+                    < 1e-9
+            );
             if let Some(m) = measure_disk(seq, frame, lm, predicted) {
                 errors.push((m - predicted).norm());
                 if let Some(c) = projected_disk_centroid(seq, frame, lm) {
@@ -147,7 +183,12 @@ fn landmarks_project_onto_rendered_disks() {
             }
         }
     }
-    let stats = |e: &[f64]| (e.iter().sum::<f64>() / e.len().max(1) as f64, e.iter().cloned().fold(0.0, f64::max));
+    let stats = |e: &[f64]| {
+        (
+            e.iter().sum::<f64>() / e.len().max(1) as f64,
+            e.iter().cloned().fold(0.0, f64::max),
+        )
+    };
     let ((mean, max), (rmean, rmax)) = (stats(&errors), stats(&render_errors));
     println!(
         "landmark disks: {} measured of {} observations; centroid vs GT projection: mean {mean:.4} px, max {max:.4} px; \
@@ -155,7 +196,11 @@ fn landmarks_project_onto_rendered_disks() {
         errors.len(),
         seq.gt.reprojection_errors().len()
     );
-    assert!(errors.len() >= 10, "only {} landmark disks measurable", errors.len());
+    assert!(
+        errors.len() >= 10,
+        "only {} landmark disks measurable",
+        errors.len()
+    );
     assert!(max < 0.1, "max landmark error {max} px (mean {mean})");
     assert!(rmax < 0.1, "max rendering error {rmax} px (mean {rmean})");
 }
@@ -168,14 +213,20 @@ fn depth_maps_match_independent_ray_casting() {
     for (i, depth) in seq.depths.iter().enumerate() {
         let (cam, pose) = seq.frame(i).expect("frame exists");
         for _ in 0..2000 {
-            let (x, y) = (rng.random_range(0..cam.width as usize), rng.random_range(0..cam.height as usize));
+            let (x, y) = (
+                rng.random_range(0..cam.width as usize),
+                rng.random_range(0..cam.height as usize),
+            );
             let ray = cam.ray_in_cam(Vector2::new(x as f64, y as f64));
             let dir = pose.rotation.inverse() * ray;
             let d = depth.get(x, y, 0) as f64;
             match seq.scene.intersect(&center_of(pose), &dir) {
                 Some(hit) => {
                     let zr = hit.t * ray.z;
-                    assert!((d - zr).abs() <= 1e-5 * zr, "frame {i} ({x},{y}): depth {d} vs ray cast {zr}");
+                    assert!(
+                        (d - zr).abs() <= 1e-5 * zr,
+                        "frame {i} ({x},{y}): depth {d} vs ray cast {zr}"
+                    );
                     checked += 1;
                 }
                 None => {
@@ -197,17 +248,23 @@ fn depth_maps_match_independent_ray_casting() {
             let (cam, pose) = seq.frame(i).expect("frame exists");
             let px = seq.gt.views[&el.image_id].observations[el.point2d_idx as usize].xy;
             let (x0, y0) = (px.x.floor(), px.y.floor());
-            if x0 < 0.0 || y0 < 0.0 || x0 + 1.0 >= cam.width as f64 || y0 + 1.0 >= cam.height as f64 {
+            if x0 < 0.0 || y0 < 0.0 || x0 + 1.0 >= cam.width as f64 || y0 + 1.0 >= cam.height as f64
+            {
                 continue;
             }
             let (fx, fy) = (px.x - x0, px.y - y0);
-            let g = |dx: usize, dy: usize| seq.depths[i].get(x0 as usize + dx, y0 as usize + dy, 0) as f64;
+            let g = |dx: usize, dy: usize| {
+                seq.depths[i].get(x0 as usize + dx, y0 as usize + dy, 0) as f64
+            };
             let ds = [g(0, 0), g(1, 0), g(0, 1), g(1, 1)];
-            let (lo, hi) = ds.iter().fold((f64::INFINITY, 0.0f64), |(a, b), &v| (a.min(v), b.max(v)));
+            let (lo, hi) = ds
+                .iter()
+                .fold((f64::INFINITY, 0.0f64), |(a, b), &v| (a.min(v), b.max(v)));
             if lo <= 0.0 || hi - lo > 0.05 * lo {
                 continue; // a depth edge next to the landmark (partly occluded)
             }
-            let z = (1.0 - fy) * ((1.0 - fx) * ds[0] + fx * ds[1]) + fy * ((1.0 - fx) * ds[2] + fx * ds[3]);
+            let z = (1.0 - fy) * ((1.0 - fx) * ds[0] + fx * ds[1])
+                + fy * ((1.0 - fx) * ds[2] + fx * ds[3]);
             let (o, d) = pixel_ray(cam, pose, px);
             let err = ((o + d * z) - point.xyz).norm();
             worst = worst.max(err);
@@ -241,7 +298,10 @@ fn gt_mesh_contains_landmarks_and_depth_points() {
     let mut worst: f64 = 0.0;
     let mut n = 0;
     while n < 300 {
-        let (x, y) = (rng.random_range(0..cam.width as usize), rng.random_range(0..cam.height as usize));
+        let (x, y) = (
+            rng.random_range(0..cam.width as usize),
+            rng.random_range(0..cam.height as usize),
+        );
         let z = seq.depths[1].get(x, y, 0) as f64;
         if z == 0.0 {
             continue;
@@ -257,17 +317,32 @@ fn gt_mesh_contains_landmarks_and_depth_points() {
 
 #[test]
 fn rendering_is_deterministic_in_the_seed() {
-    let opts = SequenceOptions { width: 96, height: 72, num_frames: 2, samples_per_axis: 2, seed: 5, ..SequenceOptions::default() };
+    let opts = SequenceOptions {
+        width: 96,
+        height: 72,
+        num_frames: 2,
+        samples_per_axis: 2,
+        seed: 5,
+        ..SequenceOptions::default()
+    };
     let a = render_sequence(&opts).expect("valid");
     let b = render_sequence(&opts).expect("valid");
     assert_eq!(a.images, b.images);
     assert_eq!(a.depths, b.depths);
     assert_eq!(a.gt, b.gt);
-    let c = render_sequence(&SequenceOptions { seed: 6, ..opts.clone() }).expect("valid");
+    let c = render_sequence(&SequenceOptions {
+        seed: 6,
+        ..opts.clone()
+    })
+    .expect("valid");
     assert_ne!(a.images, c.images);
     assert_ne!(a.gt, c.gt);
     // Noise alone differs between frames and seeds but never changes the depth.
-    let d = render_sequence(&SequenceOptions { image_noise_sigma: 0.0, ..opts }).expect("valid");
+    let d = render_sequence(&SequenceOptions {
+        image_noise_sigma: 0.0,
+        ..opts
+    })
+    .expect("valid");
     assert_eq!(a.depths, d.depths);
     assert_ne!(a.images, d.images);
 }
@@ -290,7 +365,11 @@ fn gt_reconstruction_is_exact_and_valid() {
 
 #[test]
 fn other_paths_and_zoom_give_valid_ground_truth() {
-    for (kind, zoom) in [(CameraPath::WalkThrough, None), (CameraPath::Forward, Some((1.0, 1.3))), (CameraPath::Orbit, Some((1.2, 0.9)))] {
+    for (kind, zoom) in [
+        (CameraPath::WalkThrough, None),
+        (CameraPath::Forward, Some((1.0, 1.3))),
+        (CameraPath::Orbit, Some((1.2, 0.9))),
+    ] {
         let path = match kind {
             CameraPath::Orbit => PathOptions::orbit(4),
             CameraPath::WalkThrough => PathOptions::walk_through(4),
@@ -307,8 +386,16 @@ fn other_paths_and_zoom_give_valid_ground_truth() {
         let seq = render_sequence(&opts).expect("valid");
         seq.gt.validate().expect("consistent GT");
         assert!(seq.gt.mean_reprojection_error() < 1e-9);
-        assert_eq!(seq.gt.cameras.len(), if zoom.is_some() { 4 } else { 1 }, "{kind:?}");
-        assert!(seq.gt.points.len() >= 10, "{kind:?}: {} points", seq.gt.points.len());
+        assert_eq!(
+            seq.gt.cameras.len(),
+            if zoom.is_some() { 4 } else { 1 },
+            "{kind:?}"
+        );
+        assert!(
+            seq.gt.points.len() >= 10,
+            "{kind:?}: {} points",
+            seq.gt.points.len()
+        );
         assert!(seq.depths.iter().all(|d| d.fill_ratio() > 0.5), "{kind:?}");
         let f: Vec<f64> = seq.gt.cameras.values().map(|c| c.intrinsics.f).collect();
         assert!(f.windows(2).all(|w| w[0] != w[1]));
@@ -318,12 +405,31 @@ fn other_paths_and_zoom_give_valid_ground_truth() {
 #[test]
 fn invalid_options_are_rejected() {
     let bad = [
-        SequenceOptions { width: 0, ..SequenceOptions::default() },
-        SequenceOptions { num_frames: 0, ..SequenceOptions::default() },
-        SequenceOptions { samples_per_axis: 0, ..SequenceOptions::default() },
-        SequenceOptions { image_noise_sigma: f64::NAN, ..SequenceOptions::default() },
-        SequenceOptions { k1: -0.6, k2: 0.0, ..SequenceOptions::default() },
-        SequenceOptions { focal_px: Some(-1.0), ..SequenceOptions::default() },
+        SequenceOptions {
+            width: 0,
+            ..SequenceOptions::default()
+        },
+        SequenceOptions {
+            num_frames: 0,
+            ..SequenceOptions::default()
+        },
+        SequenceOptions {
+            samples_per_axis: 0,
+            ..SequenceOptions::default()
+        },
+        SequenceOptions {
+            image_noise_sigma: f64::NAN,
+            ..SequenceOptions::default()
+        },
+        SequenceOptions {
+            k1: -0.6,
+            k2: 0.0,
+            ..SequenceOptions::default()
+        },
+        SequenceOptions {
+            focal_px: Some(-1.0),
+            ..SequenceOptions::default()
+        },
     ];
     for o in &bad {
         assert!(o.validate().is_err(), "{o:?}");

@@ -23,56 +23,80 @@ pub fn feature_file_name(index: usize) -> String {
 
 pub fn options(a: &InputArgs) -> Result<ExtractionOptions> {
     let opts = ExtractionOptions {
-        sift: SiftOptions { max_features: Some(a.max_features), ..ExtractionOptions::default().sift },
+        sift: SiftOptions {
+            max_features: Some(a.max_features),
+            ..ExtractionOptions::default().sift
+        },
         max_image_size: a.max_image_size,
+        ..ExtractionOptions::default()
     };
     opts.validate().map_err(anyhow::Error::msg)?;
     Ok(opts)
 }
 
-pub fn run(ws: &Workspace, opts: &ExtractionOptions, force: bool, bars: &Bars) -> Result<StageReport> {
+pub fn run(
+    ws: &Workspace,
+    opts: &ExtractionOptions,
+    force: bool,
+    bars: &Bars,
+) -> Result<StageReport> {
     let ingest = super::load_ingest(ws)?;
-    run_stage(ws, Stage::Features, Fingerprint::new(), serde_json::to_value(opts)?, force, |dir| {
-        bars.start("features", ingest.images.len() as u64);
-        let load_opts = ImageIngestOptions { min_dimension: 1, ..Default::default() };
-        let results: Vec<Result<(usize, f64)>> = ingest
-            .images
-            .par_iter()
-            .enumerate()
-            .map(|(k, img)| {
-                let loaded = load_image(&img.info.path, &load_opts)?;
-                let t0 = Instant::now();
-                let f = extract_features(&loaded.image, opts);
-                let secs = t0.elapsed().as_secs_f64();
-                let file = FeatureFile {
-                    keypoints: f.keypoints.iter().map(|k| [k.x, k.y, k.scale, k.orientation, k.response]).collect(),
-                    dim: f.descriptors.dim,
-                    descriptors: f.descriptors.data,
-                };
-                write_features(&dir.join(feature_file_name(k)), &file).with_context(|| format!("features of {}", img.info.name))?;
-                bars.inc(1);
-                Ok((file.keypoints.len(), secs))
+    run_stage(
+        ws,
+        Stage::Features,
+        Fingerprint::new(),
+        serde_json::to_value(opts)?,
+        force,
+        |dir| {
+            bars.start("features", ingest.images.len() as u64);
+            let load_opts = ImageIngestOptions {
+                min_dimension: 1,
+                ..Default::default()
+            };
+            let results: Vec<Result<(usize, f64)>> = ingest
+                .images
+                .par_iter()
+                .enumerate()
+                .map(|(k, img)| {
+                    let loaded = load_image(&img.info.path, &load_opts)?;
+                    let t0 = Instant::now();
+                    let f = extract_features(&loaded.image, opts);
+                    let secs = t0.elapsed().as_secs_f64();
+                    let file = FeatureFile {
+                        keypoints: f
+                            .keypoints
+                            .iter()
+                            .map(|k| [k.x, k.y, k.scale, k.orientation, k.response])
+                            .collect(),
+                        dim: f.descriptors.dim,
+                        descriptors: f.descriptors.data,
+                    };
+                    write_features(&dir.join(feature_file_name(k)), &file)
+                        .with_context(|| format!("features of {}", img.info.name))?;
+                    bars.inc(1);
+                    Ok((file.keypoints.len(), secs))
+                })
+                .collect();
+            bars.finish();
+            let results: Vec<(usize, f64)> = results.into_iter().collect::<Result<_>>()?;
+            let counts: Vec<usize> = results.iter().map(|r| r.0).collect();
+            let mut secs: Vec<f64> = results.iter().map(|r| r.1).collect();
+            secs.sort_by(|a, b| a.total_cmp(b));
+            let min = counts.iter().min().copied().unwrap_or(0);
+            if min < 50 {
+                tracing::warn!("an image has only {min} features: textureless, blurred or tiny images match poorly");
+            }
+            Ok(StageOutput {
+                outputs: (0..counts.len()).map(feature_file_name).collect(),
+                summary: serde_json::json!({
+                    "images": counts.len(),
+                    "features_per_image_median": median_usize(&counts),
+                    "features_min": min,
+                    "extraction_seconds_median": secs.get(secs.len() / 2),
+                }),
             })
-            .collect();
-        bars.finish();
-        let results: Vec<(usize, f64)> = results.into_iter().collect::<Result<_>>()?;
-        let counts: Vec<usize> = results.iter().map(|r| r.0).collect();
-        let mut secs: Vec<f64> = results.iter().map(|r| r.1).collect();
-        secs.sort_by(|a, b| a.total_cmp(b));
-        let min = counts.iter().min().copied().unwrap_or(0);
-        if min < 50 {
-            tracing::warn!("an image has only {min} features: textureless, blurred or tiny images match poorly");
-        }
-        Ok(StageOutput {
-            outputs: (0..counts.len()).map(feature_file_name).collect(),
-            summary: serde_json::json!({
-                "images": counts.len(),
-                "features_per_image_median": median_usize(&counts),
-                "features_min": min,
-                "extraction_seconds_median": secs.get(secs.len() / 2),
-            }),
-        })
-    })
+        },
+    )
 }
 
 fn median_usize(v: &[usize]) -> usize {

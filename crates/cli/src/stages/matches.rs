@@ -36,19 +36,41 @@ pub fn options(a: &InputArgs) -> Result<MatchStageOptions> {
     if !(a.ratio > 0.0 && a.ratio <= 1.0) {
         anyhow::bail!("--ratio must be in (0, 1], got {}", a.ratio);
     }
-    Ok(MatchStageOptions { pairs: a.pairs, window: a.window, ratio: a.ratio, guided: !a.no_guided, close_views: !a.no_close_views })
+    Ok(MatchStageOptions {
+        pairs: a.pairs,
+        window: a.window,
+        ratio: a.ratio,
+        guided: !a.no_guided,
+        close_views: !a.no_close_views,
+    })
 }
 
 fn verification_options(o: &MatchStageOptions) -> PairVerificationOptions {
-    let mut v = PairVerificationOptions { guided: o.guided, ..Default::default() };
+    let mut v = PairVerificationOptions {
+        guided: o.guided,
+        ..Default::default()
+    };
     v.matching.ratio = o.ratio;
     v
 }
 
 fn to_features(f: handheld_io::features_file::FeatureFile) -> Features {
     Features {
-        keypoints: f.keypoints.iter().map(|k| Keypoint { x: k[0], y: k[1], scale: k[2], orientation: k[3], response: k[4] }).collect(),
-        descriptors: Descriptors { dim: f.dim, data: f.descriptors },
+        keypoints: f
+            .keypoints
+            .iter()
+            .map(|k| Keypoint {
+                x: k[0],
+                y: k[1],
+                scale: k[2],
+                orientation: k[3],
+                response: k[4],
+            })
+            .collect(),
+        descriptors: Descriptors {
+            dim: f.dim,
+            data: f.descriptors,
+        },
     }
 }
 
@@ -61,7 +83,12 @@ fn colmap_config(c: TwoViewConfiguration) -> i64 {
     }) as i64
 }
 
-pub fn run(ws: &Workspace, opts: &MatchStageOptions, force: bool, bars: &Bars) -> Result<StageReport> {
+pub fn run(
+    ws: &Workspace,
+    opts: &MatchStageOptions,
+    force: bool,
+    bars: &Bars,
+) -> Result<StageReport> {
     let ingest = super::load_ingest(ws)?;
     let n = ingest.images.len();
     let sequential = match (opts.pairs, ingest.kind) {
@@ -69,53 +96,91 @@ pub fn run(ws: &Workspace, opts: &MatchStageOptions, force: bool, bars: &Bars) -
         (PairMode::Sequential, _) | (PairMode::Auto, InputKind::Video) => true,
         (PairMode::Auto, InputKind::Photos) => n > 40,
     };
-    run_stage(ws, Stage::Matches, Fingerprint::new(), serde_json::to_value(opts)?, force, |dir| {
-        let fdir = ws.root.join(Stage::Features.dir_name());
-        let features: Vec<Features> = (0..n)
-            .map(|k| read_features(&fdir.join(feature_file_name(k))).map(to_features))
-            .collect::<std::result::Result<_, _>>()
-            .context("reading features (rerun the features stage with --force)")?;
-        let mut pairs = if sequential { sequential_pairs(n, opts.window) } else { exhaustive_pairs(n) };
-        let mut proposed = 0;
-        if sequential && opts.close_views {
-            let extra = propose_close_views(&features, opts.window, &CloseViewOptions::default());
-            proposed = extra.len();
-            pairs.extend(extra);
-        }
-        let verified = verify_pairs(&features, &pairs, &verification_options(opts), bars);
-        write_database(&dir.join("database.db"), &ingest, &features, &verified)?;
-        let summaries: Vec<_> = verified.iter().map(VerifiedPair::summary).collect();
-        handheld_io::atomic::write_bytes_atomic(&dir.join("pairs.json"), &serde_json::to_vec_pretty(&summaries)?)?;
-        let good = summaries.iter().filter(|s| s.configuration == TwoViewConfiguration::General).count();
-        let mut inl: Vec<usize> = summaries.iter().filter(|s| s.configuration != TwoViewConfiguration::TooFewInliers).map(|s| s.inliers).collect();
-        inl.sort_unstable();
-        Ok(StageOutput {
-            outputs: vec!["database.db".into(), "pairs.json".into()],
-            summary: serde_json::json!({
-                "pairs": pairs.len(),
-                "close_view_pairs_proposed": proposed,
-                "close_view_pairs_verified": verified.iter().filter(|v| v.j > v.i + opts.window && v.geometry.configuration == TwoViewConfiguration::General).count(),
-                "verified_general": good,
-                "verified_planar_or_rotation": summaries.iter().filter(|s| matches!(s.configuration, TwoViewConfiguration::Planar | TwoViewConfiguration::PureRotation)).count(),
-                "inliers_per_verified_pair_median": inl.get(inl.len() / 2),
-            }),
-        })
-    })
+    run_stage(
+        ws,
+        Stage::Matches,
+        Fingerprint::new(),
+        serde_json::to_value(opts)?,
+        force,
+        |dir| {
+            let fdir = ws.root.join(Stage::Features.dir_name());
+            let features: Vec<Features> = (0..n)
+                .map(|k| read_features(&fdir.join(feature_file_name(k))).map(to_features))
+                .collect::<std::result::Result<_, _>>()
+                .context("reading features (rerun the features stage with --force)")?;
+            let mut pairs = if sequential {
+                sequential_pairs(n, opts.window)
+            } else {
+                exhaustive_pairs(n)
+            };
+            let mut proposed = 0;
+            if sequential && opts.close_views {
+                let extra =
+                    propose_close_views(&features, opts.window, &CloseViewOptions::default());
+                proposed = extra.len();
+                pairs.extend(extra);
+            }
+            let verified = verify_pairs(&features, &pairs, &verification_options(opts), bars);
+            write_database(&dir.join("database.db"), &ingest, &features, &verified)?;
+            let summaries: Vec<_> = verified.iter().map(VerifiedPair::summary).collect();
+            handheld_io::atomic::write_bytes_atomic(
+                &dir.join("pairs.json"),
+                &serde_json::to_vec_pretty(&summaries)?,
+            )?;
+            let good = summaries
+                .iter()
+                .filter(|s| s.configuration == TwoViewConfiguration::General)
+                .count();
+            let mut inl: Vec<usize> = summaries
+                .iter()
+                .filter(|s| s.configuration != TwoViewConfiguration::TooFewInliers)
+                .map(|s| s.inliers)
+                .collect();
+            inl.sort_unstable();
+            Ok(StageOutput {
+                outputs: vec!["database.db".into(), "pairs.json".into()],
+                summary: serde_json::json!({
+                    "pairs": pairs.len(),
+                    "close_view_pairs_proposed": proposed,
+                    "close_view_pairs_verified": verified.iter().filter(|v| v.j > v.i + opts.window && v.geometry.configuration == TwoViewConfiguration::General).count(),
+                    "verified_general": good,
+                    "verified_planar_or_rotation": summaries.iter().filter(|s| matches!(s.configuration, TwoViewConfiguration::Planar | TwoViewConfiguration::PureRotation)).count(),
+                    "inliers_per_verified_pair_median": inl.get(inl.len() / 2),
+                }),
+            })
+        },
+    )
 }
 
-fn write_database(path: &std::path::Path, ingest: &handheld_io::ingest::IngestResult, features: &[Features], verified: &[VerifiedPair]) -> Result<()> {
+fn write_database(
+    path: &std::path::Path,
+    ingest: &handheld_io::ingest::IngestResult,
+    features: &[Features],
+    verified: &[VerifiedPair],
+) -> Result<()> {
     let db = Database::create(path)?;
     // One SIMPLE_RADIAL camera per physical camera / zoom (EXIF), with a focal guess or EXIF prior.
     let mut cams: std::collections::HashMap<String, u32> = Default::default();
     let mut ids = Vec::with_capacity(ingest.images.len());
     for img in &ingest.images {
-        let key = format!("{}|{}x{}", img.info.exif.camera_key(), img.info.width, img.info.height);
+        let key = format!(
+            "{}|{}x{}",
+            img.info.exif.camera_key(),
+            img.info.width,
+            img.info.height
+        );
         let cam = match cams.get(&key) {
             Some(&c) => c,
             None => {
                 let (w, h) = (img.info.width as f64, img.info.height as f64);
                 let f = img.info.focal_prior_px.unwrap_or(1.2 * w.max(h));
-                let c = db.add_camera(2, img.info.width, img.info.height, &[f, w / 2.0, h / 2.0, 0.0], img.info.focal_prior_px.is_some())?;
+                let c = db.add_camera(
+                    2,
+                    img.info.width,
+                    img.info.height,
+                    &[f, w / 2.0, h / 2.0, 0.0],
+                    img.info.focal_prior_px.is_some(),
+                )?;
                 cams.insert(key, c);
                 c
             }
@@ -123,14 +188,23 @@ fn write_database(path: &std::path::Path, ingest: &handheld_io::ingest::IngestRe
         ids.push(db.add_image(&img.info.name, cam)?);
     }
     for (k, f) in features.iter().enumerate() {
-        let kps: Vec<[f32; 4]> = f.keypoints.iter().map(|p| [p.x, p.y, p.scale, p.orientation]).collect();
+        let kps: Vec<[f32; 4]> = f
+            .keypoints
+            .iter()
+            .map(|p| [p.x, p.y, p.scale, p.orientation])
+            .collect();
         db.write_keypoints(ids[k], &kps)?;
         db.write_descriptors(ids[k], f.descriptors.dim, &f.descriptors.data)?;
     }
     for v in verified {
         let putative: Vec<(u32, u32)> = v.putative.iter().map(|m| (m.i, m.j)).collect();
         db.write_matches(ids[v.i], ids[v.j], &putative)?;
-        let g = StoredTwoViewGeometry { config: colmap_config(v.geometry.configuration), inliers: v.inliers.clone(), f: v.geometry.f, h: v.geometry.h };
+        let g = StoredTwoViewGeometry {
+            config: colmap_config(v.geometry.configuration),
+            inliers: v.inliers.clone(),
+            f: v.geometry.f,
+            h: v.geometry.h,
+        };
         db.write_two_view_geometry(ids[v.i], ids[v.j], &g)?;
     }
     db.finish()?;

@@ -13,6 +13,8 @@ use handheld_io::workspace::Workspace;
 /// The ingest stage's result, read back from the workspace.
 pub fn load_ingest(ws: &Workspace) -> Result<IngestResult> {
     let path = ws.root.join("ingest").join("images.json");
-    let text = std::fs::read_to_string(&path).with_context(|| format!("{}: cannot read (rerun with --force)", path.display()))?;
-    serde_json::from_str(&text).with_context(|| format!("{}: corrupt (rerun with --force)", path.display()))
+    let text = std::fs::read_to_string(&path)
+        .with_context(|| format!("{}: cannot read (rerun with --force)", path.display()))?;
+    serde_json::from_str(&text)
+        .with_context(|| format!("{}: corrupt (rerun with --force)", path.display()))
 }

@@ -29,7 +29,13 @@ pub fn options(a: &InputArgs) -> Result<SfmOptions> {
         crate::args::DistortionArg::K1 => handheld_sfm::Distortion::K1,
         crate::args::DistortionArg::K1k2 => handheld_sfm::Distortion::K1K2,
     };
-    let o = SfmOptions { seed: a.seed, distortion, refine_principal_point: !a.fixed_principal_point, ..Default::default() };
+    let o = SfmOptions {
+        seed: a.seed,
+        distortion,
+        refine_principal_point: !a.fixed_principal_point,
+        principal_point_prior: a.principal_point_prior,
+        ..Default::default()
+    };
     o.validate().map_err(anyhow::Error::msg)?;
     Ok(o)
 }
@@ -43,46 +49,94 @@ pub fn load_input(ws: &Workspace) -> Result<SfmInput> {
         .par_iter()
         .enumerate()
         .map(|(k, img)| {
-            let f = read_features(&fdir.join(feature_file_name(k))).context("reading features (rerun the features stage with --force)")?;
+            let f = read_features(&fdir.join(feature_file_name(k)))
+                .context("reading features (rerun the features stage with --force)")?;
             Ok(SfmImage {
                 id: ImageId(k as u32 + 1),
                 name: img.info.name.clone(),
                 width: img.info.width,
                 height: img.info.height,
-                keypoints: f.keypoints.iter().map(|p| Vector2::new(p[0] as f64, p[1] as f64)).collect(),
-                camera_key: format!("{}|{}x{}", img.info.exif.camera_key(), img.info.width, img.info.height),
+                keypoints: f
+                    .keypoints
+                    .iter()
+                    .map(|p| Vector2::new(p[0] as f64, p[1] as f64))
+                    .collect(),
+                camera_key: format!(
+                    "{}|{}x{}",
+                    img.info.exif.camera_key(),
+                    img.info.width,
+                    img.info.height
+                ),
                 focal_prior_px: img.info.focal_prior_px,
                 frame: img.frame,
             })
         })
         .collect::<Result<_>>()?;
     let mdir = ws.root.join(Stage::Matches.dir_name());
-    let summaries: Vec<handheld_features::verify::PairSummary> = serde_json::from_slice(
-        &std::fs::read(mdir.join("pairs.json")).with_context(|| format!("{}: cannot read (rerun matches with --force)", mdir.join("pairs.json").display()))?,
-    )
-    .with_context(|| format!("{}: corrupt (rerun matches with --force)", mdir.join("pairs.json").display()))?;
+    let summaries: Vec<handheld_features::verify::PairSummary> =
+        serde_json::from_slice(&std::fs::read(mdir.join("pairs.json")).with_context(|| {
+            format!(
+                "{}: cannot read (rerun matches with --force)",
+                mdir.join("pairs.json").display()
+            )
+        })?)
+        .with_context(|| {
+            format!(
+                "{}: corrupt (rerun matches with --force)",
+                mdir.join("pairs.json").display()
+            )
+        })?;
     let db = Database::open(&mdir.join("database.db"))?;
     let ids: Vec<u32> = db.images()?.into_iter().map(|(id, _, _)| id).collect();
     if ids.len() != images.len() {
-        anyhow::bail!("{}: {} images, but ingest has {} (rerun matches with --force)", mdir.join("database.db").display(), ids.len(), images.len());
+        anyhow::bail!(
+            "{}: {} images, but ingest has {} (rerun matches with --force)",
+            mdir.join("database.db").display(),
+            ids.len(),
+            images.len()
+        );
     }
     let mut pairs = Vec::new();
     for s in summaries {
-        if s.configuration == TwoViewConfiguration::TooFewInliers || s.i >= ids.len() || s.j >= ids.len() {
+        if s.configuration == TwoViewConfiguration::TooFewInliers
+            || s.i >= ids.len()
+            || s.j >= ids.len()
+        {
             continue;
         }
-        let Some(g) = db.read_two_view_geometry(ids[s.i], ids[s.j])? else { continue };
-        pairs.push(SfmPair { a: s.i, b: s.j, matches: g.inliers, f: g.f, configuration: s.configuration, view_distance_px: s.view_distance_px });
+        let Some(g) = db.read_two_view_geometry(ids[s.i], ids[s.j])? else {
+            continue;
+        };
+        pairs.push(SfmPair {
+            a: s.i,
+            b: s.j,
+            matches: g.inliers,
+            f: g.f,
+            configuration: s.configuration,
+            view_distance_px: s.view_distance_px,
+        });
     }
-    Ok(SfmInput { images, pairs, video: ingest.kind == InputKind::Video })
+    Ok(SfmInput {
+        images,
+        pairs,
+        video: ingest.kind == InputKind::Video,
+    })
 }
 
 /// Colours every point from the first image that sees it.
 fn colorize(ws: &Workspace, rec: &mut MetricReconstruction) -> Result<()> {
     let ingest = super::load_ingest(ws)?;
-    let paths: BTreeMap<String, std::path::PathBuf> = ingest.images.iter().map(|i| (i.info.name.clone(), i.info.path.clone())).collect();
-    let opts = ImageIngestOptions { min_dimension: 1, ..Default::default() };
-    let views: Vec<(ImageId, String)> = rec.views.values().map(|v| (v.id, v.name.clone())).collect();
+    let paths: BTreeMap<String, std::path::PathBuf> = ingest
+        .images
+        .iter()
+        .map(|i| (i.info.name.clone(), i.info.path.clone()))
+        .collect();
+    let opts = ImageIngestOptions {
+        min_dimension: 1,
+        ..Default::default()
+    };
+    let views: Vec<(ImageId, String)> =
+        rec.views.values().map(|v| (v.id, v.name.clone())).collect();
     let imgs: BTreeMap<ImageId, image::RgbImage> = views
         .par_iter()
         .filter_map(|(id, name)| {
@@ -91,10 +145,17 @@ fn colorize(ws: &Workspace, rec: &mut MetricReconstruction) -> Result<()> {
         })
         .collect();
     for pt in rec.points.values_mut() {
-        let Some(el) = pt.track.elements.first() else { continue };
-        let (Some(img), Some(v)) = (imgs.get(&el.image_id), rec.views.get(&el.image_id)) else { continue };
+        let Some(el) = pt.track.elements.first() else {
+            continue;
+        };
+        let (Some(img), Some(v)) = (imgs.get(&el.image_id), rec.views.get(&el.image_id)) else {
+            continue;
+        };
         let xy = v.observations[el.point2d_idx as usize].xy;
-        let (x, y) = (xy.x.round().clamp(0.0, img.width() as f64 - 1.0) as u32, xy.y.round().clamp(0.0, img.height() as f64 - 1.0) as u32);
+        let (x, y) = (
+            xy.x.round().clamp(0.0, img.width() as f64 - 1.0) as u32,
+            xy.y.round().clamp(0.0, img.height() as f64 - 1.0) as u32,
+        );
         pt.color = img.get_pixel(x, y).0;
     }
     Ok(())
@@ -104,66 +165,87 @@ fn write_model(dir: &Path, rec: &MetricReconstruction, summary: &serde_json::Val
     std::fs::create_dir_all(dir).with_context(|| format!("{}: cannot create", dir.display()))?;
     handheld_io::colmap::write_reconstruction(dir, rec, true, true)?;
     let cloud = PointCloud {
-        positions: rec.points.values().map(|p| [p.xyz.x as f32, p.xyz.y as f32, p.xyz.z as f32]).collect(),
+        positions: rec
+            .points
+            .values()
+            .map(|p| [p.xyz.x as f32, p.xyz.y as f32, p.xyz.z as f32])
+            .collect(),
         colors: rec.points.values().map(|p| p.color).collect(),
         normals: Vec::new(),
     };
     handheld_io::ply::write_point_cloud(&dir.join("points.ply"), &cloud, Default::default())?;
-    handheld_io::atomic::write_bytes_atomic(&dir.join("summary.json"), &serde_json::to_vec_pretty(summary)?)?;
+    handheld_io::atomic::write_bytes_atomic(
+        &dir.join("summary.json"),
+        &serde_json::to_vec_pretty(summary)?,
+    )?;
     Ok(())
 }
 
 pub fn run(ws: &Workspace, opts: &SfmOptions, force: bool, bars: &Bars) -> Result<StageReport> {
-    run_stage(ws, Stage::Sparse, Fingerprint::new(), serde_json::to_value(opts)?, force, |dir| {
-        let input = load_input(ws)?;
-        let mut result = reconstruct(&input, opts, bars).context("structure from motion")?;
-        for m in result.models.iter_mut() {
-            colorize(ws, &mut m.reconstruction)?;
-        }
-        let mut outputs = vec![
-            "cameras.txt".into(),
-            "images.txt".into(),
-            "points3D.txt".into(),
-            "cameras.bin".into(),
-            "images.bin".into(),
-            "points3D.bin".into(),
-            "points.ply".into(),
-            "summary.json".into(),
-        ];
-        let models_json: Vec<serde_json::Value> = result.models.iter().map(|m| serde_json::to_value(&m.summary)).collect::<std::result::Result<_, _>>()?;
-        let unregistered: Vec<serde_json::Value> =
-            result.unregistered.iter().map(|(n, why)| serde_json::json!({"image": n, "reason": why})).collect();
-        for (k, m) in result.models.iter().enumerate() {
-            let mut s = serde_json::to_value(&m.summary)?;
-            if k == 0 {
-                s["unregistered"] = serde_json::Value::Array(unregistered.clone());
-                s["other_models"] = serde_json::Value::Array(models_json[1..].to_vec());
-                write_model(dir, &m.reconstruction, &s)?;
-            } else {
-                let sub = dir.join("models").join(k.to_string());
-                write_model(&sub, &m.reconstruction, &s)?;
-                outputs.push(format!("models/{k}"));
+    run_stage(
+        ws,
+        Stage::Sparse,
+        Fingerprint::new(),
+        serde_json::to_value(opts)?,
+        force,
+        |dir| {
+            let input = load_input(ws)?;
+            let mut result = reconstruct(&input, opts, bars).context("structure from motion")?;
+            for m in result.models.iter_mut() {
+                colorize(ws, &mut m.reconstruction)?;
             }
-        }
-        for (n, why) in &result.unregistered {
-            tracing::warn!("{n}: not registered ({why})");
-        }
-        if result.models.len() > 1 {
-            tracing::warn!("the images form {} separate models; the largest is in sparse/, the others in sparse/models/", result.models.len());
-        }
-        let best = &result.models[0].summary;
-        Ok(StageOutput {
-            outputs,
-            summary: serde_json::json!({
-                "models": result.models.len(),
-                "registered": best.registered,
-                "total_images": best.total_images,
-                "points": best.points,
-                "mean_reprojection_error_px": best.mean_reprojection_error_px,
-                "focal_px": best.groups.iter().map(|g| g.f).collect::<Vec<_>>(),
-                "self_calibration_degenerate": best.self_calibration.degenerate,
-                "unregistered": unregistered,
-            }),
-        })
-    })
+            let mut outputs = vec![
+                "cameras.txt".into(),
+                "images.txt".into(),
+                "points3D.txt".into(),
+                "cameras.bin".into(),
+                "images.bin".into(),
+                "points3D.bin".into(),
+                "points.ply".into(),
+                "summary.json".into(),
+            ];
+            let models_json: Vec<serde_json::Value> = result
+                .models
+                .iter()
+                .map(|m| serde_json::to_value(&m.summary))
+                .collect::<std::result::Result<_, _>>()?;
+            let unregistered: Vec<serde_json::Value> = result
+                .unregistered
+                .iter()
+                .map(|(n, why)| serde_json::json!({"image": n, "reason": why}))
+                .collect();
+            for (k, m) in result.models.iter().enumerate() {
+                let mut s = serde_json::to_value(&m.summary)?;
+                if k == 0 {
+                    s["unregistered"] = serde_json::Value::Array(unregistered.clone());
+                    s["other_models"] = serde_json::Value::Array(models_json[1..].to_vec());
+                    write_model(dir, &m.reconstruction, &s)?;
+                } else {
+                    let sub = dir.join("models").join(k.to_string());
+                    write_model(&sub, &m.reconstruction, &s)?;
+                    outputs.push(format!("models/{k}"));
+                }
+            }
+            for (n, why) in &result.unregistered {
+                tracing::warn!("{n}: not registered ({why})");
+            }
+            if result.models.len() > 1 {
+                tracing::warn!("the images form {} separate models; the largest is in sparse/, the others in sparse/models/", result.models.len());
+            }
+            let best = &result.models[0].summary;
+            Ok(StageOutput {
+                outputs,
+                summary: serde_json::json!({
+                    "models": result.models.len(),
+                    "registered": best.registered,
+                    "total_images": best.total_images,
+                    "points": best.points,
+                    "mean_reprojection_error_px": best.mean_reprojection_error_px,
+                    "focal_px": best.groups.iter().map(|g| g.f).collect::<Vec<_>>(),
+                    "self_calibration_degenerate": best.self_calibration.degenerate,
+                    "unregistered": unregistered,
+                }),
+            })
+        },
+    )
 }

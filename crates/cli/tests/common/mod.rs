@@ -33,7 +33,13 @@ pub fn stdout(o: &Output) -> String {
 
 /// A textured test image (big enough for ingest).
 pub fn write_image(path: &Path, seed: u32) {
-    let img = image::RgbImage::from_fn(64, 48, |x, y| image::Rgb([((x * 7 + seed) % 256) as u8, ((y * 5) % 256) as u8, ((x ^ y) % 256) as u8]));
+    let img = image::RgbImage::from_fn(64, 48, |x, y| {
+        image::Rgb([
+            ((x * 7 + seed) % 256) as u8,
+            ((y * 5) % 256) as u8,
+            ((x ^ y) % 256) as u8,
+        ])
+    });
     img.save(path).expect("write test image");
 }
 
@@ -50,7 +56,9 @@ pub fn photo_folder(dir: &Path, n: u32) -> std::path::PathBuf {
 /// No file under `dir` looks half-written (`*.tmp`).
 pub fn no_temp_files(dir: &Path) -> bool {
     fn walk(d: &Path) -> bool {
-        let Ok(rd) = std::fs::read_dir(d) else { return true };
+        let Ok(rd) = std::fs::read_dir(d) else {
+            return true;
+        };
         rd.flatten().all(|e| {
             let p = e.path();
             if p.is_dir() {
@@ -64,9 +72,17 @@ pub fn no_temp_files(dir: &Path) -> bool {
 }
 
 pub fn have_ffmpeg() -> bool {
-    let ok = Command::new("ffmpeg").arg("-version").stdout(Stdio::null()).stderr(Stdio::null()).status().is_ok();
+    let ok = Command::new("ffmpeg")
+        .arg("-version")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .is_ok();
     if !ok {
-        assert!(std::env::var_os("CI").is_none(), "ffmpeg must be installed on CI");
+        assert!(
+            std::env::var_os("CI").is_none(),
+            "ffmpeg must be installed on CI"
+        );
         eprintln!("ffmpeg not installed: skipping");
     }
     ok

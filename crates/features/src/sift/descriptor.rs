@@ -5,7 +5,10 @@
 
 use std::f32::consts::{PI, SQRT_2};
 
-use super::{Candidate, OctaveGrad, DESC_BINS, DESC_MAG_THRESHOLD, DESC_SCALE_FACTOR, DESC_WIDTH, MAX_RADIUS, ORI_BINS, ORI_SIG_FACTOR};
+use super::{
+    Candidate, OctaveGrad, DESC_BINS, DESC_MAG_THRESHOLD, DESC_SCALE_FACTOR, DESC_WIDTH,
+    MAX_RADIUS, ORI_BINS, ORI_SIG_FACTOR,
+};
 
 /// Fills `out[0..=2r]` with `exp(-(i − r − frac)² · k)`, the separable factor of a Gaussian window.
 #[inline]
@@ -19,7 +22,11 @@ pub(super) fn gauss_weights(out: &mut [f32], r: usize, frac: f32, k: f32) {
 /// Dominant orientations (Lowe §5): 36-bin histogram of gradient orientations weighted by magnitude
 /// and a Gaussian of σ = 1.5·scale, smoothed, with every local peak ≥ `peak_ratio`·max kept and its
 /// position interpolated by a parabola. Returns up to 18 angles in [0, 2π).
-pub(super) fn orientations(g: &OctaveGrad, c: &Candidate, peak_ratio: f32) -> ([f32; ORI_BINS / 2], usize) {
+pub(super) fn orientations(
+    g: &OctaveGrad,
+    c: &Candidate,
+    peak_ratio: f32,
+) -> ([f32; ORI_BINS / 2], usize) {
     let sigma = ORI_SIG_FACTOR * c.scale;
     let r = ((3.0 * sigma).round() as usize).min(MAX_RADIUS);
     let (xi, yi) = (c.x.round() as isize, c.y.round() as isize);
@@ -64,7 +71,13 @@ pub(super) fn orientations(g: &OctaveGrad, c: &Candidate, peak_ratio: f32) -> ([
 
 /// The 4×4×8 descriptor (Lowe §6.1) with trilinear interpolation and a Gaussian window of σ = half the
 /// descriptor width, normalised, clipped at 0.2, renormalised; then optionally RootSIFT.
-pub(super) fn describe(g: &OctaveGrad, c: &Candidate, angle: f32, root_sift: bool, out: &mut [f32]) {
+pub(super) fn describe(
+    g: &OctaveGrad,
+    c: &Candidate,
+    angle: f32,
+    root_sift: bool,
+    out: &mut [f32],
+) {
     const D: usize = DESC_WIDTH;
     const N: usize = DESC_BINS;
     let hist_width = DESC_SCALE_FACTOR * c.scale;
@@ -92,7 +105,10 @@ pub(super) fn describe(g: &OctaveGrad, c: &Candidate, angle: f32, root_sift: boo
         // The x range where both bin coordinates lie in (−1, D): skips the window's corners.
         let (a0, a1) = slab(dy * sin_t + half, cos_t, D as f32);
         let (b0, b1) = slab(dy * cos_t + half, -sin_t, D as f32);
-        let (xa, xb) = ((c.x + a0.max(b0)).floor() as isize, (c.x + a1.min(b1)).ceil() as isize);
+        let (xa, xb) = (
+            (c.x + a0.max(b0)).floor() as isize,
+            (c.x + a1.min(b1)).ceil() as isize,
+        );
         for x in xa.max(x0)..=xb.min(x1) {
             let dx = x as f32 - c.x;
             let cbin = dx * cos_t + dy * sin_t + half;
@@ -105,14 +121,27 @@ pub(super) fn describe(g: &OctaveGrad, c: &Candidate, angle: f32, root_sift: boo
             let rel = ori[idx] - angle;
             let obin = if rel < 0.0 { rel + 2.0 * PI } else { rel } * bins_per_rad;
             // Truncation is the floor here (rbin, cbin > −1, obin ≥ 0); `min` guards `3.99999 + 1 == 5`.
-            let (r1, c1, o0) = (((rbin + 1.0) as usize).min(D), ((cbin + 1.0) as usize).min(D), obin as usize);
-            let (fr, fc, fo) = (rbin + 1.0 - r1 as f32, cbin + 1.0 - c1 as f32, obin - o0 as f32);
+            let (r1, c1, o0) = (
+                ((rbin + 1.0) as usize).min(D),
+                ((cbin + 1.0) as usize).min(D),
+                obin as usize,
+            );
+            let (fr, fc, fo) = (
+                rbin + 1.0 - r1 as f32,
+                cbin + 1.0 - c1 as f32,
+                obin - o0 as f32,
+            );
             let base = (r1 * (D + 2) + c1) * (N + 2) + o0 % N;
             let v_r1 = wgt * fr;
             let v_r0 = wgt - v_r1;
             let (v_rc11, v_rc01) = (v_r1 * fc, v_r0 * fc);
             let (v_rc10, v_rc00) = (v_r1 - v_rc11, v_r0 - v_rc01);
-            let cells = [(0, v_rc00), (N + 2, v_rc01), ((D + 2) * (N + 2), v_rc10), ((D + 3) * (N + 2), v_rc11)];
+            let cells = [
+                (0, v_rc00),
+                (N + 2, v_rc01),
+                ((D + 2) * (N + 2), v_rc10),
+                ((D + 3) * (N + 2), v_rc11),
+            ];
             for (off, v) in cells {
                 let v1 = v * fo;
                 hist[base + off] += v - v1;
@@ -137,7 +166,11 @@ pub(super) fn describe(g: &OctaveGrad, c: &Candidate, angle: f32, root_sift: boo
 #[inline(always)]
 pub(super) fn slab(offset: f32, slope: f32, upper: f32) -> (f32, f32) {
     if slope.abs() < 1e-12 {
-        return if offset > -1.0 && offset < upper { (-1e6, 1e6) } else { (1.0, -1.0) };
+        return if offset > -1.0 && offset < upper {
+            (-1e6, 1e6)
+        } else {
+            (1.0, -1.0)
+        };
     }
     let (t0, t1) = ((-1.0 - offset) / slope, (upper - offset) / slope);
     (t0.min(t1), t0.max(t1))
@@ -155,7 +188,12 @@ pub(super) fn normalize_descriptor(v: &mut [f32], root_sift: bool) {
         let l1 = v.iter().sum::<f32>().max(f32::MIN_POSITIVE);
         v.iter_mut().for_each(|x| *x = (*x / l1).sqrt());
     } else {
-        let n2 = v.iter().map(|x| x * x).sum::<f32>().sqrt().max(f32::MIN_POSITIVE);
+        let n2 = v
+            .iter()
+            .map(|x| x * x)
+            .sum::<f32>()
+            .sqrt()
+            .max(f32::MIN_POSITIVE);
         v.iter_mut().for_each(|x| *x /= n2);
     }
 }

@@ -30,7 +30,11 @@ pub fn back_project(seq: &SyntheticSequence, frame: usize, x: f64, y: f64) -> Op
 }
 
 /// Projection of `p` into `frame` when it is visible there (not occluded).
-pub fn project_visible(seq: &SyntheticSequence, frame: usize, p: &Point3<f64>) -> Option<Vector2<f64>> {
+pub fn project_visible(
+    seq: &SyntheticSequence,
+    frame: usize,
+    p: &Point3<f64>,
+) -> Option<Vector2<f64>> {
     let (cam, pose) = seq.frame(frame)?;
     let px = cam.project(pose, p)?;
     let (o, dir) = pixel_ray(cam, pose, px);

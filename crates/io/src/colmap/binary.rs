@@ -6,7 +6,9 @@ use std::collections::BTreeMap;
 use std::fs;
 use std::path::Path;
 
-use super::{check_params, CameraModel, ColmapCamera, ColmapImage, ColmapModel, ColmapPoint2D, ColmapPoint3D};
+use super::{
+    check_params, CameraModel, ColmapCamera, ColmapImage, ColmapModel, ColmapPoint2D, ColmapPoint3D,
+};
 use crate::atomic::write_atomic;
 use crate::error::{IoError, Result};
 
@@ -17,17 +19,30 @@ const INVALID_POINT3D_ID: u64 = u64::MAX;
 pub fn write_binary(dir: &Path, m: &ColmapModel) -> Result<()> {
     let cam_path = dir.join("cameras.bin");
     for c in m.cameras.values() {
-        check_params(c).map_err(|reason| IoError::Input { path: cam_path.clone(), reason })?;
+        check_params(c).map_err(|reason| IoError::Input {
+            path: cam_path.clone(),
+            reason,
+        })?;
     }
     let img_path = dir.join("images.bin");
     for im in m.images.values() {
         if im.name.contains('\0') {
-            return Err(IoError::Input { path: img_path, reason: format!("image {}: name contains a NUL byte", im.id) });
-        }
-        if im.points2d.iter().any(|p| p.point3d_id == Some(INVALID_POINT3D_ID)) {
             return Err(IoError::Input {
                 path: img_path,
-                reason: format!("image {}: point id {INVALID_POINT3D_ID} is COLMAP's 'no point' marker", im.id),
+                reason: format!("image {}: name contains a NUL byte", im.id),
+            });
+        }
+        if im
+            .points2d
+            .iter()
+            .any(|p| p.point3d_id == Some(INVALID_POINT3D_ID))
+        {
+            return Err(IoError::Input {
+                path: img_path,
+                reason: format!(
+                    "image {}: point id {INVALID_POINT3D_ID} is COLMAP's 'no point' marker",
+                    im.id
+                ),
             });
         }
     }
@@ -147,16 +162,22 @@ impl<'a> Cursor<'a> {
     fn c_string(&mut self, what: &str) -> Result<String> {
         let rest = &self.data[self.pos..];
         let Some(len) = rest.iter().position(|&b| b == 0) else {
-            return Err(self.err(format!("file is truncated inside {what} (no terminating NUL)")));
+            return Err(self.err(format!(
+                "file is truncated inside {what} (no terminating NUL)"
+            )));
         };
-        let s = std::str::from_utf8(&rest[..len]).map_err(|_| self.err(format!("{what} is not valid UTF-8")))?;
+        let s = std::str::from_utf8(&rest[..len])
+            .map_err(|_| self.err(format!("{what} is not valid UTF-8")))?;
         self.pos += len + 1;
         Ok(s.to_string())
     }
 
     fn finish(&self) -> Result<()> {
         if self.pos != self.data.len() {
-            return Err(self.err(format!("{} unexpected trailing bytes", self.data.len() - self.pos)));
+            return Err(self.err(format!(
+                "{} unexpected trailing bytes",
+                self.data.len() - self.pos
+            )));
         }
         Ok(())
     }
@@ -164,7 +185,11 @@ impl<'a> Cursor<'a> {
 
 fn read_cameras(path: &Path) -> Result<BTreeMap<u32, ColmapCamera>> {
     let data = fs::read(path).map_err(|e| IoError::io(path, e))?;
-    let mut c = Cursor { path, data: &data, pos: 0 };
+    let mut c = Cursor {
+        path,
+        data: &data,
+        pos: 0,
+    };
     let n = c.count("number of cameras", 4 + 4 + 8 + 8)?;
     let mut out = BTreeMap::new();
     for _ in 0..n {
@@ -177,8 +202,22 @@ fn read_cameras(path: &Path) -> Result<BTreeMap<u32, ColmapCamera>> {
         })?;
         let width = c.u64("WIDTH")?;
         let height = c.u64("HEIGHT")?;
-        let params = (0..model.num_params()).map(|_| c.f64("camera parameter")).collect::<Result<Vec<_>>>()?;
-        if out.insert(id, ColmapCamera { id, model, width, height, params }).is_some() {
+        let params = (0..model.num_params())
+            .map(|_| c.f64("camera parameter"))
+            .collect::<Result<Vec<_>>>()?;
+        if out
+            .insert(
+                id,
+                ColmapCamera {
+                    id,
+                    model,
+                    width,
+                    height,
+                    params,
+                },
+            )
+            .is_some()
+        {
             return Err(c.err(format!("duplicate CAMERA_ID {id}")));
         }
     }
@@ -188,7 +227,11 @@ fn read_cameras(path: &Path) -> Result<BTreeMap<u32, ColmapCamera>> {
 
 fn read_images(path: &Path) -> Result<BTreeMap<u32, ColmapImage>> {
     let data = fs::read(path).map_err(|e| IoError::io(path, e))?;
-    let mut c = Cursor { path, data: &data, pos: 0 };
+    let mut c = Cursor {
+        path,
+        data: &data,
+        pos: 0,
+    };
     let n = c.count("number of images", 4 + 7 * 8 + 4 + 1 + 8)?;
     let mut out = BTreeMap::new();
     for _ in 0..n {
@@ -203,9 +246,26 @@ fn read_images(path: &Path) -> Result<BTreeMap<u32, ColmapImage>> {
             let x = c.f64("X")?;
             let y = c.f64("Y")?;
             let id = c.u64("POINT3D_ID")?;
-            points2d.push(ColmapPoint2D { x, y, point3d_id: (id != INVALID_POINT3D_ID).then_some(id) });
+            points2d.push(ColmapPoint2D {
+                x,
+                y,
+                point3d_id: (id != INVALID_POINT3D_ID).then_some(id),
+            });
         }
-        if out.insert(id, ColmapImage { id, qvec, tvec, camera_id, name, points2d }).is_some() {
+        if out
+            .insert(
+                id,
+                ColmapImage {
+                    id,
+                    qvec,
+                    tvec,
+                    camera_id,
+                    name,
+                    points2d,
+                },
+            )
+            .is_some()
+        {
             return Err(c.err(format!("duplicate IMAGE_ID {id}")));
         }
     }
@@ -215,7 +275,11 @@ fn read_images(path: &Path) -> Result<BTreeMap<u32, ColmapImage>> {
 
 fn read_points(path: &Path) -> Result<BTreeMap<u64, ColmapPoint3D>> {
     let data = fs::read(path).map_err(|e| IoError::io(path, e))?;
-    let mut c = Cursor { path, data: &data, pos: 0 };
+    let mut c = Cursor {
+        path,
+        data: &data,
+        pos: 0,
+    };
     let n = c.count("number of points", 8 + 3 * 8 + 3 + 8 + 8)?;
     let mut out = BTreeMap::new();
     for _ in 0..n {
@@ -224,8 +288,22 @@ fn read_points(path: &Path) -> Result<BTreeMap<u64, ColmapPoint3D>> {
         let rgb = [c.u8("R")?, c.u8("G")?, c.u8("B")?];
         let error = c.f64("ERROR")?;
         let len = c.count("track length", 8)?;
-        let track = (0..len).map(|_| Ok((c.u32("IMAGE_ID")?, c.u32("POINT2D_IDX")?))).collect::<Result<Vec<_>>>()?;
-        if out.insert(id, ColmapPoint3D { id, xyz, rgb, error, track }).is_some() {
+        let track = (0..len)
+            .map(|_| Ok((c.u32("IMAGE_ID")?, c.u32("POINT2D_IDX")?)))
+            .collect::<Result<Vec<_>>>()?;
+        if out
+            .insert(
+                id,
+                ColmapPoint3D {
+                    id,
+                    xyz,
+                    rgb,
+                    error,
+                    track,
+                },
+            )
+            .is_some()
+        {
             return Err(c.err(format!("duplicate POINT3D_ID {id}")));
         }
     }
@@ -250,7 +328,16 @@ mod tests {
     fn layout_matches_colmap() {
         let dir = tempfile::tempdir().unwrap();
         let mut m = ColmapModel::default();
-        m.cameras.insert(3, ColmapCamera { id: 3, model: CameraModel::SimplePinhole, width: 64, height: 48, params: vec![1.0, 2.0, 3.0] });
+        m.cameras.insert(
+            3,
+            ColmapCamera {
+                id: 3,
+                model: CameraModel::SimplePinhole,
+                width: 64,
+                height: 48,
+                params: vec![1.0, 2.0, 3.0],
+            },
+        );
         m.images.insert(
             9,
             ColmapImage {
@@ -259,7 +346,11 @@ mod tests {
                 tvec: [0.0; 3],
                 camera_id: 3,
                 name: "ab".into(),
-                points2d: vec![ColmapPoint2D { x: 0.5, y: 1.5, point3d_id: None }],
+                points2d: vec![ColmapPoint2D {
+                    x: 0.5,
+                    y: 1.5,
+                    point3d_id: None,
+                }],
             },
         );
         write_binary(dir.path(), &m).unwrap();
@@ -284,12 +375,18 @@ mod tests {
             for cut in [0, 5, 8, 13, good.len() / 2, good.len() - 1] {
                 fs::write(d.join(file), &good[..cut]).unwrap();
                 let e = read_binary(d).unwrap_err().to_string();
-                assert!(e.contains(file) && e.contains("byte"), "{file} cut at {cut}: {e}");
+                assert!(
+                    e.contains(file) && e.contains("byte"),
+                    "{file} cut at {cut}: {e}"
+                );
             }
             let mut huge = good.clone();
             huge[..8].copy_from_slice(&u64::MAX.to_le_bytes());
             fs::write(d.join(file), &huge).unwrap();
-            assert!(read_binary(d).unwrap_err().to_string().contains("truncated or corrupt"));
+            assert!(read_binary(d)
+                .unwrap_err()
+                .to_string()
+                .contains("truncated or corrupt"));
             fs::write(d.join(file), &good).unwrap();
         }
         let mut cams = fs::read(d.join("cameras.bin")).unwrap();

@@ -7,12 +7,14 @@
 //! supported models are understood.
 
 use handheld_core::{
-    Camera, CameraId, ImageId, Intrinsics, MetricReconstruction, Observation, Point3D, PointId, Rigid3, Track,
-    TrackElement, View, PIXEL_CENTER_OFFSET_COLMAP,
+    Camera, CameraId, ImageId, Intrinsics, MetricReconstruction, Observation, Point3D, PointId,
+    Rigid3, Track, TrackElement, View, PIXEL_CENTER_OFFSET_COLMAP,
 };
 use nalgebra::{Point3, Quaternion, Translation3, UnitQuaternion, Vector2};
 
-use super::{check_params, CameraModel, ColmapCamera, ColmapImage, ColmapModel, ColmapPoint2D, ColmapPoint3D};
+use super::{
+    check_params, CameraModel, ColmapCamera, ColmapImage, ColmapModel, ColmapPoint2D, ColmapPoint3D,
+};
 
 const OFF: f64 = PIXEL_CENTER_OFFSET_COLMAP;
 
@@ -32,7 +34,11 @@ pub fn to_colmap(rec: &MetricReconstruction) -> Result<ColmapModel, String> {
         let points2d = v
             .observations
             .iter()
-            .map(|o| ColmapPoint2D { x: o.xy.x + OFF, y: o.xy.y + OFF, point3d_id: o.point_id.map(|p| p.0) })
+            .map(|o| ColmapPoint2D {
+                x: o.xy.x + OFF,
+                y: o.xy.y + OFF,
+                point3d_id: o.point_id.map(|p| p.0),
+            })
             .collect();
         m.images.insert(
             v.id.0,
@@ -54,7 +60,12 @@ pub fn to_colmap(rec: &MetricReconstruction) -> Result<ColmapModel, String> {
                 xyz: [p.xyz.x, p.xyz.y, p.xyz.z],
                 rgb: p.color,
                 error: p.error,
-                track: p.track.elements.iter().map(|e| (e.image_id.0, e.point2d_idx)).collect(),
+                track: p
+                    .track
+                    .elements
+                    .iter()
+                    .map(|e| (e.image_id.0, e.point2d_idx))
+                    .collect(),
             },
         );
     }
@@ -81,10 +92,19 @@ fn camera_to_colmap(cam: &Camera) -> Result<ColmapCamera, String> {
         if k.is_undistorted() {
             (CameraModel::Pinhole, vec![k.f, fy, cx, cy])
         } else {
-            (CameraModel::Opencv, vec![k.f, fy, cx, cy, k.k1, k.k2, 0.0, 0.0])
+            (
+                CameraModel::Opencv,
+                vec![k.f, fy, cx, cy, k.k1, k.k2, 0.0, 0.0],
+            )
         }
     };
-    Ok(ColmapCamera { id: cam.id.0, model, width: cam.width as u64, height: cam.height as u64, params })
+    Ok(ColmapCamera {
+        id: cam.id.0,
+        model,
+        width: cam.width as u64,
+        height: cam.height as u64,
+        params,
+    })
 }
 
 fn camera_from_colmap(c: &ColmapCamera) -> Result<Camera, String> {
@@ -107,11 +127,27 @@ fn camera_from_colmap(c: &ColmapCamera) -> Result<Camera, String> {
         }
     };
     let aspect = if fy == f { 1.0 } else { fy / f };
-    let width = u32::try_from(c.width).map_err(|_| format!("camera {}: width {} is too large", c.id, c.width))?;
-    let height = u32::try_from(c.height).map_err(|_| format!("camera {}: height {} is too large", c.id, c.height))?;
-    let intrinsics = Intrinsics { f, aspect, skew: 0.0, pp: Vector2::new(cx - OFF, cy - OFF), k1, k2 };
-    intrinsics.validate().map_err(|e| format!("camera {}: {e}", c.id))?;
-    Ok(Camera { id: CameraId(c.id), width, height, intrinsics })
+    let width = u32::try_from(c.width)
+        .map_err(|_| format!("camera {}: width {} is too large", c.id, c.width))?;
+    let height = u32::try_from(c.height)
+        .map_err(|_| format!("camera {}: height {} is too large", c.id, c.height))?;
+    let intrinsics = Intrinsics {
+        f,
+        aspect,
+        skew: 0.0,
+        pp: Vector2::new(cx - OFF, cy - OFF),
+        k1,
+        k2,
+    };
+    intrinsics
+        .validate()
+        .map_err(|e| format!("camera {}: {e}", c.id))?;
+    Ok(Camera {
+        id: CameraId(c.id),
+        width,
+        height,
+        intrinsics,
+    })
 }
 
 fn pose_from_colmap(im: &ColmapImage) -> Result<Rigid3, String> {
@@ -119,10 +155,16 @@ fn pose_from_colmap(im: &ColmapImage) -> Result<Rigid3, String> {
     let q = Quaternion::new(w, x, y, z);
     let norm = q.norm();
     if !norm.is_finite() || norm < 1e-12 || im.tvec.iter().any(|v| !v.is_finite()) {
-        return Err(format!("image {} ({}): invalid pose qvec {:?}, tvec {:?}", im.id, im.name, im.qvec, im.tvec));
+        return Err(format!(
+            "image {} ({}): invalid pose qvec {:?}, tvec {:?}",
+            im.id, im.name, im.qvec, im.tvec
+        ));
     }
     let [tx, ty, tz] = im.tvec;
-    Ok(Rigid3::from_parts(Translation3::new(tx, ty, tz), UnitQuaternion::from_quaternion(q)))
+    Ok(Rigid3::from_parts(
+        Translation3::new(tx, ty, tz),
+        UnitQuaternion::from_quaternion(q),
+    ))
 }
 
 /// Converts a COLMAP model to a reconstruction and checks its internal references (every image's
@@ -136,7 +178,10 @@ pub fn from_colmap(m: &ColmapModel) -> Result<MetricReconstruction, String> {
         let observations = im
             .points2d
             .iter()
-            .map(|p| Observation { xy: Vector2::new(p.x - OFF, p.y - OFF), point_id: p.point3d_id.map(PointId) })
+            .map(|p| Observation {
+                xy: Vector2::new(p.x - OFF, p.y - OFF),
+                point_id: p.point3d_id.map(PointId),
+            })
             .collect();
         rec.views.insert(
             ImageId(im.id),
@@ -151,7 +196,14 @@ pub fn from_colmap(m: &ColmapModel) -> Result<MetricReconstruction, String> {
         );
     }
     for p in m.points3d.values() {
-        let elements = p.track.iter().map(|&(i, k)| TrackElement { image_id: ImageId(i), point2d_idx: k }).collect();
+        let elements = p
+            .track
+            .iter()
+            .map(|&(i, k)| TrackElement {
+                image_id: ImageId(i),
+                point2d_idx: k,
+            })
+            .collect();
         rec.points.insert(
             PointId(p.id),
             Point3D {
@@ -177,22 +229,37 @@ mod tests {
     fn sample_rec() -> MetricReconstruction {
         let mut rec = MetricReconstruction::default();
         let kinds = [
-            (1.0, 0.0, 0.0),     // SIMPLE_RADIAL with k1 = 0
-            (1.0, -0.125, 0.0),  // SIMPLE_RADIAL
+            (1.0, 0.0, 0.0),      // SIMPLE_RADIAL with k1 = 0
+            (1.0, -0.125, 0.0),   // SIMPLE_RADIAL
             (1.0, -0.25, 0.0625), // RADIAL
-            (1.25, 0.0, 0.0),    // PINHOLE
-            (0.75, 0.125, -0.5), // OPENCV
+            (1.25, 0.0, 0.0),     // PINHOLE
+            (0.75, 0.125, -0.5),  // OPENCV
         ];
         for (i, &(aspect, k1, k2)) in kinds.iter().enumerate() {
             let id = CameraId(i as u32 + 10);
-            let intrinsics =
-                Intrinsics { f: 512.0 + i as f64, aspect, skew: 0.0, pp: Vector2::new(319.375, 239.625 - i as f64), k1, k2 };
-            rec.cameras.insert(id, Camera { id, width: 640, height: 480, intrinsics });
+            let intrinsics = Intrinsics {
+                f: 512.0 + i as f64,
+                aspect,
+                skew: 0.0,
+                pp: Vector2::new(319.375, 239.625 - i as f64),
+                k1,
+                k2,
+            };
+            rec.cameras.insert(
+                id,
+                Camera {
+                    id,
+                    width: 640,
+                    height: 480,
+                    intrinsics,
+                },
+            );
         }
         for i in 0..6u32 {
             let id = ImageId(i * 3 + 1);
             let r = Rotation3::from_euler_angles(0.1 * i as f64, -0.3, 0.7 - 0.2 * i as f64);
-            let pose = cam_from_world_from_center(&r, &Point3::new(i as f64, -0.5, -4.0 - i as f64 / 3.0));
+            let pose =
+                cam_from_world_from_center(&r, &Point3::new(i as f64, -0.5, -4.0 - i as f64 / 3.0));
             let n = if i == 2 { 0 } else { 30 };
             let observations = (0..n)
                 .map(|k| Observation {
@@ -217,7 +284,10 @@ mod tests {
                 .views
                 .values()
                 .filter(|v| !v.observations.is_empty())
-                .map(|v| TrackElement { image_id: v.id, point2d_idx: (2 * j) as u32 })
+                .map(|v| TrackElement {
+                    image_id: v.id,
+                    point2d_idx: (2 * j) as u32,
+                })
                 .collect();
             rec.points.insert(
                 PointId(1000 + j),
@@ -238,9 +308,21 @@ mod tests {
         assert_eq!(a.points, b.points);
         assert_eq!(a.views.len(), b.views.len());
         for (va, vb) in a.views.values().zip(b.views.values()) {
-            assert_eq!((va.id, &va.name, va.camera_id, &va.observations, va.frame), (vb.id, &vb.name, vb.camera_id, &vb.observations, vb.frame));
-            assert!(va.cam_from_world.rotation.angle_to(&vb.cam_from_world.rotation) < 1e-12);
-            assert!((va.cam_from_world.translation.vector - vb.cam_from_world.translation.vector).norm() < 1e-12);
+            assert_eq!(
+                (va.id, &va.name, va.camera_id, &va.observations, va.frame),
+                (vb.id, &vb.name, vb.camera_id, &vb.observations, vb.frame)
+            );
+            assert!(
+                va.cam_from_world
+                    .rotation
+                    .angle_to(&vb.cam_from_world.rotation)
+                    < 1e-12
+            );
+            assert!(
+                (va.cam_from_world.translation.vector - vb.cam_from_world.translation.vector)
+                    .norm()
+                    < 1e-12
+            );
         }
     }
 
@@ -250,12 +332,18 @@ mod tests {
         let m = to_colmap(&rec).unwrap();
         let models: Vec<_> = m.cameras.values().map(|c| c.model).collect();
         use CameraModel::*;
-        assert_eq!(models, vec![SimpleRadial, SimpleRadial, Radial, Pinhole, Opencv]);
+        assert_eq!(
+            models,
+            vec![SimpleRadial, SimpleRadial, Radial, Pinhole, Opencv]
+        );
         assert_eq!(m.cameras[&10].params, vec![512.0, 319.875, 240.125, 0.0]);
         assert_eq!(m.cameras[&13].params, vec![515.0, 643.75, 319.875, 237.125]);
         assert_eq!(m.cameras[&14].params[4..], [0.125, -0.5, 0.0, 0.0]);
         let p = m.images[&1].points2d[1];
-        assert_eq!((p.x, p.y, p.point3d_id), (10.125 - 0.375 + 0.5, 479.5 - 0.875 + 0.5, None));
+        assert_eq!(
+            (p.x, p.y, p.point3d_id),
+            (10.125 - 0.375 + 0.5, 479.5 - 0.875 + 0.5, None)
+        );
         assert_eq!(m.images[&1].points2d[0].point3d_id, Some(1000));
     }
 
@@ -290,11 +378,23 @@ mod tests {
             (CameraModel::Pinhole, &[100.0, 200.0, 50.5, 40.5]),
             (CameraModel::SimpleRadial, &[100.0, 50.5, 40.5, 0.25]),
             (CameraModel::Radial, &[100.0, 50.5, 40.5, 0.25, -0.125]),
-            (CameraModel::Opencv, &[100.0, 200.0, 50.5, 40.5, 0.25, -0.125, 0.0, 0.0]),
+            (
+                CameraModel::Opencv,
+                &[100.0, 200.0, 50.5, 40.5, 0.25, -0.125, 0.0, 0.0],
+            ),
         ];
         for (i, (model, params)) in cams.iter().enumerate() {
             let id = i as u32;
-            m.cameras.insert(id, ColmapCamera { id, model: *model, width: 101, height: 81, params: params.to_vec() });
+            m.cameras.insert(
+                id,
+                ColmapCamera {
+                    id,
+                    model: *model,
+                    width: 101,
+                    height: 81,
+                    params: params.to_vec(),
+                },
+            );
         }
         let rec = from_colmap(&m).unwrap();
         let k: Vec<_> = rec.cameras.values().map(|c| c.intrinsics).collect();

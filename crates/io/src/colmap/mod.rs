@@ -37,8 +37,13 @@ pub enum CameraModel {
 
 impl CameraModel {
     /// Every supported model, in id order.
-    pub const ALL: [CameraModel; 5] =
-        [CameraModel::SimplePinhole, CameraModel::Pinhole, CameraModel::SimpleRadial, CameraModel::Radial, CameraModel::Opencv];
+    pub const ALL: [CameraModel; 5] = [
+        CameraModel::SimplePinhole,
+        CameraModel::Pinhole,
+        CameraModel::SimpleRadial,
+        CameraModel::Radial,
+        CameraModel::Opencv,
+    ];
 
     /// COLMAP's numeric model id (as stored in `cameras.bin`).
     pub fn id(self) -> i32 {
@@ -171,8 +176,16 @@ pub fn read_model(dir: &Path) -> Result<ColmapModel> {
 }
 
 /// Converts `rec` with [`to_colmap`] and writes it to `dir` as text and/or binary (both may coexist).
-pub fn write_reconstruction(dir: &Path, rec: &MetricReconstruction, text: bool, binary: bool) -> Result<()> {
-    let model = to_colmap(rec).map_err(|reason| IoError::Input { path: dir.to_path_buf(), reason })?;
+pub fn write_reconstruction(
+    dir: &Path,
+    rec: &MetricReconstruction,
+    text: bool,
+    binary: bool,
+) -> Result<()> {
+    let model = to_colmap(rec).map_err(|reason| IoError::Input {
+        path: dir.to_path_buf(),
+        reason,
+    })?;
     if text {
         write_text(dir, &model)?;
     }
@@ -200,11 +213,29 @@ pub(crate) mod testdata {
             &[800.125, 801.0000000000001, 319.75, 239.25],
             &[500.0, 320.0, 240.0, -0.123456789e-3],
             &[650.3, 321.1, 241.9, 0.1, -0.0123],
-            &[1.0e3 / 3.0, 2.0e3 / 7.0, 0.1 + 0.2, -0.0, 1e-300, -7.5e12, 0.001, -0.002],
+            &[
+                1.0e3 / 3.0,
+                2.0e3 / 7.0,
+                0.1 + 0.2,
+                -0.0,
+                1e-300,
+                -7.5e12,
+                0.001,
+                -0.002,
+            ],
         ];
         for (i, model) in CameraModel::ALL.into_iter().enumerate() {
             let id = i as u32 + 1;
-            m.cameras.insert(id, ColmapCamera { id, model, width: 640 + i as u64, height: 480, params: params[i].to_vec() });
+            m.cameras.insert(
+                id,
+                ColmapCamera {
+                    id,
+                    model,
+                    width: 640 + i as u64,
+                    height: 480,
+                    params: params[i].to_vec(),
+                },
+            );
         }
         for id in 1..=6u32 {
             let n = if id == 3 { 0 } else { 40 + id as usize };
@@ -212,7 +243,11 @@ pub(crate) mod testdata {
                 .map(|k| ColmapPoint2D {
                     x: k as f64 * 1.1 + 0.1 * id as f64,
                     y: 479.9 - k as f64 / 3.0,
-                    point3d_id: if k % 3 == 0 { None } else { Some(k as u64 + 100) },
+                    point3d_id: if k % 3 == 0 {
+                        None
+                    } else {
+                        Some(k as u64 + 100)
+                    },
                 })
                 .collect();
             let q = [0.5f64.sqrt(), 0.1 * id as f64, -0.2, 1.0 / 3.0];

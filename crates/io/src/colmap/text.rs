@@ -10,7 +10,9 @@ use std::fs;
 use std::path::Path;
 use std::str::FromStr;
 
-use super::{check_params, CameraModel, ColmapCamera, ColmapImage, ColmapModel, ColmapPoint2D, ColmapPoint3D};
+use super::{
+    check_params, CameraModel, ColmapCamera, ColmapImage, ColmapModel, ColmapPoint2D, ColmapPoint3D,
+};
 use crate::atomic::write_atomic;
 use crate::error::{IoError, Result};
 
@@ -18,11 +20,17 @@ use crate::error::{IoError, Result};
 pub fn write_text(dir: &Path, m: &ColmapModel) -> Result<()> {
     let cam_path = dir.join("cameras.txt");
     for c in m.cameras.values() {
-        check_params(c).map_err(|reason| IoError::Input { path: cam_path.clone(), reason })?;
+        check_params(c).map_err(|reason| IoError::Input {
+            path: cam_path.clone(),
+            reason,
+        })?;
     }
     let img_path = dir.join("images.txt");
     for im in m.images.values() {
-        check_name(&im.name).map_err(|reason| IoError::Input { path: img_path.clone(), reason: format!("image {}: {reason}", im.id) })?;
+        check_name(&im.name).map_err(|reason| IoError::Input {
+            path: img_path.clone(),
+            reason: format!("image {}: {reason}", im.id),
+        })?;
     }
 
     write_atomic(&cam_path, |w| {
@@ -40,17 +48,41 @@ pub fn write_text(dir: &Path, m: &ColmapModel) -> Result<()> {
     })?;
 
     write_atomic(&img_path, |w| {
-        let observations: usize = m.images.values().map(|im| im.points2d.iter().filter(|p| p.point3d_id.is_some()).count()).sum();
-        let mean = if m.images.is_empty() { 0.0 } else { observations as f64 / m.images.len() as f64 };
+        let observations: usize = m
+            .images
+            .values()
+            .map(|im| {
+                im.points2d
+                    .iter()
+                    .filter(|p| p.point3d_id.is_some())
+                    .count()
+            })
+            .sum();
+        let mean = if m.images.is_empty() {
+            0.0
+        } else {
+            observations as f64 / m.images.len() as f64
+        };
         writeln!(w, "# Image list with two lines of data per image:")?;
-        writeln!(w, "#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME")?;
+        writeln!(
+            w,
+            "#   IMAGE_ID, QW, QX, QY, QZ, TX, TY, TZ, CAMERA_ID, NAME"
+        )?;
         writeln!(w, "#   POINTS2D[] as (X, Y, POINT3D_ID)")?;
-        writeln!(w, "# Number of images: {}, mean observations per image: {mean}", m.images.len())?;
+        writeln!(
+            w,
+            "# Number of images: {}, mean observations per image: {mean}",
+            m.images.len()
+        )?;
         let mut line = String::new();
         for im in m.images.values() {
             let [qw, qx, qy, qz] = im.qvec;
             let [tx, ty, tz] = im.tvec;
-            writeln!(w, "{} {qw} {qx} {qy} {qz} {tx} {ty} {tz} {} {}", im.id, im.camera_id, im.name)?;
+            writeln!(
+                w,
+                "{} {qw} {qx} {qy} {qz} {tx} {ty} {tz} {} {}",
+                im.id, im.camera_id, im.name
+            )?;
             line.clear();
             for (k, p) in im.points2d.iter().enumerate() {
                 let sep = if k == 0 { "" } else { " " };
@@ -66,10 +98,21 @@ pub fn write_text(dir: &Path, m: &ColmapModel) -> Result<()> {
 
     write_atomic(&dir.join("points3D.txt"), |w| {
         let total: usize = m.points3d.values().map(|p| p.track.len()).sum();
-        let mean = if m.points3d.is_empty() { 0.0 } else { total as f64 / m.points3d.len() as f64 };
+        let mean = if m.points3d.is_empty() {
+            0.0
+        } else {
+            total as f64 / m.points3d.len() as f64
+        };
         writeln!(w, "# 3D point list with one line of data per point:")?;
-        writeln!(w, "#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)")?;
-        writeln!(w, "# Number of points: {}, mean track length: {mean}", m.points3d.len())?;
+        writeln!(
+            w,
+            "#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)"
+        )?;
+        writeln!(
+            w,
+            "# Number of points: {}, mean track length: {mean}",
+            m.points3d.len()
+        )?;
         let mut line = String::new();
         for p in m.points3d.values() {
             let [x, y, z] = p.xyz;
@@ -91,7 +134,9 @@ fn check_name(name: &str) -> std::result::Result<(), String> {
         return Err("empty image name".into());
     }
     if name.contains(['\n', '\r']) || name.trim() != name {
-        return Err(format!("image name {name:?} contains a line break or surrounding whitespace"));
+        return Err(format!(
+            "image name {name:?} contains a line break or surrounding whitespace"
+        ));
     }
     Ok(())
 }
@@ -115,7 +160,12 @@ struct Fields<'a> {
 
 impl<'a> Fields<'a> {
     fn new(path: &'a Path, line_no: usize, line: &'a str) -> Self {
-        Self { path, line_no, tokens: line.split_whitespace().collect(), pos: 0 }
+        Self {
+            path,
+            line_no,
+            tokens: line.split_whitespace().collect(),
+            pos: 0,
+        }
     }
 
     fn err(&self, reason: impl std::fmt::Display) -> IoError {
@@ -124,9 +174,13 @@ impl<'a> Fields<'a> {
 
     /// The next token parsed as `T`; `what` names the field in the error.
     fn next<T: FromStr>(&mut self, what: &str) -> Result<T> {
-        let tok = *self.tokens.get(self.pos).ok_or_else(|| self.err(format!("missing {what}")))?;
+        let tok = *self
+            .tokens
+            .get(self.pos)
+            .ok_or_else(|| self.err(format!("missing {what}")))?;
         self.pos += 1;
-        tok.parse().map_err(|_| self.err(format!("cannot parse {what} from `{tok}`")))
+        tok.parse()
+            .map_err(|_| self.err(format!("cannot parse {what} from `{tok}`")))
     }
 
     fn remaining(&self) -> usize {
@@ -146,7 +200,10 @@ fn is_skipped(line: &str) -> bool {
 
 /// Parses a `POINT3D_ID` where `-1` means none.
 fn parse_point3d_id(f: &mut Fields<'_>) -> Result<Option<u64>> {
-    let tok = *f.tokens.get(f.pos).ok_or_else(|| f.err("missing POINT3D_ID"))?;
+    let tok = *f
+        .tokens
+        .get(f.pos)
+        .ok_or_else(|| f.err("missing POINT3D_ID"))?;
     if tok == "-1" {
         f.pos += 1;
         return Ok(None);
@@ -175,7 +232,13 @@ fn read_cameras(path: &Path) -> Result<std::collections::BTreeMap<u32, ColmapCam
         while f.remaining() > 0 {
             params.push(f.next::<f64>("camera parameter")?);
         }
-        let cam = ColmapCamera { id, model, width, height, params };
+        let cam = ColmapCamera {
+            id,
+            model,
+            width,
+            height,
+            params,
+        };
         check_params(&cam).map_err(|e| f.err(e))?;
         if out.insert(id, cam).is_some() {
             return Err(f.err(format!("duplicate CAMERA_ID {id}")));
@@ -209,7 +272,12 @@ fn read_images(path: &Path) -> Result<std::collections::BTreeMap<u32, ColmapImag
             continue;
         }
         let (head, name) = split_tokens(line, 9);
-        let mut f = Fields { path, line_no: i + 1, tokens: head, pos: 0 };
+        let mut f = Fields {
+            path,
+            line_no: i + 1,
+            tokens: head,
+            pos: 0,
+        };
         let id: u32 = f.next("IMAGE_ID")?;
         let mut qvec = [0.0; 4];
         for (q, what) in qvec.iter_mut().zip(["QW", "QX", "QY", "QZ"]) {
@@ -242,7 +310,14 @@ fn read_images(path: &Path) -> Result<std::collections::BTreeMap<u32, ColmapImag
                 points2d.push(ColmapPoint2D { x, y, point3d_id });
             }
         }
-        let image = ColmapImage { id, qvec, tvec, camera_id, name: name.to_string(), points2d };
+        let image = ColmapImage {
+            id,
+            qvec,
+            tvec,
+            camera_id,
+            name: name.to_string(),
+            points2d,
+        };
         if out.insert(id, image).is_some() {
             return Err(f.err(format!("duplicate IMAGE_ID {id}")));
         }
@@ -260,7 +335,11 @@ fn read_points(path: &Path) -> Result<std::collections::BTreeMap<u64, ColmapPoin
         let mut f = Fields::new(path, i + 1, line);
         let id: u64 = f.next("POINT3D_ID")?;
         let xyz = [f.next("X")?, f.next("Y")?, f.next("Z")?];
-        let rgb = [f.next("R (0-255)")?, f.next("G (0-255)")?, f.next("B (0-255)")?];
+        let rgb = [
+            f.next("R (0-255)")?,
+            f.next("G (0-255)")?,
+            f.next("B (0-255)")?,
+        ];
         let error = f.next("ERROR")?;
         let leftover = f.remaining() % 2;
         if leftover > 0 {
@@ -270,7 +349,19 @@ fn read_points(path: &Path) -> Result<std::collections::BTreeMap<u64, ColmapPoin
         while f.remaining() > 0 {
             track.push((f.next("IMAGE_ID")?, f.next("POINT2D_IDX")?));
         }
-        if out.insert(id, ColmapPoint3D { id, xyz, rgb, error, track }).is_some() {
+        if out
+            .insert(
+                id,
+                ColmapPoint3D {
+                    id,
+                    xyz,
+                    rgb,
+                    error,
+                    track,
+                },
+            )
+            .is_some()
+        {
             return Err(f.err(format!("duplicate POINT3D_ID {id}")));
         }
     }
@@ -307,7 +398,11 @@ mod tests {
         write_binary(b.path(), &m).unwrap();
         write_text(c.path(), &read_binary(b.path()).unwrap()).unwrap();
         for f in ["cameras.txt", "images.txt", "points3D.txt"] {
-            assert_eq!(fs::read(a.path().join(f)).unwrap(), fs::read(c.path().join(f)).unwrap(), "{f}");
+            assert_eq!(
+                fs::read(a.path().join(f)).unwrap(),
+                fs::read(c.path().join(f)).unwrap(),
+                "{f}"
+            );
         }
     }
 
@@ -315,7 +410,11 @@ mod tests {
     fn reads_hand_written_files_with_comments_and_blank_lines() {
         let dir = tempfile::tempdir().unwrap();
         let d = dir.path();
-        fs::write(d.join("cameras.txt"), "# c\n\n  1 SIMPLE_PINHOLE 640 480 500 320 240  \r\n# end\n").unwrap();
+        fs::write(
+            d.join("cameras.txt"),
+            "# c\n\n  1 SIMPLE_PINHOLE 640 480 500 320 240  \r\n# end\n",
+        )
+        .unwrap();
         fs::write(
             d.join("images.txt"),
             "# header\n\n1 1 0 0 0 0 0 0 1 my image.png\n\n# next\n2 1 0 0 0 1 2 3 1 b.png\n10.5 20.5 7 1 2 -1\n",
@@ -347,9 +446,16 @@ mod tests {
     fn too_few_camera_params_names_file_and_line() {
         let dir = tempfile::tempdir().unwrap();
         write_valid_rest(dir.path());
-        fs::write(dir.path().join("cameras.txt"), "# x\n1 PINHOLE 640 480 500 500 320 240\n2 PINHOLE 640 480 500 320\n").unwrap();
+        fs::write(
+            dir.path().join("cameras.txt"),
+            "# x\n1 PINHOLE 640 480 500 500 320 240\n2 PINHOLE 640 480 500 320\n",
+        )
+        .unwrap();
         let e = format_error(dir.path());
-        assert!(e.contains("cameras.txt") && e.contains("line 3") && e.contains("needs 4 parameters"), "{e}");
+        assert!(
+            e.contains("cameras.txt") && e.contains("line 3") && e.contains("needs 4 parameters"),
+            "{e}"
+        );
     }
 
     #[test]
@@ -359,10 +465,20 @@ mod tests {
         let cases: [(&str, &str, &str, usize); 8] = [
             ("cameras.txt", "1 FISHEYE 640 480 1 2 3\n", "FISHEYE", 1),
             ("cameras.txt", "x PINHOLE 640 480 1 2 3 4\n", "CAMERA_ID", 1),
-            ("cameras.txt", "1 PINHOLE 640 480 1 2 3 nan4\n", "camera parameter", 1),
+            (
+                "cameras.txt",
+                "1 PINHOLE 640 480 1 2 3 nan4\n",
+                "camera parameter",
+                1,
+            ),
             ("images.txt", "1 1 0 0 0 0 0 0 1\n\n", "NAME", 1),
             ("images.txt", "1 1 0 0 0 0 0 0 1 a.png\n1 2\n", "triples", 2),
-            ("images.txt", "1 1 0 0 0 0 0 0 1 a.png\n1 2 -2\n", "POINT3D_ID", 2),
+            (
+                "images.txt",
+                "1 1 0 0 0 0 0 0 1 a.png\n1 2 -2\n",
+                "POINT3D_ID",
+                2,
+            ),
             ("points3D.txt", "1 0 0 0 300 0 0 0.1\n", "R (0-255)", 1),
             ("points3D.txt", "# c\n1 0 0 0 3 0 0 0.1 5\n", "odd", 2),
         ];
@@ -371,14 +487,20 @@ mod tests {
             write_valid_rest(d);
             fs::write(d.join(file), content).unwrap();
             let e = format_error(d);
-            assert!(e.contains(file) && e.contains(&format!("line {line}:")) && e.contains(needle), "{file}: {e}");
+            assert!(
+                e.contains(file) && e.contains(&format!("line {line}:")) && e.contains(needle),
+                "{file}: {e}"
+            );
         }
     }
 
     #[test]
     fn missing_file_is_not_found() {
         let dir = tempfile::tempdir().unwrap();
-        assert!(matches!(read_text(dir.path()), Err(IoError::NotFound { .. })));
+        assert!(matches!(
+            read_text(dir.path()),
+            Err(IoError::NotFound { .. })
+        ));
     }
 
     #[test]
@@ -386,7 +508,10 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let mut m = sample_model();
         m.images.get_mut(&1).unwrap().name = "two\nlines".into();
-        assert!(matches!(write_text(dir.path(), &m), Err(IoError::Input { .. })));
+        assert!(matches!(
+            write_text(dir.path(), &m),
+            Err(IoError::Input { .. })
+        ));
         assert!(!dir.path().join("cameras.txt").exists());
     }
 }

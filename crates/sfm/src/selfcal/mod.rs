@@ -26,7 +26,9 @@
 use nalgebra::{DMatrix, Matrix3, Matrix3x4, Matrix4, RowVector4, SymmetricEigen, Vector3, SVD};
 use tracing::debug;
 
+mod known;
 mod types;
+pub use known::*;
 pub use types::*;
 
 /// Index pairs `(i, j)`, `i ≤ j`, of the 10 unknowns of the symmetric `Ω*`.
@@ -397,69 +399,19 @@ pub fn self_calibrate(
         ));
     }
 
-    // Eigen-decomposition: order the three largest-magnitude eigenpairs first (descending), the
-    // smallest-magnitude one (the plane at infinity) last.
-    let eig = symmetric_eigen(omega_raw)?;
-    let mut by_value: Vec<f64> = eig.eigenvalues.iter().copied().collect();
-    by_value.sort_by(|a, b| b.total_cmp(a));
-    let omega_eigenvalues = [by_value[0], by_value[1], by_value[2], by_value[3]];
-    let mut order = [0usize, 1, 2, 3];
-    order.sort_by(|&a, &b| {
-        eig.eigenvalues[b]
-            .abs()
-            .total_cmp(&eig.eigenvalues[a].abs())
-    });
-    let mut top = [order[0], order[1], order[2]];
-    top.sort_by(|&a, &b| eig.eigenvalues[b].total_cmp(&eig.eigenvalues[a]));
-    let null = order[3];
-
-    let lambda_max = eig.eigenvalues[top[0]].abs().max(f64::MIN_POSITIVE);
-    let floor = 1e-6 * lambda_max;
-    let mut lambdas = [0.0; 3];
-    let mut clamped = false;
-    for (slot, &idx) in top.iter().enumerate() {
-        let l = eig.eigenvalues[idx];
-        if l.is_finite() && l > floor {
-            lambdas[slot] = l;
-        } else {
-            lambdas[slot] = floor;
-            clamped = true;
-        }
-    }
+    let Rank3 {
+        t,
+        t_inv,
+        omega,
+        eigenvalues: omega_eigenvalues,
+        clamped,
+    } = rank3_upgrade(&omega_raw)?;
     if clamped {
         reasons.push(format!(
             "Ω* is not positive semi-definite of rank 3 (eigenvalues {:.3e}, {:.3e}, {:.3e}, {:.3e}); clamped",
             omega_eigenvalues[0], omega_eigenvalues[1], omega_eigenvalues[2], omega_eigenvalues[3]
         ));
     }
-    // Unit Frobenius norm of the rank-3 Ω*.
-    let norm = (lambdas.iter().map(|l| l * l).sum::<f64>()).sqrt();
-    for l in &mut lambdas {
-        *l /= norm;
-    }
-
-    let mut v = Matrix4::zeros();
-    for (col, &idx) in top.iter().chain(std::iter::once(&null)).enumerate() {
-        v.set_column(col, &eig.eigenvectors.column(idx));
-    }
-    let s = Matrix4::from_diagonal(&nalgebra::Vector4::new(
-        lambdas[0].sqrt(),
-        lambdas[1].sqrt(),
-        lambdas[2].sqrt(),
-        1.0,
-    ));
-    let s_inv = Matrix4::from_diagonal(&nalgebra::Vector4::new(
-        1.0 / lambdas[0].sqrt(),
-        1.0 / lambdas[1].sqrt(),
-        1.0 / lambdas[2].sqrt(),
-        1.0,
-    ));
-    let t_inv = v * s;
-    let t = s_inv * v.transpose();
-    let omega =
-        v * Matrix4::from_diagonal(&nalgebra::Vector4::new(
-            lambdas[0], lambdas[1], lambdas[2], 0.0,
-        )) * v.transpose();
 
     let mut failed = 0;
     let per_camera: Vec<NormalizedIntrinsics> = cams
@@ -506,6 +458,88 @@ pub fn self_calibrate(
         omega_eigenvalues,
         per_camera,
         degenerate,
+    })
+}
+
+/// The rank-3 upgrade of a sign-fixed `Ω*` (step 6 of [`self_calibrate`]).
+pub(crate) struct Rank3 {
+    pub t: Matrix4<f64>,
+    pub t_inv: Matrix4<f64>,
+    pub omega: Matrix4<f64>,
+    /// Eigenvalues before the enforcement, descending.
+    pub eigenvalues: [f64; 4],
+    /// True when one of the three largest-magnitude eigenvalues was not positive.
+    pub clamped: bool,
+}
+
+/// Enforces rank 3 by zeroing the smallest-magnitude eigenvalue of `Ω* = V diag(λ) Vᵀ` and returns
+/// `T⁻¹ = V diag(√λ₁, √λ₂, √λ₃, 1)` with `diag(1, 1, 1, 0) = T Ω* Tᵀ` (eq. 27); non-positive
+/// eigenvalues among the three largest are clamped to a small positive floor.
+pub(crate) fn rank3_upgrade(omega_raw: &Matrix4<f64>) -> Result<Rank3, SelfCalibrationError> {
+    // Eigen-decomposition: order the three largest-magnitude eigenpairs first (descending), the
+    // smallest-magnitude one (the plane at infinity) last.
+    let eig = symmetric_eigen(*omega_raw)?;
+    let mut by_value: Vec<f64> = eig.eigenvalues.iter().copied().collect();
+    by_value.sort_by(|a, b| b.total_cmp(a));
+    let omega_eigenvalues = [by_value[0], by_value[1], by_value[2], by_value[3]];
+    let mut order = [0usize, 1, 2, 3];
+    order.sort_by(|&a, &b| {
+        eig.eigenvalues[b]
+            .abs()
+            .total_cmp(&eig.eigenvalues[a].abs())
+    });
+    let mut top = [order[0], order[1], order[2]];
+    top.sort_by(|&a, &b| eig.eigenvalues[b].total_cmp(&eig.eigenvalues[a]));
+    let null = order[3];
+
+    let lambda_max = eig.eigenvalues[top[0]].abs().max(f64::MIN_POSITIVE);
+    let floor = 1e-6 * lambda_max;
+    let mut lambdas = [0.0; 3];
+    let mut clamped = false;
+    for (slot, &idx) in top.iter().enumerate() {
+        let l = eig.eigenvalues[idx];
+        if l.is_finite() && l > floor {
+            lambdas[slot] = l;
+        } else {
+            lambdas[slot] = floor;
+            clamped = true;
+        }
+    }
+    // Unit Frobenius norm of the rank-3 Ω*.
+    let norm = (lambdas.iter().map(|l| l * l).sum::<f64>()).sqrt();
+    for l in &mut lambdas {
+        *l /= norm;
+    }
+
+    let mut v = Matrix4::zeros();
+    for (col, &idx) in top.iter().chain(std::iter::once(&null)).enumerate() {
+        v.set_column(col, &eig.eigenvectors.column(idx));
+    }
+    let s = Matrix4::from_diagonal(&nalgebra::Vector4::new(
+        lambdas[0].sqrt(),
+        lambdas[1].sqrt(),
+        lambdas[2].sqrt(),
+        1.0,
+    ));
+    let s_inv = Matrix4::from_diagonal(&nalgebra::Vector4::new(
+        1.0 / lambdas[0].sqrt(),
+        1.0 / lambdas[1].sqrt(),
+        1.0 / lambdas[2].sqrt(),
+        1.0,
+    ));
+    let t_inv = v * s;
+    let t = s_inv * v.transpose();
+    let omega =
+        v * Matrix4::from_diagonal(&nalgebra::Vector4::new(
+            lambdas[0], lambdas[1], lambdas[2], 0.0,
+        )) * v.transpose();
+
+    Ok(Rank3 {
+        t,
+        t_inv,
+        omega,
+        eigenvalues: omega_eigenvalues,
+        clamped,
     })
 }
 

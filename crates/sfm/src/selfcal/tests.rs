@@ -288,8 +288,7 @@ fn general_motion_noise_free_recovers_metric_frame() {
         assert!((sc.t * sc.t_inv - Matrix4::identity()).amax() < 1e-9);
         assert!((sc.omega.norm() - 1.0).abs() < 1e-12);
         // The fourth row of T is the plane at infinity of the projective frame, H⁻ᵀ (0,0,0,1).
-        let pi_inf =
-            truth.h.try_inverse().unwrap().transpose() * Vector4::new(0.0, 0.0, 0.0, 1.0);
+        let pi_inf = truth.h.try_inverse().unwrap().transpose() * Vector4::new(0.0, 0.0, 0.0, 1.0);
         let row4 = sc.t.row(3).transpose();
         let cos = (row4.dot(&pi_inf) / (row4.norm() * pi_inf.norm())).abs();
         assert!(1.0 - cos < 1e-8, "seed {seed}: plane at infinity cos {cos}");

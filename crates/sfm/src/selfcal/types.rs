@@ -277,4 +277,3 @@ fn serialize_matrix4<S: serde::Serializer>(m: &Matrix4<f64>, s: S) -> Result<S::
     let rows: [[f64; 4]; 4] = std::array::from_fn(|i| std::array::from_fn(|j| m[(i, j)]));
     rows.serialize(s)
 }
-
