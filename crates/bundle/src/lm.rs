@@ -98,6 +98,8 @@ fn param_norm(p: &Problem) -> f64 {
         .points
         .par_iter()
         .map(|x| x.iter().map(|v| v * v).sum::<f64>())
+        .collect::<Vec<f64>>()
+        .iter()
         .sum();
     (c + g + x).sqrt()
 }

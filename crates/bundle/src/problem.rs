@@ -153,6 +153,8 @@ impl Problem {
                 let r = self.residual(o);
                 loss.evaluate(r[0] * r[0] + r[1] * r[1])[0]
             })
+            .collect::<Vec<f64>>()
+            .iter()
             .sum();
         0.5 * data + self.prior_cost()
     }
@@ -190,6 +192,8 @@ impl Problem {
                 let r = self.residual(o);
                 r[0] * r[0] + r[1] * r[1]
             })
+            .collect::<Vec<f64>>()
+            .iter()
             .sum();
         (s / n as f64).sqrt()
     }

@@ -102,6 +102,10 @@ pub(crate) fn linearize(p: &Problem, st: &Structure, loss: &RobustLoss) -> Linea
             }
             loss.evaluate(s)[0]
         })
+        // Collected, then summed in order: a parallel sum's grouping depends on work stealing,
+        // and the last bits of the cost decide LM's accept/reject (same seed, same output).
+        .collect::<Vec<f64>>()
+        .iter()
         .sum();
 
     // Point blocks: V, bp and the W blocks of each incidence.

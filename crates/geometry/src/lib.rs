@@ -13,6 +13,7 @@
 //! - [`refine_f`]: LM on eq. 12 over the orthonormal representation of F;
 //! - [`gold_standard`]: the sparse ML estimate of eq. 13 (points eliminated by Schur complement);
 //! - [`view_distance`]: the image-based view distance of eqs. 14–15;
+//! - [`pnp`]: calibrated resection: Grunert's P3P, absolute orientation, pose refinement;
 //! - [`poly`]: small real polynomial root finders (the cubic of the 7-point method, the sextic of
 //!   Hartley–Sturm).
 //!
@@ -27,6 +28,7 @@ pub mod gold_standard;
 pub mod homography;
 mod linalg;
 pub mod normalize;
+pub mod pnp;
 pub mod poly;
 pub mod refine_f;
 pub mod resection;
@@ -45,6 +47,7 @@ pub use fundamental::{
 pub use gold_standard::{gold_standard_fundamental, GoldStandardOptions, GoldStandardReport};
 pub use homography::{homography_dlt, symmetric_transfer_error_sq, transfer_error_sq};
 pub use normalize::{hartley_normalization, Normalization};
+pub use pnp::{absolute_orientation, p3p, refine_pose, Pose};
 pub use refine_f::{epipolar_residuals, refine_fundamental, RefineFOptions, RefineFReport};
 pub use resection::{reprojection_distance, resection_dlt, resection_iterative};
 pub use skew::{canonical_cameras, skew};

@@ -31,7 +31,7 @@ pub use consensus::{Consensus, InlierCount, Msac};
 pub use estimator::Estimator;
 pub use options::{RansacError, RansacOptions};
 pub use ransac::{required_iterations, run, RansacReport};
-pub use resection::{Match2d3d, ResectionEstimator};
+pub use resection::{CalibratedMatch, Match2d3d, P3pEstimator, ResectionEstimator};
 pub use sampler::{Sampler, UniformSampler};
 pub use two_view::{FundamentalEstimator, HomographyEstimator, Match2d2d};
 pub use verify::{

@@ -3,8 +3,10 @@
 //! weighted DLT (the resection counterpart of eq. 20) as refit. The algorithms live in
 //! `handheld-geometry`; this file is the glue.
 
-use handheld_geometry::{reprojection_distance, resection_dlt, resection_iterative};
-use nalgebra::{Matrix3x4, Vector2, Vector4};
+use handheld_geometry::{
+    p3p, refine_pose, reprojection_distance, resection_dlt, resection_iterative, Pose,
+};
+use nalgebra::{Matrix3x4, Vector2, Vector3, Vector4};
 
 use crate::estimator::Estimator;
 
@@ -54,6 +56,44 @@ impl Estimator for ResectionEstimator {
     fn refit(&self, samples: &[Match2d3d], _model: &Matrix3x4<f64>) -> Option<Matrix3x4<f64>> {
         let (m, x) = split(samples);
         resection_iterative(&m, &x, self.refit_iterations).ok()
+    }
+}
+
+/// A calibrated 2D–3D correspondence: normalized (undistorted, `K⁻¹`) image point `x` of a
+/// Euclidean world point `world`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CalibratedMatch {
+    pub x: Vector2<f64>,
+    pub world: Vector3<f64>,
+}
+
+/// Calibrated resection: a pose from ≥ 3 matches (Grunert's P3P, [`handheld_geometry::p3p`]),
+/// Gauss–Newton on all inliers as the refit. The residual is the normalized reprojection error
+/// (multiply a pixel threshold by `1 / f`).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct P3pEstimator;
+
+impl Estimator for P3pEstimator {
+    type Model = Pose;
+    type Sample = CalibratedMatch;
+    const SAMPLE_SIZE: usize = 3;
+
+    fn fit(&self, samples: &[CalibratedMatch], out: &mut Vec<Pose>) {
+        let rays = std::array::from_fn(|i| Vector3::new(samples[i].x.x, samples[i].x.y, 1.0));
+        let world = std::array::from_fn(|i| samples[i].world);
+        out.extend(p3p(&rays, &world));
+    }
+
+    fn residual(&self, model: &Pose, s: &CalibratedMatch) -> f64 {
+        model.reprojection_error(&s.x, &s.world)
+    }
+
+    fn refit(&self, samples: &[CalibratedMatch], model: &Pose) -> Option<Pose> {
+        if samples.len() < 4 {
+            return None;
+        }
+        let (x, w): (Vec<_>, Vec<_>) = samples.iter().map(|s| (s.x, s.world)).unzip();
+        Some(refine_pose(model, &x, &w, 10))
     }
 }
 

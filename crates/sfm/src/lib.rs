@@ -14,6 +14,7 @@ pub mod input;
 pub mod metric;
 pub mod options;
 pub mod projective;
+mod register;
 pub mod selfcal;
 
 use std::collections::BTreeMap;
@@ -184,13 +185,34 @@ pub fn reconstruct(
                 .unwrap_or(0);
             candidates.swap_remove(best)
         };
-        let metric_ba = match metric::refine_metric(&ctx, &mut rec, estimate_aspect) {
+        let mut metric_ba = match metric::refine_metric(&ctx, &mut rec, estimate_aspect) {
             Ok(r) => r,
             Err(e) => {
                 last_err = e;
                 continue;
             }
         };
+        // Views the projective stage could not add (planar 2D–3D matches, late links) are tried
+        // again with calibrated resection, then everything is adjusted once more.
+        let t_reg = Instant::now();
+        let added = register::register_calibrated(&ctx, &mut rec, &allowed, &mut failures);
+        if !added.is_empty() {
+            for &i in &added {
+                allowed[i] = false;
+                failures.remove(&i);
+            }
+            match metric::refine_metric(&ctx, &mut rec, estimate_aspect) {
+                Ok(r) => metric_ba.extend(r),
+                Err(e) => {
+                    last_err = e;
+                    continue;
+                }
+            }
+        }
+        timings.insert(
+            "calibrated_registration".to_string(),
+            t_reg.elapsed().as_secs_f64(),
+        );
         if is_prior {
             report.used_prior_fallback = true;
         }

@@ -622,7 +622,10 @@ fn grow(
             }
         }
     }
-    model.bundle(ctx, 100)?;
+    // The growth schedule may have just adjusted the complete model; otherwise adjust it now.
+    if last_ba != model.order.len() {
+        model.bundle(ctx, 100)?;
+    }
     // A second pass of structure refinement after the final adjustment.
     for &img in &model.order.clone() {
         model.triangulate_image(ctx, img);
