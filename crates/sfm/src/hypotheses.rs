@@ -14,7 +14,7 @@ use crate::projective::{cameras_in_order, ProjectiveModel};
 use crate::selfcal::{upgrade_for_focal, FocalUpgrade};
 
 /// Focal range searched, in `K_N` units (eq. 24: `f / (w + h)`).
-const RANGE: (f64, f64) = (0.2, 5.0);
+pub(crate) const RANGE: (f64, f64) = (0.2, 5.0);
 /// Grid samples over [`RANGE`] (log-spaced).
 const SAMPLES: usize = 33;
 /// ν re-weighting solves per evaluation.

@@ -78,18 +78,35 @@ pub(crate) fn upgrade(
     };
     let build = |t: &nalgebra::Matrix4<f64>| build_metric(ctx, model, &cams, t, estimate_aspect);
     let (mut rec, mut focal, mut aspect) = build(&t)?;
-    // Sanity check on the linear estimate: focal lengths must be positive and plausible (between
-    // 0.05 and 20 times w + h); otherwise fall back on the priors.
-    let implausible = focal.values().any(|f| {
-        let s = ctx.kn[0][(0, 0)];
-        !(f.is_finite() && *f > 0.05 * s && *f < 20.0 * s)
-    });
-    if implausible && !fallback {
-        fallback = true;
-        (rec, focal, aspect) = build(&nalgebra::Matrix4::identity())?;
+    // Sanity check on the linear estimate: focal lengths must be plausible, within the range the
+    // focal hypotheses search (0.2–5 × (w + h): a 150° to 8° diagonal field of view); otherwise
+    // the estimate is reported as degenerate and the priors and hypotheses take over.
+    let mut degenerate = sc.degenerate.clone();
+    let (lo, hi) = crate::hypotheses::RANGE;
+    let implausible: Vec<f64> = focal
+        .values()
+        .copied()
+        .filter(|f| {
+            let s = ctx.kn[0][(0, 0)];
+            !(f.is_finite() && *f > lo * s && *f < hi * s)
+        })
+        .collect();
+    if !implausible.is_empty() {
+        let why = format!(
+            "implausible focal length {:.0} px from the linear estimate (outside {lo}–{hi} × (w + h))",
+            implausible[0]
+        );
+        degenerate = Some(match degenerate {
+            Some(d) => format!("{d}; {why}"),
+            None => why,
+        });
+        if !fallback {
+            fallback = true;
+            (rec, focal, aspect) = build(&nalgebra::Matrix4::identity())?;
+        }
     }
     let report = SelfCalibrationReport {
-        degenerate: sc.degenerate.clone(),
+        degenerate,
         used_prior_fallback: fallback,
         iterations: sc.iterations,
         singular_values: sc.singular_values.clone(),
