@@ -91,7 +91,7 @@ fn demo_writes_sequence_ground_truth_and_workspace() {
         "-o",
         out.to_str().unwrap(),
         "--frames",
-        "4",
+        "8",
         "--width",
         "320",
         "--height",
@@ -101,9 +101,9 @@ fn demo_writes_sequence_ground_truth_and_workspace() {
     let o = handheld(&args);
     assert!(o.status.success(), "{}", stderr(&o));
     let v: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
-    assert_eq!(v["frames"], 4);
+    assert_eq!(v["frames"], 8);
     assert_eq!(v["stages"][0]["stage"], "ingest");
-    assert_eq!(v["stages"][0]["summary"]["images"], 4);
+    assert_eq!(v["stages"][0]["summary"]["images"], 8);
     // Matching is scored against the exact relative poses.
     let m = &v["accuracy"]["matching"];
     assert!(m["verified_pairs"].as_u64().unwrap() >= 1, "{m}");
@@ -123,7 +123,7 @@ fn demo_writes_sequence_ground_truth_and_workspace() {
     }
     // The written ground truth reads back and is self-consistent.
     let gt = handheld_io::colmap::read_reconstruction(&out.join("ground_truth/sparse")).unwrap();
-    assert_eq!(gt.views.len(), 4);
+    assert_eq!(gt.views.len(), 8);
     assert!(gt.mean_reprojection_error() < 1e-6);
     let depth = handheld_io::pfm::read_pfm(&out.join("ground_truth/depth/frame_0000.pfm")).unwrap();
     assert_eq!((depth.width, depth.height), (320, 240));

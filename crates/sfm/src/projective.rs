@@ -85,6 +85,19 @@ impl<'a> Context<'a> {
         }
     }
 
+    /// RANSAC options of a resection (projective or calibrated) of `image`: T(1,1), a seed per
+    /// image derived from the options' seed (same seed, same model), at most 5000 trials.
+    pub fn resection_ransac(&self, image: usize, max_error: f64) -> RansacOptions {
+        RansacOptions {
+            max_error,
+            tdd: Some(1),
+            seed: self.opts.seed ^ (image as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15),
+            min_inlier_ratio: 0.02,
+            max_iterations: 5000,
+            ..Default::default()
+        }
+    }
+
     /// The projective inlier threshold of an image in normalised units.
     pub fn threshold(&self, image: usize) -> f64 {
         self.opts.projective_max_error_px * self.scale[image]
@@ -225,14 +238,7 @@ impl ProjectiveModel {
         };
         let samples: Vec<Match2d3d> = sample_idx.iter().map(|&k| all[k]).collect();
         let thr = ctx.threshold(image);
-        let ropts = RansacOptions {
-            max_error: thr,
-            tdd: Some(1),
-            seed: ctx.opts.seed ^ (image as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15),
-            min_inlier_ratio: 0.02,
-            max_iterations: 5000,
-            ..Default::default()
-        };
+        let ropts = ctx.resection_ransac(image, thr);
         let rep = ransac(
             &ResectionEstimator::default(),
             &Msac,

@@ -16,9 +16,7 @@ use std::collections::BTreeMap;
 use handheld_core::{
     MetricReconstruction, Observation, Point3D, PointId, Rigid3, Track, TrackElement, View,
 };
-use handheld_robust::{
-    run as ransac, CalibratedMatch, Msac, P3pEstimator, RansacOptions, UniformSampler,
-};
+use handheld_robust::{run as ransac, CalibratedMatch, Msac, P3pEstimator, UniformSampler};
 use nalgebra::{Matrix3x4, Point3, Translation3};
 
 use crate::projective::Context;
@@ -144,14 +142,7 @@ fn register_one(
         })
         .collect();
     let thr = ctx.opts.metric_max_error_px / cam.intrinsics.f;
-    let ropts = RansacOptions {
-        max_error: thr,
-        tdd: Some(1),
-        seed: ctx.opts.seed ^ (image as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15),
-        min_inlier_ratio: 0.02,
-        max_iterations: 5000,
-        ..Default::default()
-    };
+    let ropts = ctx.resection_ransac(image, thr);
     let rep = ransac(
         &P3pEstimator,
         &Msac,
