@@ -92,6 +92,10 @@ pub struct DemoArgs {
     /// Redo every stage even when its outputs are up to date.
     #[arg(long)]
     pub force: bool,
+    /// Encode the frames as an H.264 video (needs ffmpeg) and reconstruct that in video mode: KLT
+    /// tracks, GRIC key-frames, a pose for every frame.
+    #[arg(long)]
+    pub video: bool,
 }
 
 /// Options shared by the commands that ingest input.
@@ -126,6 +130,12 @@ pub struct InputArgs {
     /// Features: downscale images whose longer side is larger than this (pixels).
     #[arg(long, value_parser = clap::value_parser!(u32).range(64..))]
     pub max_image_size: Option<u32>,
+    /// Features: KLT tracking and GRIC key-frames (video, §3.1) or SIFT matching (photos).
+    #[arg(long, value_enum, default_value_t = TrackingMode::Auto)]
+    pub tracking: TrackingMode,
+    /// Features (KLT): live tracks kept per frame by re-detection.
+    #[arg(long, default_value_t = 1000, value_parser = clap::builder::TypedValueParser::map(clap::value_parser!(u64).range(16..=100_000), |v| v as usize))]
+    pub klt_features: usize,
     /// Matching: which pairs to match.
     #[arg(long, value_enum, default_value_t = PairMode::Auto)]
     pub pairs: PairMode,
@@ -165,6 +175,18 @@ pub enum DistortionArg {
     K1,
     /// k1 and k2.
     K1k2,
+}
+
+/// How correspondences are found.
+#[derive(Debug, Clone, Copy, ValueEnum, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TrackingMode {
+    /// KLT for a video file, SIFT for photos.
+    Auto,
+    /// KLT tracks and key-frames (also for a folder of consecutive frames).
+    Klt,
+    /// SIFT features and descriptor matching.
+    Sift,
 }
 
 /// Which image pairs the matches stage matches.

@@ -67,20 +67,59 @@ fn write_sequence(dir: &Path, seq: &SyntheticSequence, bars: &Bars) -> Result<()
     Ok(())
 }
 
+/// Ground-truth views keyed by the name the workspace gives them: the rendered file name for the
+/// photo folder, `frame_<index>.png` (the ingest stage's name for decoded frames) for the video.
+fn gt_by_name<'a>(
+    gt: &'a handheld_core::MetricReconstruction,
+    video: bool,
+) -> std::collections::HashMap<String, &'a handheld_core::View> {
+    let mut views: Vec<&handheld_core::View> = gt.views.values().collect();
+    views.sort_by(|a, b| a.name.cmp(&b.name));
+    views
+        .into_iter()
+        .enumerate()
+        .map(|(k, v)| {
+            let name = if video {
+                format!("frame_{k:06}.png")
+            } else {
+                v.name.clone()
+            };
+            (name, v)
+        })
+        .collect()
+}
+
+/// Encodes the rendered frames as an H.264 video (`ffmpeg`), as a camcorder or phone would.
+fn encode_video(out: &Path) -> Result<std::path::PathBuf> {
+    let video = out.join("video.mp4");
+    let tmp = out.join("video.tmp.mp4");
+    let status = std::process::Command::new(handheld_io::video::ffmpeg_program())
+        .args(["-y", "-loglevel", "error", "-framerate", "25", "-i"])
+        .arg(out.join("images").join("frame_%04d.png"))
+        .args(["-c:v", "libx264", "-crf", "12", "-pix_fmt", "yuv420p"])
+        .arg(&tmp)
+        .status()
+        .context("running ffmpeg to encode the demo video (install ffmpeg, or run the demo without --video)")?;
+    if !status.success() {
+        anyhow::bail!("ffmpeg could not encode {} ({status})", video.display());
+    }
+    std::fs::rename(&tmp, &video).with_context(|| format!("{}: cannot write", video.display()))?;
+    Ok(video)
+}
+
 /// Accuracy of the stages that exist so far against the ground truth: for every pair verified as
 /// general, the epipolar distance of its inliers under the exact relative pose (keypoints undistorted
 /// with the GT intrinsics, distance scaled back to pixels).
 /// Camera accuracy of the sparse model against the exact cameras: registered views, rotation and
 /// centre error after a similarity fit of the centres (as `eval_sfm.py`), focal error, and the focal
 /// error of self-calibration before metric BA.
-fn sparse_accuracy(out: &Path) -> Result<serde_json::Value> {
+fn sparse_accuracy(out: &Path, workspace: &Path, video: bool) -> Result<serde_json::Value> {
     let gt = handheld_io::colmap::read_reconstruction(&out.join("ground_truth").join("sparse"))?;
-    let sparse = out.join("workspace").join("sparse");
+    let sparse = workspace.join("sparse");
     let est = handheld_io::colmap::read_reconstruction(&sparse)?;
     let summary: serde_json::Value =
         serde_json::from_slice(&std::fs::read(sparse.join("summary.json"))?)?;
-    let by_name: std::collections::HashMap<&str, &handheld_core::View> =
-        gt.views.values().map(|v| (v.name.as_str(), v)).collect();
+    let by_name = gt_by_name(&gt, video);
     let pairs: Vec<(&handheld_core::View, &handheld_core::View)> = est
         .views
         .values()
@@ -156,14 +195,12 @@ fn sparse_accuracy(out: &Path) -> Result<serde_json::Value> {
     }))
 }
 
-fn matching_accuracy(out: &Path) -> Result<serde_json::Value> {
+fn matching_accuracy(out: &Path, workspace: &Path, video: bool) -> Result<serde_json::Value> {
     let gt = handheld_io::colmap::read_reconstruction(&out.join("ground_truth").join("sparse"))?;
-    let db = handheld_io::database::Database::open(
-        &out.join("workspace").join("matches").join("database.db"),
-    )?;
+    let db =
+        handheld_io::database::Database::open(&workspace.join("matches").join("database.db"))?;
     let images = db.images()?;
-    let views: std::collections::HashMap<&str, &handheld_core::View> =
-        gt.views.values().map(|v| (v.name.as_str(), v)).collect();
+    let views = gt_by_name(&gt, video);
     let mut errors = Vec::new();
     let mut verified = 0;
     let mut keypoints = std::collections::HashMap::new();
@@ -259,9 +296,22 @@ pub fn run(a: &DemoArgs, g: &GlobalArgs, bars: &Bars) -> Result<()> {
     }
     let render_s = t0.elapsed().as_secs_f64();
 
+    let (input_path, workspace) = if a.video {
+        let v = a.output.join("video.mp4");
+        let v = if fresh && v.exists() {
+            v
+        } else {
+            encode_video(&a.output)?
+        };
+        (v, a.output.join("workspace-video"))
+    } else {
+        (a.output.join("images"), a.output.join("workspace"))
+    };
     let input = InputArgs {
-        input: a.output.join("images"),
-        output: a.output.join("workspace"),
+        input: input_path,
+        output: workspace.clone(),
+        tracking: crate::args::TrackingMode::Auto,
+        klt_features: 1000,
         stride: 1,
         start: 0.0,
         end: None,
@@ -282,15 +332,16 @@ pub fn run(a: &DemoArgs, g: &GlobalArgs, bars: &Bars) -> Result<()> {
     };
     let reports = pipeline::run(&input, pipeline::Stage::LAST, bars)?;
     let matching =
-        matching_accuracy(&a.output).unwrap_or_else(|e| json!({ "error": format!("{e:#}") }));
+        matching_accuracy(&a.output, &workspace, a.video).unwrap_or_else(|e| json!({ "error": format!("{e:#}") }));
     let sparse =
-        sparse_accuracy(&a.output).unwrap_or_else(|e| json!({ "error": format!("{e:#}") }));
+        sparse_accuracy(&a.output, &workspace, a.video).unwrap_or_else(|e| json!({ "error": format!("{e:#}") }));
     let summary = json!({
         "demo": a.output,
         "frames": a.frames,
         "width": a.width,
         "height": a.height,
         "seed": a.seed,
+        "input": if a.video { "video (H.264)" } else { "photos" },
         "path": format!("{:?}", a.path).to_lowercase(),
         "render_seconds": render_s,
         "ground_truth": gt_summary,

@@ -54,7 +54,7 @@ fn shared(tracks: &[Track2d], a: usize, b: usize) -> Vec<Match2d2d> {
 }
 
 /// Why a key-frame was chosen.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub enum KeyframeReason {
     /// The first frame.
     First,

@@ -22,6 +22,10 @@ pub struct SfmImage {
     pub focal_prior_px: Option<f64>,
     /// Frame index and time for video input.
     pub frame: Option<FrameInfo>,
+    /// Video input: the stable KLT track id of every keypoint (same length as `keypoints`); empty
+    /// for photos. In-between frames, which have no verified pairs, are linked to the 3D points
+    /// through these ids.
+    pub track_ids: Vec<u64>,
 }
 
 /// One verified image pair (indices into [`SfmInput::images`]).
@@ -62,6 +66,17 @@ impl SfmInput {
                 return Err(format!(
                     "image {} ({}) has a non-finite keypoint",
                     im.id, im.name
+                ));
+            }
+        }
+        for im in &self.images {
+            if !im.track_ids.is_empty() && im.track_ids.len() != im.keypoints.len() {
+                return Err(format!(
+                    "image {} ({}) has {} track ids for {} keypoints",
+                    im.id,
+                    im.name,
+                    im.track_ids.len(),
+                    im.keypoints.len()
                 ));
             }
         }

@@ -16,6 +16,7 @@ pub mod options;
 pub mod projective;
 mod register;
 pub mod selfcal;
+mod video;
 
 use std::collections::BTreeMap;
 use std::time::Instant;
@@ -110,10 +111,13 @@ pub fn reconstruct(
     let ctx = projective::Context::new(input, &graph, options);
     let estimate_aspect = options.estimate_aspect.unwrap_or(input.video);
     let n = input.images.len();
+    // Images without any verified pair (a video's in-between frames) cannot start or join the
+    // projective model; video frames are registered from their tracks afterwards.
     let mut allowed: Vec<bool> = input
         .images
         .iter()
-        .map(|im| !im.keypoints.is_empty())
+        .enumerate()
+        .map(|(i, im)| !im.keypoints.is_empty() && !graph.neighbours(i).is_empty())
         .collect();
     let mut models = Vec::new();
     let mut failures: BTreeMap<usize, String> = BTreeMap::new();
@@ -213,6 +217,23 @@ pub fn reconstruct(
             "calibrated_registration".to_string(),
             t_reg.elapsed().as_secs_f64(),
         );
+        // Video: every in-between frame from its tracks, then all frames adjusted together.
+        let t_frames = Instant::now();
+        let frames = video::register_frames(&ctx, &mut rec, &mut failures);
+        if !frames.is_empty() {
+            tracing::info!("registered {} in-between video frames", frames.len());
+            match metric::refine_metric(&ctx, &mut rec, estimate_aspect) {
+                Ok(r) => metric_ba.extend(r),
+                Err(e) => {
+                    last_err = e;
+                    continue;
+                }
+            }
+            timings.insert(
+                "video_frames".to_string(),
+                t_frames.elapsed().as_secs_f64(),
+            );
+        }
         if is_prior {
             report.used_prior_fallback = true;
         }
@@ -256,13 +277,12 @@ pub fn reconstruct(
             let im = &input.images[i];
             let why = if im.keypoints.is_empty() {
                 "no features".to_string()
+            } else if let Some(f) = failures.get(&i) {
+                f.clone()
             } else if graph.neighbours(i).is_empty() {
                 "no verified matches with any other image".to_string()
             } else {
-                failures
-                    .get(&i)
-                    .cloned()
-                    .unwrap_or_else(|| "not connected to a model".to_string())
+                "not connected to a model".to_string()
             };
             (im.name.clone(), why)
         })

@@ -124,7 +124,7 @@ fn camera_of(
         })
 }
 
-fn register_one(
+pub(crate) fn register_one(
     ctx: &Context,
     rec: &mut MetricReconstruction,
     image: usize,

@@ -27,6 +27,7 @@ fn input_from(set: &MultiViewOptions) -> (SfmInput, MetricReconstruction) {
                 camera_key: "cam".into(),
                 focal_prior_px: None,
                 frame: None,
+                track_ids: Vec::new(),
             }
         })
         .collect();

@@ -1,5 +1,6 @@
 //! The features stage: RootSIFT on every ingested image, in parallel, one `features/<index>.feat`
-//! file per image (full-precision keypoints and descriptors).
+//! file per image (full-precision keypoints and descriptors); for video, KLT tracks and key-frames
+//! instead (see [`super::tracks`]).
 
 use std::time::Instant;
 
@@ -12,7 +13,11 @@ use handheld_io::images::{load_image, ImageIngestOptions};
 use handheld_io::workspace::{Fingerprint, Workspace};
 use rayon::prelude::*;
 
-use crate::args::InputArgs;
+use handheld_features::video::VideoTrackingOptions;
+use handheld_io::ingest::InputKind;
+use serde::Serialize;
+
+use crate::args::{InputArgs, TrackingMode};
 use crate::pipeline::{run_stage, Stage, StageOutput, StageReport};
 use crate::ui::Bars;
 
@@ -21,8 +26,34 @@ pub fn feature_file_name(index: usize) -> String {
     format!("{index:06}.feat")
 }
 
-pub fn options(a: &InputArgs) -> Result<ExtractionOptions> {
-    let opts = ExtractionOptions {
+/// Options of the features stage.
+#[derive(Clone, Debug, Serialize)]
+pub struct FeatureStageOptions {
+    pub extraction: ExtractionOptions,
+    pub tracking: TrackingMode,
+    /// Live KLT tracks kept per frame (video).
+    pub klt_features: usize,
+}
+
+impl FeatureStageOptions {
+    /// Whether this input is tracked with KLT rather than matched with SIFT.
+    pub fn uses_klt(&self, kind: InputKind) -> bool {
+        match self.tracking {
+            TrackingMode::Auto => kind == InputKind::Video,
+            TrackingMode::Klt => true,
+            TrackingMode::Sift => false,
+        }
+    }
+
+    pub fn video_tracking(&self) -> VideoTrackingOptions {
+        let mut v = VideoTrackingOptions::default();
+        v.klt.target_features = self.klt_features;
+        v
+    }
+}
+
+pub fn options(a: &InputArgs) -> Result<FeatureStageOptions> {
+    let extraction = ExtractionOptions {
         sift: SiftOptions {
             max_features: Some(a.max_features),
             ..ExtractionOptions::default().sift
@@ -30,24 +61,47 @@ pub fn options(a: &InputArgs) -> Result<ExtractionOptions> {
         max_image_size: a.max_image_size,
         ..ExtractionOptions::default()
     };
-    opts.validate().map_err(anyhow::Error::msg)?;
+    extraction.validate().map_err(anyhow::Error::msg)?;
+    let opts = FeatureStageOptions {
+        extraction,
+        tracking: a.tracking,
+        klt_features: a.klt_features,
+    };
+    opts.video_tracking()
+        .validate()
+        .map_err(|e| anyhow::anyhow!("--klt-features: {e}"))?;
     Ok(opts)
 }
 
 pub fn run(
     ws: &Workspace,
-    opts: &ExtractionOptions,
+    stage_opts: &FeatureStageOptions,
     force: bool,
     bars: &Bars,
 ) -> Result<StageReport> {
     let ingest = super::load_ingest(ws)?;
+    let klt = stage_opts.uses_klt(ingest.kind);
+    let opts = &stage_opts.extraction;
+    let fp_opts = if klt {
+        serde_json::json!({"tracking": "klt", "klt_features": stage_opts.klt_features})
+    } else {
+        serde_json::to_value(opts)?
+    };
     run_stage(
         ws,
         Stage::Features,
         Fingerprint::new(),
-        serde_json::to_value(opts)?,
+        fp_opts,
         force,
         |dir| {
+            if klt {
+                return super::tracks::run_tracking(
+                    &ingest,
+                    dir,
+                    &stage_opts.video_tracking(),
+                    bars,
+                );
+            }
             bars.start("features", ingest.images.len() as u64);
             let load_opts = ImageIngestOptions {
                 min_dimension: 1,

@@ -6,6 +6,7 @@ use anyhow::{Context, Result};
 use handheld_features::close_views::{propose_close_views, CloseViewOptions};
 use handheld_features::matching::{exhaustive_pairs, sequential_pairs};
 use handheld_features::verify::{verify_pairs, PairVerificationOptions, VerifiedPair};
+use handheld_features::video::{keyframe_pairs, VideoTrackingOptions};
 use handheld_features::{Descriptors, Features, Keypoint};
 use handheld_io::database::{Database, StoredTwoViewGeometry, TwoViewConfig};
 use handheld_io::features_file::read_features;
@@ -108,6 +109,16 @@ pub fn run(
                 .map(|k| read_features(&fdir.join(feature_file_name(k))).map(to_features))
                 .collect::<std::result::Result<_, _>>()
                 .context("reading features (rerun the features stage with --force)")?;
+            if let Some(tracks) = super::tracks::load_tracks(ws)? {
+                // Video: key-frame pairs from the KLT tracks (§3.1).
+                let verified = keyframe_pairs(
+                    &tracks,
+                    &VideoTrackingOptions::default(),
+                    &verification_options(opts),
+                    bars,
+                );
+                return finish(dir, &ingest, &features, &verified, verified.len(), 0, opts);
+            }
             let mut pairs = if sequential {
                 sequential_pairs(n, opts.window)
             } else {
@@ -121,35 +132,48 @@ pub fn run(
                 pairs.extend(extra);
             }
             let verified = verify_pairs(&features, &pairs, &verification_options(opts), bars);
-            write_database(&dir.join("database.db"), &ingest, &features, &verified)?;
-            let summaries: Vec<_> = verified.iter().map(VerifiedPair::summary).collect();
-            handheld_io::atomic::write_bytes_atomic(
-                &dir.join("pairs.json"),
-                &serde_json::to_vec_pretty(&summaries)?,
-            )?;
-            let good = summaries
-                .iter()
-                .filter(|s| s.configuration == TwoViewConfiguration::General)
-                .count();
-            let mut inl: Vec<usize> = summaries
-                .iter()
-                .filter(|s| s.configuration != TwoViewConfiguration::TooFewInliers)
-                .map(|s| s.inliers)
-                .collect();
-            inl.sort_unstable();
-            Ok(StageOutput {
-                outputs: vec!["database.db".into(), "pairs.json".into()],
-                summary: serde_json::json!({
-                    "pairs": pairs.len(),
-                    "close_view_pairs_proposed": proposed,
-                    "close_view_pairs_verified": verified.iter().filter(|v| v.j > v.i + opts.window && v.geometry.configuration == TwoViewConfiguration::General).count(),
-                    "verified_general": good,
-                    "verified_planar_or_rotation": summaries.iter().filter(|s| matches!(s.configuration, TwoViewConfiguration::Planar | TwoViewConfiguration::PureRotation)).count(),
-                    "inliers_per_verified_pair_median": inl.get(inl.len() / 2),
-                }),
-            })
+            finish(dir, &ingest, &features, &verified, pairs.len(), proposed, opts)
         },
     )
+}
+
+/// Writes the database and `pairs.json`, and summarises the verified pairs.
+fn finish(
+    dir: &std::path::Path,
+    ingest: &handheld_io::ingest::IngestResult,
+    features: &[Features],
+    verified: &[VerifiedPair],
+    num_pairs: usize,
+    proposed: usize,
+    opts: &MatchStageOptions,
+) -> Result<StageOutput> {
+    write_database(&dir.join("database.db"), ingest, features, verified)?;
+    let summaries: Vec<_> = verified.iter().map(VerifiedPair::summary).collect();
+    handheld_io::atomic::write_bytes_atomic(
+        &dir.join("pairs.json"),
+        &serde_json::to_vec_pretty(&summaries)?,
+    )?;
+    let good = summaries
+        .iter()
+        .filter(|s| s.configuration == TwoViewConfiguration::General)
+        .count();
+    let mut inl: Vec<usize> = summaries
+        .iter()
+        .filter(|s| s.configuration != TwoViewConfiguration::TooFewInliers)
+        .map(|s| s.inliers)
+        .collect();
+    inl.sort_unstable();
+    Ok(StageOutput {
+        outputs: vec!["database.db".into(), "pairs.json".into()],
+        summary: serde_json::json!({
+            "pairs": num_pairs,
+            "close_view_pairs_proposed": proposed,
+            "close_view_pairs_verified": verified.iter().filter(|v| proposed > 0 && v.j > v.i + opts.window && v.geometry.configuration == TwoViewConfiguration::General).count(),
+            "verified_general": good,
+            "verified_planar_or_rotation": summaries.iter().filter(|s| matches!(s.configuration, TwoViewConfiguration::Planar | TwoViewConfiguration::PureRotation)).count(),
+            "inliers_per_verified_pair_median": inl.get(inl.len() / 2),
+        }),
+    })
 }
 
 fn write_database(

@@ -5,6 +5,7 @@ pub mod features;
 pub mod ingest;
 pub mod matches;
 pub mod sparse;
+pub mod tracks;
 
 use anyhow::{Context, Result};
 use handheld_io::ingest::IngestResult;

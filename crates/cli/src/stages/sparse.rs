@@ -44,6 +44,17 @@ pub fn options(a: &InputArgs) -> Result<SfmOptions> {
 pub fn load_input(ws: &Workspace) -> Result<SfmInput> {
     let ingest = super::load_ingest(ws)?;
     let fdir = ws.root.join(Stage::Features.dir_name());
+    let tracks = super::tracks::load_tracks(ws)?;
+    if let Some(t) = &tracks {
+        if t.num_frames() != ingest.images.len() {
+            anyhow::bail!(
+                "{}: {} frames, but ingest has {} (rerun features with --force)",
+                fdir.join(super::tracks::TRACKS_FILE).display(),
+                t.num_frames(),
+                ingest.images.len()
+            );
+        }
+    }
     let images: Vec<SfmImage> = ingest
         .images
         .par_iter()
@@ -69,6 +80,10 @@ pub fn load_input(ws: &Workspace) -> Result<SfmInput> {
                 ),
                 focal_prior_px: img.info.focal_prior_px,
                 frame: img.frame,
+                track_ids: tracks
+                    .as_ref()
+                    .map(|t| t.ids[k].clone())
+                    .unwrap_or_default(),
             })
         })
         .collect::<Result<_>>()?;

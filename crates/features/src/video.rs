@@ -1,0 +1,244 @@
+//! Video correspondences (§2.1 tracking and §3.1 key-frames, footnote 1): KLT tracks over every
+//! frame, GRIC key-frames among them, and the key-frame pairs that structure and motion starts from.
+//!
+//! Every frame becomes a [`Features`] whose keypoints are the tracks alive in it (no descriptors), and
+//! [`VideoTracks::ids`] gives each keypoint's stable track id, so that an in-between frame can later
+//! be linked to the 3D points its tracks reach. Key-frame pairs are verified exactly like photo pairs
+//! (Table 1 through [`verify_pair`]), with the shared tracks as putative matches.
+
+use std::collections::HashMap;
+
+use handheld_core::Progress;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::keyframes::{select_keyframes, KeyframeOptions, KeyframeReason};
+use crate::klt::{KltOptions, KltTracker};
+use crate::matching::Match;
+use crate::verify::{verify_pair, PairVerificationOptions, VerifiedPair};
+use crate::{Descriptors, Features, GrayImage, Keypoint};
+
+/// Options of [`track_video`] and [`keyframe_pairs`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct VideoTrackingOptions {
+    pub klt: KltOptions,
+    pub keyframes: KeyframeOptions,
+    /// Each key-frame is paired with this many following key-frames (tracks shared with a farther
+    /// key-frame give a wider baseline and longer multi-view tracks). Default 3.
+    pub keyframe_window: usize,
+    /// Fewest shared tracks for a key-frame pair to be verified. Default 30.
+    pub min_shared_tracks: usize,
+}
+
+impl Default for VideoTrackingOptions {
+    fn default() -> Self {
+        Self {
+            klt: KltOptions {
+                target_features: 1000,
+                ..Default::default()
+            },
+            keyframes: KeyframeOptions::default(),
+            keyframe_window: 3,
+            min_shared_tracks: 30,
+        }
+    }
+}
+
+impl VideoTrackingOptions {
+    pub fn validate(&self) -> Result<(), String> {
+        self.klt.validate()?;
+        if self.keyframe_window == 0 {
+            return Err("keyframe_window must be at least 1".into());
+        }
+        if !(self.keyframes.track_ratio > 0.0 && self.keyframes.track_ratio <= 1.0) {
+            return Err(format!(
+                "key-frame track ratio must be in (0, 1], got {}",
+                self.keyframes.track_ratio
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// The tracks of a whole video, frame by frame.
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+pub struct VideoTracks {
+    /// Per frame: the positions `[x, y]` (pixels) of the tracks alive in it, in order of track id.
+    pub points: Vec<Vec<[f32; 2]>>,
+    /// Per frame: the stable id of each track in `points`.
+    pub ids: Vec<Vec<u64>>,
+    /// Key-frames in order, with the reason each was chosen.
+    pub keyframes: Vec<(usize, KeyframeReason)>,
+}
+
+impl VideoTracks {
+    pub fn num_frames(&self) -> usize {
+        self.points.len()
+    }
+
+    /// Frame `k` as keypoints without descriptors.
+    pub fn features(&self, k: usize) -> Features {
+        Features {
+            keypoints: self.points[k]
+                .iter()
+                .map(|p| Keypoint {
+                    x: p[0],
+                    y: p[1],
+                    scale: 1.0,
+                    orientation: 0.0,
+                    response: 0.0,
+                })
+                .collect(),
+            descriptors: Descriptors {
+                dim: 0,
+                data: Vec::new(),
+            },
+        }
+    }
+
+    /// Tracks shared by frames `a` and `b`, as keypoint-index matches.
+    pub fn shared(&self, a: usize, b: usize) -> Vec<Match> {
+        let index: HashMap<u64, u32> = self.ids[b]
+            .iter()
+            .enumerate()
+            .map(|(k, id)| (*id, k as u32))
+            .collect();
+        self.ids[a]
+            .iter()
+            .enumerate()
+            .filter_map(|(k, id)| {
+                index.get(id).map(|&j| Match {
+                    i: k as u32,
+                    j,
+                    distance: 0.0,
+                })
+            })
+            .collect()
+    }
+}
+
+/// Tracks features through `frames` (in order) with pyramidal KLT (eq. 8) and selects key-frames by
+/// GRIC (§3.1). `frames` yields each frame or the error that stops the run.
+pub fn track_video<E>(
+    frames: impl Iterator<Item = Result<GrayImage, E>>,
+    opts: &VideoTrackingOptions,
+    progress: &dyn Progress,
+) -> Result<VideoTracks, E>
+where
+    E: From<String>,
+{
+    opts.validate().map_err(E::from)?;
+    let mut tracker = KltTracker::new(opts.klt.clone()).map_err(E::from)?;
+    let mut out = VideoTracks::default();
+    for frame in frames {
+        let frame = frame?;
+        let k = tracker.frame_count();
+        let tracks = tracker.process(&frame);
+        let mut pts = Vec::new();
+        let mut ids = Vec::new();
+        for t in tracks.iter().filter(|t| t.alive) {
+            if let Some(&(f, x, y)) = t.positions.last() {
+                if f == k {
+                    pts.push([x, y]);
+                    ids.push(t.id);
+                }
+            }
+        }
+        out.points.push(pts);
+        out.ids.push(ids);
+        progress.inc(1);
+    }
+    out.keyframes = select_keyframes(tracker.tracks(), out.num_frames(), &opts.keyframes);
+    Ok(out)
+}
+
+/// Verifies the key-frame pairs: each key-frame with the next [`VideoTrackingOptions::keyframe_window`]
+/// key-frames, when they share enough tracks. Indices in the result are frame indices.
+pub fn keyframe_pairs(
+    tracks: &VideoTracks,
+    opts: &VideoTrackingOptions,
+    verification: &PairVerificationOptions,
+    progress: &dyn Progress,
+) -> Vec<VerifiedPair> {
+    let keys: Vec<usize> = tracks.keyframes.iter().map(|k| k.0).collect();
+    let mut pairs = Vec::new();
+    for (a, &ka) in keys.iter().enumerate() {
+        for &kb in keys.iter().skip(a + 1).take(opts.keyframe_window) {
+            pairs.push((ka, kb));
+        }
+    }
+    progress.start("verifying key-frame pairs", pairs.len() as u64);
+    let v = PairVerificationOptions {
+        guided: false,
+        ..verification.clone()
+    };
+    let out = pairs
+        .par_iter()
+        .filter_map(|&(a, b)| {
+            let shared = tracks.shared(a, b);
+            progress.inc(1);
+            (shared.len() >= opts.min_shared_tracks).then(|| {
+                verify_pair(a, b, &tracks.features(a), &tracks.features(b), shared, &v)
+            })
+        })
+        .collect();
+    progress.finish();
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A textured image shifted by `dx` pixels (a camera translating parallel to a plane).
+    fn frame(dx: f32) -> GrayImage {
+        let (w, h) = (160usize, 120usize);
+        let mut img = GrayImage::new(w, h);
+        for y in 0..h {
+            for x in 0..w {
+                let u = x as f32 + dx;
+                let v = y as f32;
+                let val = 0.5
+                    + 0.25 * ((u * 0.31).sin() * (v * 0.27).cos())
+                    + 0.2 * ((u * 0.093 + v * 0.151).sin() * (u * 0.05 - v * 0.11).cos());
+                img.data[y * w + x] = val;
+            }
+        }
+        img
+    }
+
+    #[test]
+    fn tracks_keep_ids_and_follow_the_shift() {
+        let frames: Vec<Result<GrayImage, String>> = (0..5).map(|k| Ok(frame(k as f32))).collect();
+        let t = track_video(
+            frames.into_iter(),
+            &VideoTrackingOptions::default(),
+            &handheld_core::NoProgress,
+        )
+        .unwrap();
+        assert_eq!(t.num_frames(), 5);
+        assert!(t.points[0].len() > 50, "{} features", t.points[0].len());
+        let shared = t.shared(0, 4);
+        assert!(shared.len() > 30, "{} shared tracks", shared.len());
+        // The content moves left by 1 px per frame: a track's x drops by 4 between frames 0 and 4.
+        let mut errs: Vec<f32> = shared
+            .iter()
+            .map(|m| {
+                let (a, b) = (t.points[0][m.i as usize], t.points[4][m.j as usize]);
+                ((b[0] - (a[0] - 4.0)).powi(2) + (b[1] - a[1]).powi(2)).sqrt()
+            })
+            .collect();
+        errs.sort_by(f32::total_cmp);
+        assert!(errs[errs.len() / 2] < 0.1, "median error {}", errs[errs.len() / 2]);
+        assert_eq!(t.keyframes.first().map(|k| k.0), Some(0));
+    }
+
+    #[test]
+    fn rejects_bad_options() {
+        let o = VideoTrackingOptions {
+            keyframe_window: 0,
+            ..Default::default()
+        };
+        assert!(o.validate().is_err());
+    }
+}
