@@ -157,6 +157,9 @@ pub struct InputArgs {
     /// Sparse: radial distortion estimated by metric BA (eq. 3).
     #[arg(long, value_enum, default_value_t = DistortionArg::K1)]
     pub distortion: DistortionArg,
+    /// Sparse: the pixel aspect ratio: estimated for video, 1 for photos (auto), or forced.
+    #[arg(long, value_enum, default_value_t = AspectArg::Auto)]
+    pub aspect: AspectArg,
     /// Sparse: keep the principal point at the image centre instead of estimating it.
     #[arg(long)]
     pub fixed_principal_point: bool,
@@ -164,6 +167,17 @@ pub struct InputArgs {
     /// of width + height (eq. 25's u ≈ v ≈ 0 in K_N units).
     #[arg(long, default_value_t = 0.005)]
     pub principal_point_prior: f64,
+}
+
+/// Whether metric BA estimates the aspect ratio (§3.4).
+#[derive(Debug, Clone, Copy, ValueEnum, PartialEq, Eq)]
+pub enum AspectArg {
+    /// Estimated for video, fixed to 1 for photos.
+    Auto,
+    /// Always fixed to 1 (square pixels).
+    Fixed,
+    /// Always estimated (one constant ratio per intrinsics group).
+    Free,
 }
 
 /// Radial distortion model of the sparse stage.

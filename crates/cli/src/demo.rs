@@ -327,6 +327,7 @@ pub fn run(a: &DemoArgs, g: &GlobalArgs, bars: &Bars) -> Result<()> {
         no_close_views: false,
         seed: a.seed,
         distortion: crate::args::DistortionArg::K1,
+        aspect: crate::args::AspectArg::Auto,
         fixed_principal_point: false,
         principal_point_prior: 0.005,
     };

@@ -16,6 +16,7 @@ pub mod options;
 pub mod projective;
 mod register;
 pub mod selfcal;
+mod tracks;
 mod video;
 
 use std::collections::BTreeMap;

@@ -336,7 +336,7 @@ impl ProjectiveModel {
 
     /// Re-triangulates a point from all its observations (eq. 20); keeps the new position only if every
     /// observation stays within the threshold, else drops the worst observations.
-    fn refine_point(&mut self, ctx: &Context, pid: usize) {
+    pub(crate) fn refine_point(&mut self, ctx: &Context, pid: usize) {
         let Some(pt) = self.points[pid].clone() else {
             return;
         };
@@ -632,10 +632,13 @@ fn grow(
     if last_ba != model.order.len() {
         model.bundle(ctx, 100)?;
     }
-    // A second pass of structure refinement after the final adjustment.
+    // A second pass of structure refinement after the final adjustment: new points, then every
+    // point completed with all the registered views that match it (see `tracks`).
     for &img in &model.order.clone() {
         model.triangulate_image(ctx, img);
     }
+    let growth = model.complete_and_merge_tracks(ctx);
+    tracing::debug!(?growth, "track completion");
     model.bundle(ctx, 100)?;
     progress.finish();
     Ok(())

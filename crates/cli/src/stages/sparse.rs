@@ -34,6 +34,11 @@ pub fn options(a: &InputArgs) -> Result<SfmOptions> {
         distortion,
         refine_principal_point: !a.fixed_principal_point,
         principal_point_prior: a.principal_point_prior,
+        estimate_aspect: match a.aspect {
+            crate::args::AspectArg::Auto => None,
+            crate::args::AspectArg::Fixed => Some(false),
+            crate::args::AspectArg::Free => Some(true),
+        },
         ..Default::default()
     };
     o.validate().map_err(anyhow::Error::msg)?;
