@@ -197,8 +197,7 @@ fn sparse_accuracy(out: &Path, workspace: &Path, video: bool) -> Result<serde_js
 
 fn matching_accuracy(out: &Path, workspace: &Path, video: bool) -> Result<serde_json::Value> {
     let gt = handheld_io::colmap::read_reconstruction(&out.join("ground_truth").join("sparse"))?;
-    let db =
-        handheld_io::database::Database::open(&workspace.join("matches").join("database.db"))?;
+    let db = handheld_io::database::Database::open(&workspace.join("matches").join("database.db"))?;
     let images = db.images()?;
     let views = gt_by_name(&gt, video);
     let mut errors = Vec::new();
@@ -332,10 +331,10 @@ pub fn run(a: &DemoArgs, g: &GlobalArgs, bars: &Bars) -> Result<()> {
         principal_point_prior: 0.005,
     };
     let reports = pipeline::run(&input, pipeline::Stage::LAST, bars)?;
-    let matching =
-        matching_accuracy(&a.output, &workspace, a.video).unwrap_or_else(|e| json!({ "error": format!("{e:#}") }));
-    let sparse =
-        sparse_accuracy(&a.output, &workspace, a.video).unwrap_or_else(|e| json!({ "error": format!("{e:#}") }));
+    let matching = matching_accuracy(&a.output, &workspace, a.video)
+        .unwrap_or_else(|e| json!({ "error": format!("{e:#}") }));
+    let sparse = sparse_accuracy(&a.output, &workspace, a.video)
+        .unwrap_or_else(|e| json!({ "error": format!("{e:#}") }));
     let summary = json!({
         "demo": a.output,
         "frames": a.frames,

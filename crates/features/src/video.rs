@@ -177,9 +177,8 @@ pub fn keyframe_pairs(
         .filter_map(|&(a, b)| {
             let shared = tracks.shared(a, b);
             progress.inc(1);
-            (shared.len() >= opts.min_shared_tracks).then(|| {
-                verify_pair(a, b, &tracks.features(a), &tracks.features(b), shared, &v)
-            })
+            (shared.len() >= opts.min_shared_tracks)
+                .then(|| verify_pair(a, b, &tracks.features(a), &tracks.features(b), shared, &v))
         })
         .collect();
     progress.finish();
@@ -229,7 +228,11 @@ mod tests {
             })
             .collect();
         errs.sort_by(f32::total_cmp);
-        assert!(errs[errs.len() / 2] < 0.1, "median error {}", errs[errs.len() / 2]);
+        assert!(
+            errs[errs.len() / 2] < 0.1,
+            "median error {}",
+            errs[errs.len() / 2]
+        );
         assert_eq!(t.keyframes.first().map(|k| k.0), Some(0));
     }
 

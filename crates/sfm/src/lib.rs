@@ -14,9 +14,11 @@ pub mod input;
 pub mod metric;
 pub mod options;
 pub mod projective;
+mod projective_ba;
 mod register;
 pub mod selfcal;
 mod tracks;
+mod uncertainty;
 mod video;
 
 use std::collections::BTreeMap;
@@ -26,9 +28,10 @@ use handheld_core::{MetricReconstruction, Progress};
 use serde::Serialize;
 
 pub use input::{SfmImage, SfmInput, SfmPair};
-pub use metric::{MetricBaRecord, SelfCalibrationReport, UncertaintyReport};
+pub use metric::{MetricBaRecord, SelfCalibrationReport};
 pub use options::{Distortion, SfmOptions};
-pub use projective::ProjectiveBaRecord;
+pub use projective_ba::ProjectiveBaRecord;
+pub use uncertainty::UncertaintyReport;
 
 /// Why the SfM stage could not produce any model.
 #[derive(Debug, thiserror::Error)]
@@ -230,10 +233,7 @@ pub fn reconstruct(
                     continue;
                 }
             }
-            timings.insert(
-                "video_frames".to_string(),
-                t_frames.elapsed().as_secs_f64(),
-            );
+            timings.insert("video_frames".to_string(), t_frames.elapsed().as_secs_f64());
         }
         if is_prior {
             report.used_prior_fallback = true;
@@ -241,7 +241,7 @@ pub fn reconstruct(
         timings.insert("metric_ba".to_string(), t2.elapsed().as_secs_f64());
         let t3 = Instant::now();
         let (uncertainty, uncertainty_note) = if options.uncertainty {
-            match metric::uncertainty(&ctx, &rec) {
+            match uncertainty::uncertainty(&ctx, &rec) {
                 Ok(u) => (Some(u), None),
                 Err(e) => (None, Some(e)),
             }

@@ -132,7 +132,15 @@ pub fn run(
                 pairs.extend(extra);
             }
             let verified = verify_pairs(&features, &pairs, &verification_options(opts), bars);
-            finish(dir, &ingest, &features, &verified, pairs.len(), proposed, opts)
+            finish(
+                dir,
+                &ingest,
+                &features,
+                &verified,
+                pairs.len(),
+                proposed,
+                opts,
+            )
         },
     )
 }

@@ -41,15 +41,15 @@ pub fn run_tracking(
         let loaded: Vec<Result<GrayImage>> = chunk
             .par_iter()
             .map(|img| {
-                let l = load_image(&img.info.path, &load_opts)
-                    .with_context(|| format!("{}: cannot read the frame", img.info.path.display()))?;
+                let l = load_image(&img.info.path, &load_opts).with_context(|| {
+                    format!("{}: cannot read the frame", img.info.path.display())
+                })?;
                 Ok(GrayImage::from_dynamic(&l.image))
             })
             .collect();
         loaded
     });
-    let tracks = track_video(chunks.map(|r| r.map_err(TrackError)), opts, bars)
-        .map_err(|e| e.0)?;
+    let tracks = track_video(chunks.map(|r| r.map_err(TrackError)), opts, bars).map_err(|e| e.0)?;
     bars.finish();
     for k in 0..tracks.num_frames() {
         let f = tracks.features(k);
@@ -102,8 +102,12 @@ pub fn load_tracks(ws: &Workspace) -> Result<Option<VideoTracks>> {
     if !path.exists() {
         return Ok(None);
     }
-    let bytes = std::fs::read(&path)
-        .with_context(|| format!("{}: cannot read (rerun features with --force)", path.display()))?;
+    let bytes = std::fs::read(&path).with_context(|| {
+        format!(
+            "{}: cannot read (rerun features with --force)",
+            path.display()
+        )
+    })?;
     let t: VideoTracks = serde_json::from_slice(&bytes)
         .with_context(|| format!("{}: corrupt (rerun features with --force)", path.display()))?;
     Ok(Some(t))

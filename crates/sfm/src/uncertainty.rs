@@ -1,0 +1,75 @@
+//! Per-point uncertainty of the metric model (§3.3): the BA engine's covariance of every point,
+//! summarised as the median and 90th percentile of each point's largest standard deviation, absolute
+//! and relative to its distance from the nearest observing camera.
+
+use handheld_bundle::{metric_uncertainty, BundleOptions, IntrinsicsMask, MetricBundleConfig};
+use handheld_core::MetricReconstruction;
+use serde::Serialize;
+
+use crate::metric::median;
+use crate::options::Distortion;
+use crate::projective::Context;
+
+/// Per-point uncertainty statistics from the BA engine's covariance (§3.3).
+#[derive(Clone, Debug, Serialize)]
+pub struct UncertaintyReport {
+    pub points: usize,
+    /// Median and 90th percentile of the largest standard deviation of each point (model units).
+    pub median_sigma: f64,
+    pub p90_sigma: f64,
+    /// The same relative to the point's distance from the nearest camera centre observing it.
+    pub median_relative_sigma: f64,
+    pub variance_factor: f64,
+}
+
+pub(crate) fn uncertainty(
+    ctx: &Context,
+    rec: &MetricReconstruction,
+) -> Result<UncertaintyReport, String> {
+    let o = ctx.opts;
+    let full = IntrinsicsMask {
+        f: true,
+        aspect: false,
+        skew: false,
+        principal_point: o.refine_principal_point,
+        k1: o.distortion != Distortion::None,
+        k2: o.distortion == Distortion::K1K2,
+    };
+    let config = MetricBundleConfig {
+        refine: full,
+        ..Default::default()
+    };
+    let u =
+        metric_uncertainty(rec, &config, &BundleOptions::default()).map_err(|e| e.to_string())?;
+    let mut sig: Vec<f64> = Vec::new();
+    let mut rel: Vec<f64> = Vec::new();
+    for (id, p) in &u.points {
+        let s = p.sigma_xyz().iter().fold(0.0f64, |a, b| a.max(*b));
+        sig.push(s);
+        if let Some(pt) = rec.points.get(id) {
+            let d = pt
+                .track
+                .elements
+                .iter()
+                .filter_map(|e| rec.views.get(&e.image_id))
+                .map(|v| (v.center() - pt.xyz).norm())
+                .fold(f64::INFINITY, f64::min);
+            if d.is_finite() && d > 0.0 {
+                rel.push(s / d);
+            }
+        }
+    }
+    let n = sig.len();
+    sig.sort_by(f64::total_cmp);
+    Ok(UncertaintyReport {
+        points: n,
+        median_sigma: if n > 0 { sig[n / 2] } else { f64::NAN },
+        p90_sigma: if n > 0 {
+            sig[(n * 9 / 10).min(n - 1)]
+        } else {
+            f64::NAN
+        },
+        median_relative_sigma: median(&mut rel),
+        variance_factor: u.variance_factor,
+    })
+}
