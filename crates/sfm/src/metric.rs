@@ -426,7 +426,7 @@ pub(crate) fn refine_metric(
             max_iterations: iters,
             loss: RobustLoss::Huber(o.loss_scale_px),
             // Tight tolerances only for the last adjustment; the earlier ones feed a filter.
-            function_tolerance: if name == "final" { 1e-9 } else { 1e-6 },
+            function_tolerance: if name == "final" { 1e-7 } else { 1e-5 },
             parameter_tolerance: if name == "final" { 1e-10 } else { 1e-8 },
             ..Default::default()
         };

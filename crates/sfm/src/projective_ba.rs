@@ -95,6 +95,10 @@ impl ProjectiveModel {
         let bopts = BundleOptions {
             max_iterations,
             loss: RobustLoss::Huber(ctx.opts.loss_scale_px * ctx.median_scale()),
+            // The projective frame drifts slowly along its near-gauge directions, at a cost change
+            // of ~1e-5 per iteration that does not improve the cameras; the metric BA has the last
+            // word on accuracy anyway.
+            function_tolerance: 1e-4,
             ..Default::default()
         };
         let summary = bundle_adjust_projective(&mut rec, &keypoints, &config, &bopts)
