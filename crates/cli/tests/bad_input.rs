@@ -206,3 +206,43 @@ fn missing_ffmpeg_says_how_to_install_it() {
     );
     assert_clean_failure(&o, &["ffmpeg was not found", "apt-get install ffmpeg"], &ws);
 }
+
+/// Degenerate motion: a video of a still camera has no key-frame pair; the sparse stage says why
+/// and does not mark itself finished.
+#[test]
+fn video_of_a_still_camera() {
+    if !have_ffmpeg() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let still = dir.path().join("still.png");
+    let img = image::RgbImage::from_fn(160, 120, |x, y| {
+        let v = (((x as f32 * 0.31).sin() * (y as f32 * 0.27).cos()) * 100.0 + 128.0) as u8;
+        image::Rgb([v, v.wrapping_add((x * 3) as u8), v])
+    });
+    img.save(&still).unwrap();
+    let video = dir.path().join("still.mp4");
+    let ok = std::process::Command::new("ffmpeg")
+        .args(["-loglevel", "error", "-y", "-loop", "1", "-i"])
+        .arg(&still)
+        .args(["-t", "1", "-r", "10", "-pix_fmt", "yuv420p"])
+        .arg(&video)
+        .status()
+        .unwrap()
+        .success();
+    assert!(ok, "ffmpeg could not encode the test video");
+    let ws = dir.path().join("ws");
+    let o = handheld(&[
+        "reconstruct",
+        video.to_str().unwrap(),
+        "-o",
+        ws.to_str().unwrap(),
+        "--quiet",
+    ]);
+    let err = stderr(&o);
+    assert!(!o.status.success(), "should fail: {err}");
+    assert!(!err.contains("panicked"), "panic: {err}");
+    assert!(err.contains("hardly moves"), "{err}");
+    assert!(!ws.join("sparse").join("manifest.json").exists());
+    assert!(no_temp_files(&ws), "temporary files left behind");
+}

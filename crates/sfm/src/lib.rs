@@ -265,6 +265,13 @@ pub fn reconstruct(
         });
     }
     if models.is_empty() {
+        if last_err.is_empty() {
+            let linked = (0..n).filter(|&i| !graph.neighbours(i).is_empty()).count();
+            last_err = format!(
+                "only {linked} of {n} images have verified matches with another image (need 2): \
+                 the images do not overlap, or the camera hardly moves (video: too few key-frames)"
+            );
+        }
         return Err(SfmError::NoModel(last_err));
     }
     models.sort_by(|a, b| b.summary.registered.cmp(&a.summary.registered));
