@@ -92,6 +92,9 @@ pub struct DemoArgs {
     /// Redo every stage even when its outputs are up to date.
     #[arg(long)]
     pub force: bool,
+    /// Pixel aspect ratio f_y / f_x of the synthetic camera (e.g. 1.09, the paper's camcorder; §3.4).
+    #[arg(long, default_value_t = 1.0)]
+    pub aspect_ratio: f64,
     /// Encode the frames as an H.264 video (needs ffmpeg) and reconstruct that in video mode: KLT
     /// tracks, GRIC key-frames, a pose for every frame.
     #[arg(long)]

@@ -33,6 +33,7 @@ fn sequence_options(a: &DemoArgs) -> SequenceOptions {
         height: a.height,
         num_frames: n,
         path,
+        aspect: a.aspect_ratio,
         ..Default::default()
     }
 }
@@ -189,6 +190,8 @@ fn sparse_accuracy(out: &Path, workspace: &Path, video: bool) -> Result<serde_js
         "center_error_rel_extent_median": med(&mut cen) / extent.max(1e-12),
         "focal_error_pct": 100.0 * (f_est / f_true - 1.0).abs(),
         "self_calibration_focal_error_pct": 100.0 * (f_selfcal / f_true - 1.0).abs(),
+        "aspect": est.cameras.values().next().map(|c| c.intrinsics.aspect),
+        "aspect_true": gt.cameras.values().next().map(|c| c.intrinsics.aspect),
         "k1": est.cameras.values().next().map(|c| c.intrinsics.k1),
         "k1_true": gt.cameras.values().next().map(|c| c.intrinsics.k1),
         "mean_reprojection_error_px": summary["mean_reprojection_error_px"],
@@ -257,7 +260,7 @@ pub fn run(a: &DemoArgs, g: &GlobalArgs, bars: &Bars) -> Result<()> {
         .with_context(|| format!("{}: cannot create the demo folder", a.output.display()))?;
     let stamp_path = a.output.join("ground_truth").join("demo.json");
     let stamp = json!({ "version": handheld_io::workspace::HANDHELD_VERSION, "frames": a.frames, "width": a.width,
-        "height": a.height, "seed": a.seed, "path": format!("{:?}", a.path) });
+        "height": a.height, "seed": a.seed, "path": format!("{:?}", a.path), "aspect": a.aspect_ratio });
     let fresh = !a.force
         && std::fs::read_to_string(&stamp_path)
             .ok()

@@ -135,7 +135,8 @@ fn demo_writes_sequence_ground_truth_and_workspace() {
 }
 
 /// Video mode end to end (§3.1, Table 2): the demo's frames encoded as H.264, KLT tracks, GRIC
-/// key-frames, and a metric pose for every frame, scored against the exact cameras.
+/// key-frames, and a metric pose for every frame and the camcorder's aspect ratio, scored against the
+/// exact cameras.
 #[test]
 fn demo_video_gives_every_frame_a_pose() {
     if !have_ffmpeg() {
@@ -154,6 +155,8 @@ fn demo_video_gives_every_frame_a_pose() {
         "320",
         "--height",
         "240",
+        "--aspect-ratio",
+        "1.09",
         "--json",
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
@@ -165,6 +168,8 @@ fn demo_video_gives_every_frame_a_pose() {
     let s = &v["accuracy"]["sparse"];
     assert_eq!(s["registered"], 30, "{s}");
     assert!(s["focal_error_pct"].as_f64().unwrap() < 2.0, "{s}");
+    // Video: a constant aspect ratio is estimated (§3.4, the camcorder's 1.09).
+    assert!((s["aspect"].as_f64().unwrap() - 1.09).abs() < 0.01, "{s}");
     assert!(
         s["relative_rotation_error_deg_median"].as_f64().unwrap() < 0.2,
         "{s}"

@@ -60,6 +60,9 @@ pub struct SequenceOptions {
     pub focal_px: Option<f64>,
     pub k1: f64,
     pub k2: f64,
+    /// Pixel aspect ratio `f_y / f_x` (eq. 2's r); 1 for square pixels, e.g. 1.09 for the paper's
+    /// Medusa camcorder (§3.4).
+    pub aspect: f64,
     /// Anti-aliasing: `samples_per_axis²` rays per pixel area on a regular sub-pixel grid, tent-filtered.
     pub samples_per_axis: u32,
     /// Standard deviation of the additive Gaussian image noise, in grey levels.
@@ -79,6 +82,7 @@ impl Default for SequenceOptions {
             focal_px: None,
             k1: -0.08,
             k2: 0.01,
+            aspect: 1.0,
             samples_per_axis: 3,
             image_noise_sigma: 1.0,
             mesh_resolution: 32,
@@ -92,12 +96,12 @@ impl SequenceOptions {
         self.focal_px.unwrap_or(0.9 * self.width as f64)
     }
 
-    /// The intrinsics of a frame with focal factor `factor`: square pixels, no skew, principal point
-    /// at the image centre.
+    /// The intrinsics of a frame with focal factor `factor`: aspect [`Self::aspect`], no skew,
+    /// principal point at the image centre.
     pub fn intrinsics(&self, factor: f64) -> Intrinsics {
         Intrinsics {
             f: self.focal() * factor,
-            aspect: 1.0,
+            aspect: self.aspect,
             skew: 0.0,
             pp: Vector2::new(
                 (self.width as f64 - 1.0) / 2.0,
@@ -132,6 +136,9 @@ impl SequenceOptions {
                 "samples_per_axis must be in 1..=16, got {}",
                 self.samples_per_axis
             ));
+        }
+        if !(0.5..=2.0).contains(&self.aspect) {
+            return Err(format!("aspect must be in [0.5, 2], got {}", self.aspect));
         }
         if !(self.image_noise_sigma >= 0.0 && self.image_noise_sigma.is_finite()) {
             return Err("image_noise_sigma must be finite and non-negative".into());
