@@ -70,10 +70,10 @@ fn write_sequence(dir: &Path, seq: &SyntheticSequence, bars: &Bars) -> Result<()
 
 /// Ground-truth views keyed by the name the workspace gives them: the rendered file name for the
 /// photo folder, `frame_<index>.png` (the ingest stage's name for decoded frames) for the video.
-fn gt_by_name<'a>(
-    gt: &'a handheld_core::MetricReconstruction,
+fn gt_by_name(
+    gt: &handheld_core::MetricReconstruction,
     video: bool,
-) -> std::collections::HashMap<String, &'a handheld_core::View> {
+) -> std::collections::HashMap<String, &handheld_core::View> {
     let mut views: Vec<&handheld_core::View> = gt.views.values().collect();
     views.sort_by(|a, b| a.name.cmp(&b.name));
     views

@@ -26,6 +26,11 @@ pub struct SfmImage {
     /// for photos. In-between frames, which have no verified pairs, are linked to the 3D points
     /// through these ids.
     pub track_ids: Vec<u64>,
+    /// Descriptors quantised to bytes, row-major `keypoints.len() × descriptor_dim` (RootSIFT times
+    /// 512, as in COLMAP's database); empty with `descriptor_dim == 0` when there are none (video
+    /// tracks). Used to match predicted projections (§3.2).
+    pub descriptors: Vec<u8>,
+    pub descriptor_dim: usize,
 }
 
 /// One verified image pair (indices into [`SfmInput::images`]).
@@ -70,6 +75,16 @@ impl SfmInput {
             }
         }
         for im in &self.images {
+            if im.descriptors.len() != im.keypoints.len() * im.descriptor_dim {
+                return Err(format!(
+                    "image {} ({}) has {} descriptor bytes for {} keypoints of dimension {}",
+                    im.id,
+                    im.name,
+                    im.descriptors.len(),
+                    im.keypoints.len(),
+                    im.descriptor_dim
+                ));
+            }
             if !im.track_ids.is_empty() && im.track_ids.len() != im.keypoints.len() {
                 return Err(format!(
                     "image {} ({}) has {} track ids for {} keypoints",

@@ -13,6 +13,7 @@ mod init;
 pub mod input;
 pub mod metric;
 pub mod options;
+mod predict;
 pub mod projective;
 mod projective_ba;
 mod register;
@@ -220,6 +221,23 @@ pub fn reconstruct(
         timings.insert(
             "calibrated_registration".to_string(),
             t_reg.elapsed().as_secs_f64(),
+        );
+        // §3.2: more observations of the existing points, found at their predicted projections.
+        let t_pred = Instant::now();
+        let extended = predict::extend_tracks(&ctx, &mut rec);
+        if extended > 0 {
+            tracing::debug!(extended, "observations added by predicted projection");
+            match metric::final_adjustment(&ctx, &mut rec, estimate_aspect) {
+                Ok(r) => metric_ba.extend(r),
+                Err(e) => {
+                    last_err = e;
+                    continue;
+                }
+            }
+        }
+        timings.insert(
+            "predicted_matches".to_string(),
+            t_pred.elapsed().as_secs_f64(),
         );
         // Video: every in-between frame from its tracks, then all frames adjusted together.
         let t_frames = Instant::now();

@@ -371,6 +371,25 @@ pub(crate) fn refine_metric(
     rec: &mut MetricReconstruction,
     estimate_aspect: bool,
 ) -> Result<Vec<MetricBaRecord>, String> {
+    adjust_metric(ctx, rec, estimate_aspect, false)
+}
+
+/// Only the last step of [`refine_metric`]: for a model that was adjusted and then extended (new
+/// observations of existing points).
+pub(crate) fn final_adjustment(
+    ctx: &Context,
+    rec: &mut MetricReconstruction,
+    estimate_aspect: bool,
+) -> Result<Vec<MetricBaRecord>, String> {
+    adjust_metric(ctx, rec, estimate_aspect, true)
+}
+
+fn adjust_metric(
+    ctx: &Context,
+    rec: &mut MetricReconstruction,
+    estimate_aspect: bool,
+    only_final: bool,
+) -> Result<Vec<MetricBaRecord>, String> {
     let o = ctx.opts;
     let mut records = Vec::new();
     let distortion = o.distortion != Distortion::None && !long_lens(rec);
@@ -417,6 +436,9 @@ pub(crate) fn refine_metric(
         ("final", full, o.final_max_error_px, 100),
     ];
     for (name, mask, thr, iters) in steps {
+        if only_final && name != "final" {
+            continue;
+        }
         let config = MetricBundleConfig {
             refine: mask,
             priors: priors.clone(),

@@ -28,6 +28,8 @@ fn input_from(set: &MultiViewOptions) -> (SfmInput, MetricReconstruction) {
                 focal_prior_px: None,
                 frame: None,
                 track_ids: Vec::new(),
+                descriptors: Vec::new(),
+                descriptor_dim: 0,
             }
         })
         .collect();

@@ -89,6 +89,12 @@ pub fn load_input(ws: &Workspace) -> Result<SfmInput> {
                     .as_ref()
                     .map(|t| t.ids[k].clone())
                     .unwrap_or_default(),
+                descriptors: f
+                    .descriptors
+                    .iter()
+                    .map(|v| (512.0 * v).round().clamp(0.0, 255.0) as u8)
+                    .collect(),
+                descriptor_dim: f.dim,
             })
         })
         .collect::<Result<_>>()?;
