@@ -197,3 +197,138 @@ fn propose(
     }
     out
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::graph::CorrespondenceGraph;
+    use crate::input::SfmInput;
+    use crate::options::SfmOptions;
+    use handheld_core::{Camera, CameraId, Intrinsics, Observation, Point3D, Rigid3, Track, View};
+    use nalgebra::{Point3, Translation3, UnitQuaternion};
+
+    fn desc(seed: u8) -> Vec<u8> {
+        (0..16u8)
+            .map(|k| k.wrapping_mul(seed).wrapping_add(seed) % 97)
+            .collect()
+    }
+
+    /// Two cameras see three points; view 2 misses one observation that its keypoints hold (at the
+    /// exact projection, same descriptor) next to a keypoint with a different descriptor; the
+    /// prediction adds exactly the right one, and nothing for a point whose projection has no
+    /// similar keypoint.
+    #[test]
+    fn predicted_projection_adds_the_true_observation_only() {
+        let k = Intrinsics {
+            f: 500.0,
+            aspect: 1.0,
+            skew: 0.0,
+            pp: Vector2::new(320.0, 240.0),
+            k1: 0.0,
+            k2: 0.0,
+        };
+        let cam = Camera {
+            id: CameraId(1),
+            width: 640,
+            height: 480,
+            intrinsics: k,
+        };
+        let poses = [
+            Rigid3::identity(),
+            Rigid3::from_parts(
+                Translation3::new(-0.5, 0.0, 0.0),
+                UnitQuaternion::identity(),
+            ),
+        ];
+        let pts = [
+            Point3::new(0.0, 0.0, 5.0),
+            Point3::new(0.5, 0.3, 6.0),
+            Point3::new(-0.4, -0.2, 4.0),
+        ];
+        let proj = |v: usize, p: usize| cam.project(&poses[v], &pts[p]).unwrap();
+        // View 1 observes all three; view 2 observes point 0 only and has keypoints at the
+        // projections of points 1 (same descriptor) and 2 (a different descriptor), plus a
+        // distractor 2 px from point 1's projection with an unrelated descriptor.
+        let kp1: Vec<Vector2<f64>> = (0..3).map(|p| proj(0, p)).collect();
+        let kp2 = vec![
+            proj(1, 0),
+            proj(1, 1),
+            proj(1, 2),
+            proj(1, 1) + Vector2::new(2.0, 0.0),
+        ];
+        let d1: Vec<u8> = [desc(3), desc(5), desc(7)].concat();
+        let d2: Vec<u8> = [desc(3), desc(5), desc(11), desc(13)].concat();
+        let image = |id: u32, kps: Vec<Vector2<f64>>, d: Vec<u8>| SfmImage {
+            id: ImageId(id),
+            name: format!("{id}.png"),
+            width: 640,
+            height: 480,
+            keypoints: kps,
+            camera_key: "c".into(),
+            focal_prior_px: None,
+            frame: None,
+            track_ids: Vec::new(),
+            descriptors: d,
+            descriptor_dim: 16,
+        };
+        let input = SfmInput {
+            images: vec![image(1, kp1.clone(), d1), image(2, kp2.clone(), d2)],
+            pairs: Vec::new(),
+            video: false,
+        };
+        let graph = CorrespondenceGraph::build(&input, 8);
+        let opts = SfmOptions::default();
+        let ctx = Context::new(&input, &graph, &opts);
+        let mut rec = MetricReconstruction::default();
+        rec.cameras.insert(cam.id, cam.clone());
+        for (v, kps) in [kp1, kp2].into_iter().enumerate() {
+            let id = ImageId(v as u32 + 1);
+            let mut observations: Vec<Observation> = kps
+                .into_iter()
+                .map(|xy| Observation { xy, point_id: None })
+                .collect();
+            let seen = if v == 0 { 3 } else { 1 };
+            for (p, o) in observations.iter_mut().enumerate().take(seen) {
+                o.point_id = Some(PointId(p as u64));
+            }
+            rec.views.insert(
+                id,
+                View {
+                    id,
+                    name: format!("{}.png", v + 1),
+                    camera_id: cam.id,
+                    cam_from_world: poses[v],
+                    observations,
+                    frame: None,
+                },
+            );
+        }
+        for (p, xyz) in pts.iter().enumerate() {
+            let mut elements = vec![TrackElement {
+                image_id: ImageId(1),
+                point2d_idx: p as u32,
+            }];
+            if p == 0 {
+                elements.push(TrackElement {
+                    image_id: ImageId(2),
+                    point2d_idx: 0,
+                });
+            }
+            rec.points.insert(
+                PointId(p as u64),
+                Point3D {
+                    xyz: *xyz,
+                    color: [0; 3],
+                    error: 0.0,
+                    track: Track { elements },
+                },
+            );
+        }
+        assert_eq!(extend_tracks(&ctx, &mut rec), 1);
+        let v2 = &rec.views[&ImageId(2)];
+        assert_eq!(v2.observations[1].point_id, Some(PointId(1)));
+        assert_eq!(v2.observations[2].point_id, None);
+        assert_eq!(v2.observations[3].point_id, None);
+        assert_eq!(rec.points[&PointId(1)].track.len(), 2);
+    }
+}
