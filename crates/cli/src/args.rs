@@ -40,6 +40,8 @@ pub enum Command {
     Features(IngestArgs),
     /// Run the pipeline up to the matches stage (verified pairs in COLMAP's database.db).
     Match(IngestArgs),
+    /// Dense matching of one already-rectified pair (§4.2): the left view's disparity as PFM.
+    Stereo(crate::stereo::StereoArgs),
     /// Benchmarks; each prints one JSON object (use with --json).
     Bench(BenchArgs),
 }
@@ -56,6 +58,8 @@ pub enum BenchCommand {
     Bundle(crate::bench_bundle::BenchBundleArgs),
     /// Feature extraction and matching on a folder of images (compare with COLMAP).
     Matching(crate::bench_matching::BenchMatchingArgs),
+    /// SGM and DP stereo on the Middlebury pairs, scored against GT (compare with OpenCV SGBM).
+    Stereo(crate::stereo::BenchStereoArgs),
 }
 
 /// Camera path of the synthetic sequence.

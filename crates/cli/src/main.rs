@@ -7,6 +7,7 @@ mod bench_matching;
 mod demo;
 mod pipeline;
 mod stages;
+mod stereo;
 mod ui;
 
 use std::process::ExitCode;
@@ -66,7 +67,9 @@ fn run(cmd: &Command, g: &GlobalArgs) -> anyhow::Result<()> {
         Command::Bench(b) => match &b.which {
             BenchCommand::Bundle(a) => bench_bundle::run(a, g, &bars),
             BenchCommand::Matching(a) => bench_matching::run(a, g, &bars),
+            BenchCommand::Stereo(a) => stereo::bench(a, g),
         },
+        Command::Stereo(a) => stereo::run(a, g),
         Command::Ingest(a) => run_until(g, a, pipeline::Stage::Ingest, &bars),
         Command::Features(a) => run_until(g, a, pipeline::Stage::Features, &bars),
         Command::Match(a) => run_until(g, a, pipeline::Stage::Matches, &bars),
