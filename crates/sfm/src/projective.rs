@@ -156,6 +156,15 @@ impl ProjectiveModel {
         }
     }
 
+    /// The observations of `pt` that its position does not reproject within the threshold.
+    pub(crate) fn unexplained(&self, ctx: &Context, pt: &PPoint) -> Vec<(u32, u32)> {
+        pt.obs
+            .iter()
+            .copied()
+            .filter(|&(i, k)| self.obs_error(ctx, &pt.m, i, k) >= ctx.threshold(i as usize))
+            .collect()
+    }
+
     /// Reprojection error (normalised units) and orientation of one observation.
     pub(crate) fn obs_error(&self, ctx: &Context, m: &Vector4<f64>, image: u32, kp: u32) -> f64 {
         let Some(p) = &self.cams[image as usize] else {
@@ -349,12 +358,7 @@ impl ProjectiveModel {
             }
         }
         // Keep the old position; drop observations that it does not explain.
-        let bad: Vec<(u32, u32)> = pt
-            .obs
-            .iter()
-            .copied()
-            .filter(|&(i, k)| self.obs_error(ctx, &pt.m, i, k) >= ctx.threshold(i as usize))
-            .collect();
+        let bad = self.unexplained(ctx, &pt);
         for (i, k) in bad {
             self.kp_point[i as usize][k as usize] = NONE;
             if let Some(p) = self.points[pid].as_mut() {

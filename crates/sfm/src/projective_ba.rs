@@ -33,12 +33,7 @@ impl ProjectiveModel {
             let Some(pt) = self.points[pid].clone() else {
                 continue;
             };
-            let bad: Vec<(u32, u32)> = pt
-                .obs
-                .iter()
-                .copied()
-                .filter(|&(i, k)| self.obs_error(ctx, &pt.m, i, k) >= ctx.threshold(i as usize))
-                .collect();
+            let bad = self.unexplained(ctx, &pt);
             if bad.is_empty() {
                 continue;
             }

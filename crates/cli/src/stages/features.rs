@@ -116,15 +116,7 @@ pub fn run(
                     let t0 = Instant::now();
                     let f = extract_features(&loaded.image, opts);
                     let secs = t0.elapsed().as_secs_f64();
-                    let file = FeatureFile {
-                        keypoints: f
-                            .keypoints
-                            .iter()
-                            .map(|k| [k.x, k.y, k.scale, k.orientation, k.response])
-                            .collect(),
-                        dim: f.descriptors.dim,
-                        descriptors: f.descriptors.data,
-                    };
+                    let file = to_file(f);
                     write_features(&dir.join(feature_file_name(k)), &file)
                         .with_context(|| format!("features of {}", img.info.name))?;
                     bars.inc(1);
@@ -151,6 +143,19 @@ pub fn run(
             })
         },
     )
+}
+
+/// The on-disk form of one image's features.
+pub fn to_file(f: handheld_features::Features) -> FeatureFile {
+    FeatureFile {
+        keypoints: f
+            .keypoints
+            .iter()
+            .map(|k| [k.x, k.y, k.scale, k.orientation, k.response])
+            .collect(),
+        dim: f.descriptors.dim,
+        descriptors: f.descriptors.data,
+    }
 }
 
 fn median_usize(v: &[usize]) -> usize {

@@ -8,7 +8,7 @@ use anyhow::{Context, Result};
 use handheld_core::Progress;
 use handheld_features::video::{track_video, VideoTrackingOptions, VideoTracks};
 use handheld_features::GrayImage;
-use handheld_io::features_file::{write_features, FeatureFile};
+use handheld_io::features_file::write_features;
 use handheld_io::images::{load_image, ImageIngestOptions};
 use handheld_io::ingest::IngestResult;
 use handheld_io::workspace::Workspace;
@@ -52,17 +52,10 @@ pub fn run_tracking(
     let tracks = track_video(chunks.map(|r| r.map_err(TrackError)), opts, bars).map_err(|e| e.0)?;
     bars.finish();
     for k in 0..tracks.num_frames() {
-        let f = tracks.features(k);
-        let file = FeatureFile {
-            keypoints: f
-                .keypoints
-                .iter()
-                .map(|k| [k.x, k.y, k.scale, k.orientation, k.response])
-                .collect(),
-            dim: 0,
-            descriptors: Vec::new(),
-        };
-        write_features(&dir.join(feature_file_name(k)), &file)?;
+        write_features(
+            &dir.join(feature_file_name(k)),
+            &super::features::to_file(tracks.features(k)),
+        )?;
     }
     handheld_io::atomic::write_bytes_atomic(&dir.join(TRACKS_FILE), &serde_json::to_vec(&tracks)?)?;
     let mut counts: Vec<usize> = tracks.points.iter().map(Vec::len).collect();
