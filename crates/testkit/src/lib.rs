@@ -22,6 +22,7 @@ pub mod path;
 pub mod render;
 pub mod ring;
 pub mod scene;
+pub mod sequence;
 pub mod texture;
 mod util;
 
