@@ -69,6 +69,22 @@ pub(crate) fn extend_tracks(ctx: &Context, rec: &mut MetricReconstruction) -> us
         .map(|(i, im)| (im.id, i))
         .collect();
     let views: Vec<ImageId> = rec.views.keys().copied().collect();
+    // Each point's descriptors, from its observations (shared by every view's search).
+    let descs: HashMap<PointId, Vec<&[u8]>> = rec
+        .points
+        .iter()
+        .map(|(pid, pt)| {
+            let d = pt
+                .track
+                .elements
+                .iter()
+                .filter_map(|e| {
+                    descriptor(&images[*index.get(&e.image_id)?], e.point2d_idx as usize)
+                })
+                .collect();
+            (*pid, d)
+        })
+        .collect();
     let rec_ref = &*rec;
     let proposals: Vec<(ImageId, Vec<Proposal>)> = views
         .par_iter()
@@ -77,7 +93,7 @@ pub(crate) fn extend_tracks(ctx: &Context, rec: &mut MetricReconstruction) -> us
             if im.descriptor_dim == 0 {
                 return None;
             }
-            Some((*vid, propose(rec_ref, images, &index, im)))
+            Some((*vid, propose(rec_ref, &descs, im)))
         })
         .collect();
     let mut added = 0;
@@ -113,8 +129,7 @@ pub(crate) fn extend_tracks(ctx: &Context, rec: &mut MetricReconstruction) -> us
 /// Proposals for one view `im`.
 fn propose(
     rec: &MetricReconstruction,
-    images: &[SfmImage],
-    index: &HashMap<ImageId, usize>,
+    point_descriptors: &HashMap<PointId, Vec<&[u8]>>,
     im: &SfmImage,
 ) -> Vec<Proposal> {
     let Some(view) = rec.views.get(&im.id) else {
@@ -153,16 +168,9 @@ fn propose(
         let Some((cx, cy)) = cell_of(&x) else {
             continue;
         };
-        // The point's descriptors, from its observations.
-        let descs: Vec<&[u8]> = pt
-            .track
-            .elements
-            .iter()
-            .filter_map(|e| descriptor(&images[*index.get(&e.image_id)?], e.point2d_idx as usize))
-            .collect();
-        if descs.is_empty() {
+        let Some(descs) = point_descriptors.get(pid).filter(|d| !d.is_empty()) else {
             continue;
-        }
+        };
         let (mut best, mut second) = ((0.0f32, u32::MAX), 0.0f32);
         for dy in -reach..=reach {
             for dx in -reach..=reach {
