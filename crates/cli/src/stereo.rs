@@ -241,6 +241,7 @@ pub fn bench(a: &BenchStereoArgs, g: &GlobalArgs) -> Result<()> {
                 height: map.height,
                 valid: map.data.iter().map(|v| v.is_finite()).collect(),
                 data: map.data,
+                right: Vec::new(),
             };
             let mut s = score(&d, &gt, 4.0);
             s["seconds"] = json!(secs);

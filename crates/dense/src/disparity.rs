@@ -16,6 +16,9 @@ pub struct Disparity {
     pub height: usize,
     pub data: Vec<f32>,
     pub valid: Vec<bool>,
+    /// The right view's disparities that passed the left–right check (right `(x, y)` ↔ left
+    /// `(x + d, y)`), `NaN` elsewhere; empty when the producer did not keep them.
+    pub right: Vec<f32>,
 }
 
 impl Disparity {
@@ -26,6 +29,7 @@ impl Disparity {
             height,
             data: vec![f32::NAN; width * height],
             valid: vec![false; width * height],
+            right: vec![f32::NAN; width * height],
         }
     }
 

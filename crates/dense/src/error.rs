@@ -22,6 +22,12 @@ pub enum DenseError {
     /// An input image is malformed (empty, wrong channel count, data length).
     #[error("invalid {which} image: {reason}")]
     InvalidImage { which: &'static str, reason: String },
+    /// A pair cannot be rectified (degenerate geometry); the reason says which and what to do.
+    #[error("cannot rectify the pair: {reason}")]
+    Rectification { reason: String },
+    /// Inputs of multi-view linking do not fit together.
+    #[error("invalid linking input: {reason}")]
+    Linking { reason: String },
 }
 
 /// Shorthand for results of this crate.

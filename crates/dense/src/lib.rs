@@ -45,6 +45,7 @@ pub mod error;
 mod fill;
 pub mod options;
 mod refine;
+pub mod rectify;
 mod sgm;
 mod stereo;
 #[cfg(test)]
@@ -54,5 +55,6 @@ mod zncc;
 
 pub use disparity::Disparity;
 pub use error::DenseError;
+pub use rectify::{rectify_pair, Rectification, RectifyMethod, RectifyOptions};
 pub use options::{HoleFill, MatchingCost, SgmPaths, StereoMethod, StereoOptions};
 pub use stereo::{match_rectified, StereoMatcher, SGM_BAND_OVERLAP};

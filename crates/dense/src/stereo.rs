@@ -188,6 +188,7 @@ fn post_process(
     }
     let mut valid = lr_check(&dl, &dr, w, opts.lr_tolerance);
     remove_speckles(&dl, &mut valid, w, h, opts.speckle_size, opts.speckle_range);
+    let right = consistent_right(&dl, &dr, &valid, w, opts.lr_tolerance.unwrap_or(1.0));
     let data = match opts.hole_fill {
         HoleFill::None => dl
             .iter()
@@ -205,7 +206,31 @@ fn post_process(
         height: h,
         data,
         valid,
+        right,
     }
+}
+
+/// The right view's disparities that agree with a kept left disparity (right `(x, y)` ↔ left
+/// `(x + d, y)`); `NaN` elsewhere. Multi-view linking walks a pair from right to left with it.
+fn consistent_right(dl: &[f32], dr: &[f32], valid: &[bool], w: usize, tol: f32) -> Vec<f32> {
+    dr.iter()
+        .enumerate()
+        .map(|(i, &d)| {
+            if !d.is_finite() {
+                return f32::NAN;
+            }
+            let xl = (i % w) as f32 + d;
+            if xl < 0.0 || xl.round() as usize >= w {
+                return f32::NAN;
+            }
+            let j = i - i % w + xl.round() as usize;
+            if valid[j] && (dl[j] - d).abs() <= tol.max(0.5) {
+                d
+            } else {
+                f32::NAN
+            }
+        })
+        .collect()
 }
 
 /// Rows `core` are kept from a band computed over rows `ext ⊇ core`.
