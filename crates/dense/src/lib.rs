@@ -43,9 +43,11 @@ pub mod disparity;
 mod dp;
 pub mod error;
 mod fill;
+pub mod link;
 pub mod options;
-mod refine;
+pub mod pair;
 pub mod rectify;
+mod refine;
 mod sgm;
 mod stereo;
 #[cfg(test)]
@@ -55,6 +57,8 @@ mod zncc;
 
 pub use disparity::Disparity;
 pub use error::DenseError;
-pub use rectify::{rectify_pair, Rectification, RectifyMethod, RectifyOptions};
+pub use link::{link_depth, LinkOptions, LinkView, LinkedDepth};
 pub use options::{HoleFill, MatchingCost, SgmPaths, StereoMethod, StereoOptions};
+pub use pair::{match_pair, DenseView, PairDisparity, PairOptions};
+pub use rectify::{rectify_pair, Rectification, RectifyMethod, RectifyOptions};
 pub use stereo::{match_rectified, StereoMatcher, SGM_BAND_OVERLAP};

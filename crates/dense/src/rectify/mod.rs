@@ -57,7 +57,7 @@ impl RectifyOptions {
                 reason: format!("must be positive, got {}", self.planar_epipole_distance),
             });
         }
-        if !(self.planar_max_pixels_ratio >= 1.0) {
+        if self.planar_max_pixels_ratio.is_nan() || self.planar_max_pixels_ratio < 1.0 {
             return Err(DenseError::InvalidOption {
                 option: "planar_max_pixels_ratio",
                 reason: format!("must be at least 1, got {}", self.planar_max_pixels_ratio),
@@ -104,8 +104,7 @@ pub fn rectify_pair(
                 let e = v.projection() * other.center().to_homogeneous();
                 let diag = (v.width as f64).hypot(v.height as f64);
                 let centre = nalgebra::Vector2::new(v.width as f64, v.height as f64) * 0.5;
-                e.z.abs() * opts.planar_epipole_distance * diag
-                    < (e.xy() - centre * e.z).norm()
+                e.z.abs() * opts.planar_epipole_distance * diag < (e.xy() - centre * e.z).norm()
             };
             far(&v1, &v2) && far(&v2, &v1)
         }

@@ -36,7 +36,9 @@ impl PlanarRect {
         let zm = (z_of(v1) + z_of(v2)).normalize();
         let y = zm.cross(&x);
         if y.norm() < 1e-6 {
-            return degenerate("the cameras look along the baseline (use polar rectification)".into());
+            return degenerate(
+                "the cameras look along the baseline (use polar rectification)".into(),
+            );
         }
         let y = y.normalize();
         let z = x.cross(&y);
@@ -48,7 +50,12 @@ impl PlanarRect {
         let f = 0.5 * (v1.k[(0, 0)] + v1.k[(1, 1)]).max(0.5 * (v2.k[(0, 0)] + v2.k[(1, 1)]));
         let k_new = Matrix3::new(f, 0.0, 0.0, 0.0, f, 0.0, 0.0, 0.0, 1.0);
         let mut h = [Matrix3::zeros(); 2];
-        let mut boxes = [(f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY); 2];
+        let mut boxes = [(
+            f64::INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NEG_INFINITY,
+        ); 2];
         for (i, v) in [v1, v2].into_iter().enumerate() {
             let r_cam = v.cam_from_world.rotation.to_rotation_matrix();
             let hi = k_new * (rect_from_world * r_cam.inverse()).matrix() * v.k_inv;

@@ -24,7 +24,7 @@ pub struct PolarRect {
     /// Per-row angles around each epipole (image 1 increasing; image 2 monotone either way).
     pub(crate) angles: [Vec<f64>; 2],
     /// True when the epipole lies inside that image (the rows wrap the full circle).
-    pub(crate) full_circle: [bool; 2],
+    pub full_circle: [bool; 2],
     /// Distance from the epipole of column 0, per image.
     pub(crate) rho_min: [f64; 2],
     pub width: usize,
@@ -51,7 +51,12 @@ fn oriented_epipole(view: &IdealView, other: &IdealView) -> Vector3<f64> {
 /// points in front of camera 1 along the ray through the ideal pixel `x1` of image 1.
 /// With `e = P₂C₁` and `v = P₂(d, 0)`, the image of `C₁ + λd` is `e + λv`, so for visible points
 /// (`e_w + λv_w > 0`) it moves away from `e₂` along `sign(e_w)·(v_xy·e_w − e_xy·v_w)`.
-pub(crate) fn half_line_in_2(v1: &IdealView, v2: &IdealView, e2h: &Vector3<f64>, x1: Vector2<f64>) -> f64 {
+pub(crate) fn half_line_in_2(
+    v1: &IdealView,
+    v2: &IdealView,
+    e2h: &Vector3<f64>,
+    x1: Vector2<f64>,
+) -> f64 {
     let d = v1.ray_world(x1);
     let v = v2.projection() * d.push(0.0);
     let dir = (v.xy() * e2h.z - e2h.xy() * v.z) * e2h.z.signum();
@@ -67,9 +72,7 @@ impl PolarRect {
         let scale = |v: &IdealView| (v.width as f64).hypot(v.height as f64);
         for (eh, v) in [(&e1h, v1), (&e2h, v2)] {
             if eh.z.abs() * 1e6 * scale(v) < eh.xy().norm() {
-                return degenerate(
-                    "an epipole lies at infinity (use planar rectification)".into(),
-                );
+                return degenerate("an epipole lies at infinity (use planar rectification)".into());
             }
         }
         let e1 = e1h.xy() / e1h.z;
@@ -88,7 +91,9 @@ impl PolarRect {
         let reach = [(v1, e1), (v2, e2)]
             .map(|(v, e)| v.border.iter().map(|b| (b - e).norm()).fold(1.0, f64::max));
         let phi_of = |t: f64, rho: f64| half_line_in_2(v1, v2, &e2h, e1 + unit(t) * rho.max(1.0));
-        let mut rows: Vec<(f64, f64, Option<[(f64, f64); 2]>)> = Vec::new();
+        // Per row: θ, φ, and the ρ intervals in both images when both half-lines meet them.
+        type Row = (f64, f64, Option<[(f64, f64); 2]>);
+        let mut rows: Vec<Row> = Vec::new();
         let mut t = t_start;
         let mut phi_prev: Option<f64> = None;
         while t < t_end {
@@ -139,8 +144,8 @@ impl PolarRect {
                 }
             }
         }
-        for i in 0..2 {
-            rho_min[i] = rho_min[i].floor();
+        for r in &mut rho_min {
+            *r = r.floor();
         }
         let width = (0..2)
             .map(|i| (rho_max[i] - rho_min[i]).ceil() as usize + 1)
@@ -188,7 +193,12 @@ impl PolarRect {
             }
         }
         let span = key(hi) - key(lo);
-        let row = lo as f64 + if span > 0.0 { (x - key(lo)) / span } else { 0.0 };
+        let row = lo as f64
+            + if span > 0.0 {
+                (x - key(lo)) / span
+            } else {
+                0.0
+            };
         Some(Vector2::new(rho - self.rho_min[side], row))
     }
 

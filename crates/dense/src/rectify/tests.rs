@@ -65,7 +65,10 @@ fn check_rows(rect: &Rectification, pts: &[Point3<f64>], min_seen: usize) -> f64
 fn polar_rectification_aligns_rows_under_forward_motion() {
     // The camera walks forward and turns slightly: both epipoles lie inside the images.
     let cam = camera(-0.12);
-    let (p1, p2) = (pose([0.0, 0.0, 0.0], 0.0, 0.0), pose([0.05, -0.02, 0.6], 0.03, 0.01));
+    let (p1, p2) = (
+        pose([0.0, 0.0, 0.0], 0.0, 0.0),
+        pose([0.05, -0.02, 0.6], 0.03, 0.01),
+    );
     let rect = rectify_pair(&cam, &p1, &cam, &p2, &RectifyOptions::default()).unwrap();
     assert!(rect.is_polar());
     let worst = check_rows(&rect, &points(&p1, &cam), 500);
@@ -77,7 +80,10 @@ fn polar_rectification_aligns_rows_under_forward_motion() {
 #[test]
 fn planar_rectification_aligns_rows_for_sideways_motion() {
     let cam = camera(-0.08);
-    let (p1, p2) = (pose([0.0, 0.0, 0.0], 0.0, 0.0), pose([0.4, 0.03, 0.05], -0.05, 0.02));
+    let (p1, p2) = (
+        pose([0.0, 0.0, 0.0], 0.0, 0.0),
+        pose([0.4, 0.03, 0.05], -0.05, 0.02),
+    );
     let rect = rectify_pair(&cam, &p1, &cam, &p2, &RectifyOptions::default()).unwrap();
     assert!(!rect.is_polar());
     let worst = check_rows(&rect, &points(&p1, &cam), 500);
@@ -111,7 +117,10 @@ fn planar_rectification_aligns_rows_for_sideways_motion() {
 #[test]
 fn backward_motion_and_disparity_range() {
     let cam = camera(0.0);
-    let (p1, p2) = (pose([0.0, 0.0, 0.0], 0.0, 0.0), pose([0.0, 0.1, -0.5], 0.0, 0.05));
+    let (p1, p2) = (
+        pose([0.0, 0.0, 0.0], 0.0, 0.0),
+        pose([0.0, 0.1, -0.5], 0.0, 0.05),
+    );
     let rect = rectify_pair(&cam, &p1, &cam, &p2, &RectifyOptions::default()).unwrap();
     let pts = points(&p1, &cam);
     assert!(check_rows(&rect, &pts, 300) < 0.1);

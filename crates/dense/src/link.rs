@@ -1,0 +1,255 @@
+//! Multi-view linking (paper §4.3, eq. 28; Koch, Pollefeys & Van Gool, ECCV 1998).
+//!
+//! For each pixel of a reference view, correspondences are chained through the disparity maps
+//! of neighbouring pairs: `m_{i+1} = R′⁻¹(R(m_i) + D(R(m_i)))`. Every link gives a new depth
+//! estimate for the reference pixel, triangulated from the reference ray and the linked pixel;
+//! its variance follows from the chain's accumulated matching uncertainty (`σ_px·√links`)
+//! through the depth-vs-image-position derivative along the epipolar line. The estimates are
+//! fused by a Kalman filter (static state, so the update is the inverse-variance mean). A chain
+//! stops when its next estimate falls outside the gate `κ·√(σ² + σᵢ²)` of the fused depth, or
+//! when the match leaves the image. The visibility `V` counts the views that agree (reference
+//! included); pixels below `V_min` are dropped.
+
+use handheld_core::{Camera, FloatMap, Rigid3};
+use nalgebra::{Matrix3, Vector2, Vector3};
+use rayon::prelude::*;
+
+use crate::error::{DenseError, Result};
+use crate::pair::PairDisparity;
+
+/// Options of [`link_depth`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct LinkOptions {
+    /// Matching uncertainty of one link, pixels (1σ).
+    pub sigma_px: f64,
+    /// Gate in standard deviations: a link farther than this from the fused depth ends the chain.
+    pub gate: f64,
+    /// `V_min`: fewest views (reference included) a kept pixel must be linked through.
+    pub min_visibility: usize,
+    /// Most links followed in each direction.
+    pub max_links: usize,
+}
+
+impl Default for LinkOptions {
+    fn default() -> Self {
+        Self {
+            sigma_px: 0.5,
+            gate: 3.0,
+            min_visibility: 3,
+            max_links: 5,
+        }
+    }
+}
+
+impl LinkOptions {
+    pub fn validate(&self) -> Result<()> {
+        let bad = |option: &'static str, reason: String| {
+            Err(DenseError::InvalidOption { option, reason })
+        };
+        if !(self.sigma_px > 0.0 && self.sigma_px.is_finite()) {
+            return bad(
+                "sigma_px",
+                format!("must be positive, got {}", self.sigma_px),
+            );
+        }
+        if !(self.gate > 0.0 && self.gate.is_finite()) {
+            return bad("gate", format!("must be positive, got {}", self.gate));
+        }
+        if self.min_visibility < 1 {
+            return bad("min_visibility", "must be at least 1".into());
+        }
+        Ok(())
+    }
+}
+
+/// A view's camera and pose, as linking needs them.
+#[derive(Clone, Copy, Debug)]
+pub struct LinkView<'a> {
+    pub camera: &'a Camera,
+    pub cam_from_world: &'a Rigid3,
+}
+
+/// Linked depth of a reference view: z-depth in its camera frame, the fused variance, and the
+/// visibility `V`. Pixels without a kept estimate hold `NaN` depth and variance and `V = 0`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LinkedDepth {
+    pub depth: FloatMap,
+    pub variance: FloatMap,
+    pub visibility: FloatMap,
+}
+
+impl LinkedDepth {
+    /// Fraction of pixels with a depth.
+    pub fn fill(&self) -> f64 {
+        self.depth.fill_ratio()
+    }
+}
+
+/// Precomputed geometry of one view.
+struct Geo {
+    camera: Camera,
+    rot: Matrix3<f64>,
+    trans: Vector3<f64>,
+}
+
+impl Geo {
+    fn new(v: &LinkView<'_>) -> Self {
+        Self {
+            camera: v.camera.clone(),
+            rot: *v.cam_from_world.rotation.to_rotation_matrix().matrix(),
+            trans: v.cam_from_world.translation.vector,
+        }
+    }
+}
+
+/// Depth along the reference ray `n` (normalised, `z = 1`) of the point whose projection in
+/// view `b` is closest (algebraically) to the normalised point `q`, with its derivative with
+/// respect to a one-pixel shift of `q` along the epipolar line. `None` behind either camera.
+fn depth_from_link(
+    a: &Vector3<f64>,
+    b: &Vector3<f64>,
+    q: Vector2<f64>,
+    f: f64,
+) -> Option<(f64, f64)> {
+    // Image of X(z) = C_ref + z·ray in view b: (A + z·B) with A = P_b C_ref, B = P_b ray.
+    let solve = |q: Vector2<f64>| {
+        let u = b.xy() - q * b.z;
+        let w = a.xy() - q * a.z;
+        let uu = u.dot(&u);
+        (uu > 0.0).then(|| -u.dot(&w) / uu)
+    };
+    let z = solve(q)?;
+    if z <= 0.0 || a.z + z * b.z <= 0.0 {
+        return None;
+    }
+    // Epipolar direction at q: the image of the ray moves from A toward B.
+    let p0 = (a + b * z).xy() / (a.z + b.z * z);
+    let z1 = z * 1.01;
+    let p1 = (a + b * z1).xy() / (a.z + b.z * z1);
+    let shift = (p1 - p0).norm() * f;
+    if shift <= 0.0 {
+        return None;
+    }
+    Some((z, (z1 - z) / shift))
+}
+
+/// Links the reference view `reference` of `views` through the adjacent pairs: `pairs[i]` holds
+/// the disparity of views `i` (left) and `i + 1` (right). Chains run up to `max_links` views in
+/// each direction, alternating sides so the gate sees both directions early.
+pub fn link_depth(
+    views: &[LinkView<'_>],
+    pairs: &[Option<PairDisparity>],
+    reference: usize,
+    opts: &LinkOptions,
+) -> Result<LinkedDepth> {
+    opts.validate()?;
+    if pairs.len() + 1 != views.len() {
+        return Err(DenseError::Linking {
+            reason: format!(
+                "{} views need {} adjacent pairs, got {}",
+                views.len(),
+                views.len() - 1,
+                pairs.len()
+            ),
+        });
+    }
+    if reference >= views.len() {
+        return Err(DenseError::Linking {
+            reason: format!("reference view {reference} of {} views", views.len()),
+        });
+    }
+    let geo: Vec<Geo> = views.iter().map(Geo::new).collect();
+    let r = &geo[reference];
+    let (w, h) = (r.camera.width as usize, r.camera.height as usize);
+    let c_ref = -(r.rot.transpose() * r.trans);
+    let r_ref_t = r.rot.transpose();
+    let f_of = |g: &Geo| g.camera.intrinsics.f * (1.0 + g.camera.intrinsics.aspect) * 0.5;
+
+    let mut depth = FloatMap::filled(w, h, 1, f32::NAN);
+    let mut variance = FloatMap::filled(w, h, 1, f32::NAN);
+    let mut visibility = FloatMap::filled(w, h, 1, 0.0);
+    depth
+        .data
+        .par_chunks_mut(w)
+        .zip(variance.data.par_chunks_mut(w))
+        .zip(visibility.data.par_chunks_mut(w))
+        .enumerate()
+        .for_each(|(y, ((drow, vrow), visrow))| {
+            for x in 0..w {
+                let m = Vector2::new(x as f64, y as f64);
+                let n = r.camera.intrinsics.pixel_to_normalized(m);
+                let ray = r_ref_t * Vector3::new(n.x, n.y, 1.0);
+                // Chain state per direction: current view and pixel, links so far, alive.
+                let mut chains = [(reference, m, 0usize, true), (reference, m, 0usize, true)];
+                let mut fused: Option<(f64, f64)> = None;
+                let mut vis = 1usize;
+                for _ in 0..opts.max_links {
+                    for (dir, chain) in chains.iter_mut().enumerate() {
+                        if !chain.3 {
+                            continue;
+                        }
+                        let (a, p) = (chain.0, chain.1);
+                        let step = if dir == 0 {
+                            (a + 1 < views.len())
+                                .then(|| {
+                                    pairs[a]
+                                        .as_ref()
+                                        .and_then(|pd| pd.transfer(0, p))
+                                        .map(|q| (a + 1, q))
+                                })
+                                .flatten()
+                        } else {
+                            (a > 0)
+                                .then(|| {
+                                    pairs[a - 1]
+                                        .as_ref()
+                                        .and_then(|pd| pd.transfer(1, p))
+                                        .map(|q| (a - 1, q))
+                                })
+                                .flatten()
+                        };
+                        let Some((b, q)) = step else {
+                            chain.3 = false;
+                            continue;
+                        };
+                        let g = &geo[b];
+                        let qa = g.rot * c_ref + g.trans;
+                        let qb = g.rot * ray;
+                        let qn = g.camera.intrinsics.pixel_to_normalized(q);
+                        let Some((z, dz_dpx)) = depth_from_link(&qa, &qb, qn, f_of(g)) else {
+                            chain.3 = false;
+                            continue;
+                        };
+                        let links = chain.2 + 1;
+                        let sigma = opts.sigma_px * (links as f64).sqrt() * dz_dpx.abs();
+                        let var = sigma * sigma;
+                        match fused {
+                            None => fused = Some((z, var)),
+                            Some((zf, vf)) => {
+                                if (z - zf).abs() > opts.gate * (vf + var).sqrt() {
+                                    chain.3 = false;
+                                    continue;
+                                }
+                                let k = vf / (vf + var);
+                                fused = Some((zf + k * (z - zf), vf * (1.0 - k)));
+                            }
+                        }
+                        vis += 1;
+                        *chain = (b, q, links, true);
+                    }
+                }
+                if let Some((z, v)) = fused {
+                    if vis >= opts.min_visibility {
+                        drow[x] = z as f32;
+                        vrow[x] = v as f32;
+                        visrow[x] = vis as f32;
+                    }
+                }
+            }
+        });
+    Ok(LinkedDepth {
+        depth,
+        variance,
+        visibility,
+    })
+}

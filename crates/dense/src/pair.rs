@@ -1,0 +1,177 @@
+//! One calibrated pair, end to end: rectify (§4.1), take the disparity range from the sparse
+//! points both views see, match (§4.2), and keep only disparities whose two ends fall inside
+//! their images.
+
+use handheld_core::{Camera, FloatMap, Rigid3};
+use nalgebra::{Point3, Vector2};
+
+use crate::disparity::Disparity;
+use crate::error::{DenseError, Result};
+use crate::options::StereoOptions;
+use crate::rectify::{rectify_pair, Rectification, RectifyOptions};
+use crate::stereo::match_rectified;
+
+/// A calibrated view for dense matching: its camera, pose (`cam_from_world`) and image
+/// (1-channel grey or 3-channel RGB, 0..=255, the original distorted pixels).
+#[derive(Clone, Copy, Debug)]
+pub struct DenseView<'a> {
+    pub camera: &'a Camera,
+    pub cam_from_world: &'a Rigid3,
+    pub image: &'a FloatMap,
+}
+
+/// Options of [`match_pair`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct PairOptions {
+    pub rectify: RectifyOptions,
+    /// Matcher settings; its disparity range is replaced by the one from the sparse points.
+    pub stereo: StereoOptions,
+    /// Widening of the sparse disparity range, as a fraction of its span (plus 2 px).
+    pub range_margin: f64,
+    /// Largest number of disparities searched; wider sparse ranges are an error.
+    pub max_disparities: usize,
+}
+
+impl Default for PairOptions {
+    fn default() -> Self {
+        Self {
+            rectify: RectifyOptions::default(),
+            stereo: StereoOptions::default(),
+            range_margin: 0.15,
+            max_disparities: 1024,
+        }
+    }
+}
+
+/// A matched pair: the rectification and the disparity in its frame (left = first view).
+#[derive(Clone, Debug)]
+pub struct PairDisparity {
+    pub rectification: Rectification,
+    pub disparity: Disparity,
+    /// The disparity range searched.
+    pub range: (i32, i32),
+}
+
+/// Rectifies and matches `left` against `right`. `points` are sparse world points (those both
+/// views see fix the disparity range, as §4.2 asks).
+pub fn match_pair(
+    left: DenseView<'_>,
+    right: DenseView<'_>,
+    points: &[Point3<f64>],
+    opts: &PairOptions,
+) -> Result<PairDisparity> {
+    for (v, which) in [(&left, "left"), (&right, "right")] {
+        if (v.image.width, v.image.height) != (v.camera.width as usize, v.camera.height as usize) {
+            return Err(DenseError::InvalidImage {
+                which,
+                reason: format!(
+                    "image is {}x{} but its camera is {}x{}",
+                    v.image.width, v.image.height, v.camera.width, v.camera.height
+                ),
+            });
+        }
+    }
+    let rect = rectify_pair(
+        left.camera,
+        left.cam_from_world,
+        right.camera,
+        right.cam_from_world,
+        &opts.rectify,
+    )?;
+    let range = rect
+        .disparity_range(points, opts.range_margin)
+        .ok_or_else(|| DenseError::Rectification {
+            reason: "fewer than 3 sparse points are seen in both views, so the disparity range \
+                     is unknown"
+                .into(),
+        })?;
+    if (range.1 - range.0) as usize + 1 > opts.max_disparities {
+        return Err(DenseError::Rectification {
+            reason: format!(
+                "the sparse points span disparities {}..{}, more than max_disparities = {}",
+                range.0, range.1, opts.max_disparities
+            ),
+        });
+    }
+    let (l, lmask) = rect.resample(0, left.image);
+    let (r, rmask) = rect.resample(1, right.image);
+    let mut stereo = opts.stereo.clone();
+    stereo.min_disparity = range.0;
+    stereo.max_disparity = range.1.max(range.0 + 1);
+    let mut d = match_rectified(&l, &r, &stereo)?;
+    restrict_to_images(&mut d, &lmask, &rmask);
+    Ok(PairDisparity {
+        rectification: rect,
+        disparity: d,
+        range,
+    })
+}
+
+/// Drops disparities whose pixel or whose match lies outside the resampled image.
+fn restrict_to_images(d: &mut Disparity, lmask: &[bool], rmask: &[bool]) {
+    let w = d.width;
+    let inside = |mask: &[bool], y: usize, x: f32| {
+        let xi = x.round();
+        xi >= 0.0 && (xi as usize) < w && mask[y * w + xi as usize]
+    };
+    for i in 0..d.data.len() {
+        let (x, y) = (i % w, i / w);
+        let v = d.data[i];
+        if !lmask[i] || !v.is_finite() || !inside(rmask, y, x as f32 - v) {
+            d.data[i] = f32::NAN;
+            d.valid[i] = false;
+        }
+        if let Some(r) = d.right.get_mut(i) {
+            if !rmask[i] || !r.is_finite() || !inside(lmask, y, x as f32 + *r) {
+                *r = f32::NAN;
+            }
+        }
+    }
+}
+
+impl PairDisparity {
+    /// Follows the pair from an original pixel of view `side` to the matching original pixel of
+    /// the other view (eq. 28: `m′ = R′⁻¹(R(m) + D(R(m)))`), using measured disparities only.
+    pub fn transfer(&self, side: usize, m: Vector2<f64>) -> Option<Vector2<f64>> {
+        let rect = &self.rectification;
+        let r = rect.to_rect(side, m)?;
+        let d = &self.disparity;
+        let (map, valid): (&[f32], Option<&[bool]>) = if side == 0 {
+            (&d.data, Some(&d.valid))
+        } else {
+            (&d.right, None)
+        };
+        let disp = sample(map, valid, d.width, d.height, r)?;
+        let disp = f64::from(disp);
+        let x = if side == 0 { r.x - disp } else { r.x + disp };
+        let other = 1 - side;
+        let m2 = rect.from_rect(other, Vector2::new(x, r.y))?;
+        rect.view(other).contains(&m2).then_some(m2)
+    }
+}
+
+/// Disparity at a fractional rectified position: bilinear when the four neighbours are measured
+/// and agree within one pixel, the nearest measured value otherwise.
+fn sample(map: &[f32], valid: Option<&[bool]>, w: usize, h: usize, r: Vector2<f64>) -> Option<f32> {
+    if !(r.x >= 0.0 && r.y >= 0.0 && r.x <= (w - 1) as f64 && r.y <= (h - 1) as f64) {
+        return None;
+    }
+    let ok = |i: usize| map[i].is_finite() && valid.is_none_or(|v| v[i]);
+    let (x0, y0) = (r.x.floor() as usize, r.y.floor() as usize);
+    let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
+    let idx = [y0 * w + x0, y0 * w + x1, y1 * w + x0, y1 * w + x1];
+    if idx.iter().all(|&i| ok(i)) {
+        let v = idx.map(|i| map[i]);
+        let (lo, hi) = v
+            .iter()
+            .fold((f32::MAX, f32::MIN), |a, &x| (a.0.min(x), a.1.max(x)));
+        if hi - lo <= 1.0 {
+            let (fx, fy) = ((r.x - x0 as f64) as f32, (r.y - y0 as f64) as f32);
+            let top = v[0] * (1.0 - fx) + v[1] * fx;
+            let bot = v[2] * (1.0 - fx) + v[3] * fx;
+            return Some(top * (1.0 - fy) + bot * fy);
+        }
+    }
+    let i = r.y.round() as usize * w + r.x.round() as usize;
+    ok(i).then(|| map[i])
+}

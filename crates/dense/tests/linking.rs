@@ -1,0 +1,101 @@
+//! Multi-view linking on a synthetic orbit (issue #6, Done-when 2; the paper's Fig. 6): 15 views
+//! around a reference view, depth error and fill against the exact ground-truth depth.
+
+use handheld_core::FloatMap;
+use handheld_dense::{
+    link_depth, match_pair, DenseView, LinkOptions, LinkView, LinkedDepth, PairOptions,
+};
+use handheld_testkit::render::{render_sequence, SequenceOptions, SyntheticSequence};
+use nalgebra::Point3;
+
+fn sequence(width: u32, height: u32) -> SyntheticSequence {
+    let mut opts = SequenceOptions {
+        width,
+        height,
+        num_frames: 15,
+        ..Default::default()
+    };
+    opts.path.sweep = 28.0;
+    render_sequence(&opts).expect("render")
+}
+
+fn to_map(img: &image::RgbImage) -> FloatMap {
+    FloatMap {
+        width: img.width() as usize,
+        height: img.height() as usize,
+        channels: 3,
+        data: img.as_raw().iter().map(|&v| v as f32).collect(),
+    }
+}
+
+/// (fill over GT-valid pixels, median relative depth error of the filled ones).
+fn score(linked: &LinkedDepth, gt: &FloatMap) -> (f64, f64) {
+    let (mut n, mut errs) = (0usize, Vec::new());
+    for (z, g) in linked.depth.data.iter().zip(&gt.data) {
+        if *g <= 0.0 {
+            continue;
+        }
+        n += 1;
+        if z.is_finite() {
+            errs.push(((z - g) / g).abs() as f64);
+        }
+    }
+    errs.sort_by(f64::total_cmp);
+    let median = errs.get(errs.len() / 2).copied().unwrap_or(f64::INFINITY);
+    (errs.len() as f64 / n.max(1) as f64, median)
+}
+
+#[test]
+fn linking_fills_the_reference_view_and_gets_better_with_more_views() {
+    let seq = sequence(480, 360);
+    let frames: Vec<_> = (0..15).map(|i| seq.frame(i).expect("frame")).collect();
+    let images: Vec<FloatMap> = seq.images.iter().map(to_map).collect();
+    let points: Vec<Point3<f64>> = seq.gt.points.values().map(|p| p.xyz).collect();
+    let views: Vec<DenseView> = frames
+        .iter()
+        .zip(&images)
+        .map(|((c, p), img)| DenseView {
+            camera: c,
+            cam_from_world: p,
+            image: img,
+        })
+        .collect();
+    let pairs: Vec<_> = views
+        .windows(2)
+        .map(|w| Some(match_pair(w[0], w[1], &points, &PairOptions::default()).expect("pair")))
+        .collect();
+    let link_views: Vec<LinkView> = frames
+        .iter()
+        .map(|(c, p)| LinkView {
+            camera: c,
+            cam_from_world: p,
+        })
+        .collect();
+    let reference = 7;
+    let mut curve = Vec::new();
+    for half in 1..=5 {
+        let opts = LinkOptions {
+            max_links: half,
+            min_visibility: 3,
+            ..Default::default()
+        };
+        let linked = link_depth(&link_views, &pairs, reference, &opts).expect("link");
+        let (fill, err) = score(&linked, &seq.depths[reference]);
+        eprintln!(
+            "N = {:2}: fill {:.1} %, median relative error {:.3} %",
+            2 * half + 1,
+            fill * 100.0,
+            err * 100.0
+        );
+        curve.push((fill, err));
+    }
+    let (fill, err) = curve[4];
+    assert!(
+        curve[4].1 < curve[0].1,
+        "error falls with more views: {curve:?}"
+    );
+    assert!(
+        fill >= 0.90 && err <= 0.005,
+        "N = 11: fill {fill}, error {err}"
+    );
+}
