@@ -1,4 +1,37 @@
-//! Surface models: depth-map meshes, TSDF fusion, simplification and texturing (§5.1).
+//! Surface models from calibrated views and depth maps (paper §5.1).
 //!
-//! Planned in issue #7; this crate currently only reserves its place in the dependency order
-//! documented in ARCHITECTURE.md.
+//! * [`single`]: the §5.1 mesh of one depth map (triangle grid over the image, depth smoothing,
+//!   discontinuity test) and [`enhance`]: its texture's robust median over the linked views
+//!   (Ofek et al. 1997);
+//! * [`tsdf`]: Curless–Levoy volumetric fusion in sparse voxel blocks; [`marching_cubes`] with the
+//!   derived case table of [`mc_tables`]: the fused surface as one welded, oriented mesh;
+//! * [`simplify`]: Garland–Heckbert quadric decimation (meshoptimizer), borders locked;
+//! * [`eval`]: Middlebury multi-view accuracy and completeness against a ground-truth mesh.
+//!
+//! World frame = the sparse model's frame; poses are `cam_from_world`; depth maps are camera-frame
+//! `z` of the original (distorted) images. Nothing here touches a file (`handheld-io` writes OBJ,
+//! glTF and PLY).
+
+mod bvh;
+pub mod enhance;
+pub mod error;
+pub mod eval;
+pub mod fusion;
+pub mod marching_cubes;
+pub mod mc_tables;
+pub mod simplify;
+pub mod single;
+pub mod topology;
+pub mod tsdf;
+pub mod view;
+
+pub use bvh::MeshIndex;
+pub use enhance::{enhance_texture, EnhanceOptions, EnhanceSummary};
+pub use error::{MeshError, Result};
+pub use eval::{evaluate, EvalOptions, MultiViewScores};
+pub use fusion::{fuse_depth_maps, FusionOptions, FusionSummary};
+pub use marching_cubes::{extract_mesh, ExtractOptions};
+pub use simplify::{simplify, SimplifyOptions, SimplifySummary};
+pub use single::{mesh_from_depth_map, SingleMeshOptions, SingleMeshSummary};
+pub use tsdf::{TsdfOptions, TsdfVolume, VoxelSize};
+pub use view::{DepthView, ImageView};

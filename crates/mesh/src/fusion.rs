@@ -1,0 +1,168 @@
+//! The volumetric stage of §5.1 as one call: depth maps → TSDF ([`crate::tsdf`], Curless & Levoy
+//! 1996) → marching cubes ([`crate::marching_cubes`], Lorensen & Cline 1987) → removal of floating
+//! specks → quadric simplification ([`crate::simplify`], Garland & Heckbert 1997).
+//!
+//! Bad input fails loudly: a map whose size differs from its camera, an all-empty map, depth maps
+//! that never agree on a surface ([`MeshError::NoOverlap`]) or an empty extraction are errors, never
+//! an empty mesh reported as success.
+
+use std::time::Instant;
+
+use handheld_core::{Progress, TriMesh};
+
+use crate::error::{MeshError, Result};
+use crate::marching_cubes::{extract_mesh, ExtractOptions};
+use crate::simplify::{compact, simplify, SimplifyOptions};
+use crate::topology::remove_small_components;
+use crate::tsdf::{resolve_voxel_size, TsdfOptions, TsdfVolume, BLOCK_VOXELS};
+use crate::view::DepthView;
+
+/// Options of [`fuse_depth_maps`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct FusionOptions {
+    pub tsdf: TsdfOptions,
+    /// Surface extraction; `min_observations` is clamped to the number of views.
+    pub extract: ExtractOptions,
+    /// Connected components with fewer faces are dropped as noise; 0 keeps everything.
+    /// Default 0.
+    pub min_component_faces: usize,
+    /// Simplification after extraction; `None` keeps the marching-cubes mesh. Default
+    /// `Some(SimplifyOptions::default())`.
+    pub simplify: Option<SimplifyOptions>,
+}
+
+impl FusionOptions {
+    pub fn validate(&self) -> Result<()> {
+        self.tsdf.validate()?;
+        self.extract.validate()?;
+        if let Some(s) = &self.simplify {
+            s.validate()?;
+        }
+        Ok(())
+    }
+}
+
+impl Default for FusionOptions {
+    fn default() -> Self {
+        Self {
+            tsdf: TsdfOptions::default(),
+            extract: ExtractOptions::default(),
+            min_component_faces: 0,
+            simplify: Some(SimplifyOptions::default()),
+        }
+    }
+}
+
+/// What [`fuse_depth_maps`] did.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct FusionSummary {
+    pub views: usize,
+    /// Voxel edge length used (world units).
+    pub voxel_size: f64,
+    /// Truncation distance (world units).
+    pub truncation: f64,
+    /// Allocated voxel blocks and the voxels they hold.
+    pub blocks: usize,
+    pub voxels: usize,
+    /// Voxels that received any weight.
+    pub observed_voxels: usize,
+    /// Approximate bytes held by the volume.
+    pub volume_bytes: usize,
+    /// Effective `min_observations` (after clamping to the number of views).
+    pub min_observations: usize,
+    /// Marching-cubes faces, after speck removal, and after simplification.
+    pub faces_extracted: usize,
+    pub faces_cleaned: usize,
+    pub faces_final: usize,
+    pub vertices_final: usize,
+    pub integrate_seconds: f64,
+    pub extract_seconds: f64,
+    pub simplify_seconds: f64,
+}
+
+/// Fuses depth maps into one mesh in the world (sparse model) frame, counter-clockwise seen
+/// from outside (the free-space side), with vertex normals.
+pub fn fuse_depth_maps(
+    views: &[DepthView],
+    opts: &FusionOptions,
+    progress: &dyn Progress,
+) -> Result<(TriMesh, FusionSummary)> {
+    opts.validate()?;
+    if views.is_empty() {
+        return Err(MeshError::NoViews { what: "depth maps" });
+    }
+    for (i, v) in views.iter().enumerate() {
+        v.validate(i)?;
+        if !(0..v.depth.data.len()).any(|p| v.weight(p, opts.tsdf.min_confidence) > 0.0) {
+            return Err(MeshError::EmptyDepth { view: i });
+        }
+    }
+    let t0 = Instant::now();
+    let voxel_size = resolve_voxel_size(views, &opts.tsdf)?;
+    let mut vol = TsdfVolume::new(voxel_size, &opts.tsdf)?;
+    progress.start("TSDF fusion", views.len() as u64);
+    for (i, v) in views.iter().enumerate() {
+        vol.integrate(v, i)?;
+        progress.inc(1);
+    }
+    progress.finish();
+    let min_obs = opts.extract.min_observations.clamp(1, views.len());
+    let seen = vol
+        .blocks()
+        .iter()
+        .any(|b| b.observations.iter().any(|&o| o as usize >= min_obs));
+    if !seen {
+        return Err(MeshError::NoOverlap {
+            views: views.len(),
+            min_observations: min_obs,
+        });
+    }
+    let mut summary = FusionSummary {
+        views: views.len(),
+        voxel_size,
+        truncation: vol.truncation,
+        blocks: vol.num_blocks(),
+        voxels: vol.num_blocks() * BLOCK_VOXELS,
+        observed_voxels: vol.observed_voxels(),
+        volume_bytes: vol.memory_bytes(),
+        min_observations: min_obs,
+        integrate_seconds: t0.elapsed().as_secs_f64(),
+        ..Default::default()
+    };
+    tracing::debug!(?summary, "TSDF integrated");
+    let t1 = Instant::now();
+    let extract = ExtractOptions {
+        min_observations: min_obs,
+        ..opts.extract.clone()
+    };
+    let mut mesh = extract_mesh(&vol, &extract, progress)?;
+    drop(vol);
+    summary.faces_extracted = mesh.faces.len();
+    if opts.min_component_faces > 1 {
+        let kept = remove_small_components(&mesh, opts.min_component_faces);
+        if kept.is_empty() {
+            return Err(MeshError::EmptyResult {
+                stage: "speck removal",
+                reason: format!(
+                    "every connected component has fewer than {} faces",
+                    opts.min_component_faces
+                ),
+            });
+        }
+        if kept.len() < mesh.faces.len() {
+            mesh = compact(&mesh, &kept);
+        }
+    }
+    summary.faces_cleaned = mesh.faces.len();
+    summary.extract_seconds = t1.elapsed().as_secs_f64();
+    let t2 = Instant::now();
+    if let Some(s) = &opts.simplify {
+        progress.start("simplification", 0);
+        mesh = simplify(&mesh, s)?.0;
+        progress.finish();
+    }
+    summary.simplify_seconds = t2.elapsed().as_secs_f64();
+    summary.faces_final = mesh.faces.len();
+    summary.vertices_final = mesh.vertices.len();
+    Ok((mesh, summary))
+}

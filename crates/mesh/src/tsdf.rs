@@ -1,0 +1,441 @@
+//! Volumetric fusion of many depth maps into a truncated signed distance function (paper §5.1;
+//! Curless & Levoy, *A volumetric method for building complex models from range images*,
+//! SIGGRAPH 1996), stored in sparse voxel blocks so memory follows the surface (voxel hashing:
+//! Nießner, Zollhöfer, Izadi and Stamminger, SIGGRAPH Asia 2013).
+//!
+//! The world is cut into blocks of [`BLOCK`]³ voxels; a hash map from block coordinates to a
+//! boxed block holds only the blocks within the truncation band of some observed surface.
+//! Voxel `g = (i, j, k)` has its centre at `g · voxel_size` in the world (= sparse model) frame.
+//!
+//! Each depth map is integrated in two passes:
+//! 1. *allocation*: every (strided) valid pixel's ray is sampled within `±truncation` of its depth
+//!    and the blocks it crosses are created;
+//! 2. *update*: every voxel of every block is projected into the view (with the lens distortion);
+//!    its signed distance along the line of sight `sdf = (z_map − z_voxel)·|p_cam|/z_voxel` (positive
+//!    in front of the surface, in free space) is truncated to `[−1, 1]·truncation`, skipped when
+//!    below `−truncation` (hidden behind the surface), and averaged with the running weight
+//!    (Curless & Levoy eq. 4–5): `D ← (W·D + w·d)/(W + w)`, `W ← min(W + w, max_weight)`, with the
+//!    per-pixel confidence as `w`. Voxels within the band also count one *observation* of that view,
+//!    which lets extraction require a surface to be seen by several depth maps.
+//!
+//! Values are stored as `f32` (normalised distance and weight): the volume is the memory-bound
+//! part of the stage, and its precision (1e-7 of the truncation) is far below the voxel size.
+
+use std::collections::{HashMap, HashSet};
+
+use nalgebra::{Point3, Vector2, Vector3};
+use rayon::prelude::*;
+
+use crate::error::{in_range, positive, MeshError, Result};
+use crate::view::{sample_depth, DepthView, Projector};
+
+/// Voxels per block edge.
+pub const BLOCK: usize = 8;
+/// Voxels per block.
+pub const BLOCK_VOXELS: usize = BLOCK * BLOCK * BLOCK;
+/// Bytes per block (distance, weight, observation count per voxel, plus the key).
+pub const BLOCK_BYTES: usize = BLOCK_VOXELS * 9 + 12;
+
+/// How the voxel edge length is chosen.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum VoxelSize {
+    /// A fixed edge length in world (sparse model) units.
+    Absolute(f64),
+    /// This many pixel footprints at the median depth, `factor · median(depth)/f`, taking the
+    /// median over the views (the sparse model's scale is arbitrary, so this is the portable default).
+    PixelFootprint(f64),
+}
+
+/// Options of [`TsdfVolume`] and of the fusion stage.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TsdfOptions {
+    /// Voxel edge length. Default `PixelFootprint(3.0)`.
+    pub voxel_size: VoxelSize,
+    /// Half-width of the truncation band, in voxels (Curless & Levoy's ramp). Must exceed the
+    /// depth noise. Default 4.
+    pub truncation_voxels: f64,
+    /// Pixels whose confidence is not above this are ignored (only with confidence maps). Default 0.
+    pub min_confidence: f64,
+    /// Cap on the accumulated weight of a voxel (keeps the average responsive). Default 1e4.
+    pub max_weight: f64,
+    /// Upper bound on the number of blocks; exceeding it is an error, not a silent crop.
+    /// Default 500 000 (about 2.3 GB).
+    pub max_blocks: usize,
+}
+
+impl Default for TsdfOptions {
+    fn default() -> Self {
+        Self {
+            voxel_size: VoxelSize::PixelFootprint(3.0),
+            truncation_voxels: 4.0,
+            min_confidence: 0.0,
+            max_weight: 1e4,
+            max_blocks: 500_000,
+        }
+    }
+}
+
+impl TsdfOptions {
+    pub fn validate(&self) -> Result<()> {
+        match self.voxel_size {
+            VoxelSize::Absolute(v) => positive("voxel_size", v)?,
+            VoxelSize::PixelFootprint(f) => in_range("voxel_size", f, 0.05, 1000.0)?,
+        }
+        in_range("truncation_voxels", self.truncation_voxels, 1.0, 64.0)?;
+        positive("max_weight", self.max_weight)?;
+        if !self.min_confidence.is_finite() {
+            return Err(MeshError::InvalidOption {
+                option: "min_confidence",
+                reason: "must be finite".into(),
+            });
+        }
+        if self.max_blocks == 0 {
+            return Err(MeshError::InvalidOption {
+                option: "max_blocks",
+                reason: "must be positive".into(),
+            });
+        }
+        Ok(())
+    }
+}
+
+/// One block of voxels, x fastest: local index `x + BLOCK·(y + BLOCK·z)`.
+pub struct Block {
+    pub key: [i32; 3],
+    /// Signed distance divided by the truncation, in `[−1, 1]`.
+    pub tsdf: [f32; BLOCK_VOXELS],
+    pub weight: [f32; BLOCK_VOXELS],
+    /// Number of views that saw the voxel within the truncation band (saturating).
+    pub observations: [u8; BLOCK_VOXELS],
+}
+
+impl Block {
+    fn new(key: [i32; 3]) -> Self {
+        Self {
+            key,
+            tsdf: [1.0; BLOCK_VOXELS],
+            weight: [0.0; BLOCK_VOXELS],
+            observations: [0; BLOCK_VOXELS],
+        }
+    }
+}
+
+/// A sparse TSDF volume.
+pub struct TsdfVolume {
+    pub voxel_size: f64,
+    /// Truncation distance in world units.
+    pub truncation: f64,
+    max_weight: f32,
+    min_confidence: f64,
+    max_blocks: usize,
+    index: HashMap<[i32; 3], usize>,
+    blocks: Vec<Box<Block>>,
+}
+
+/// The voxel size `opts` asks for, given the views (the median over views of `median depth / f`
+/// for [`VoxelSize::PixelFootprint`]).
+pub fn resolve_voxel_size(views: &[DepthView], opts: &TsdfOptions) -> Result<f64> {
+    match opts.voxel_size {
+        VoxelSize::Absolute(v) => Ok(v),
+        VoxelSize::PixelFootprint(factor) => {
+            let mut per_view: Vec<f64> = Vec::with_capacity(views.len());
+            for (i, v) in views.iter().enumerate() {
+                let z = depth_quantile(v, 0.5).ok_or(MeshError::EmptyDepth { view: i })?;
+                per_view.push(z / v.camera.intrinsics.f);
+            }
+            per_view.sort_by(f64::total_cmp);
+            let m = per_view
+                .get(per_view.len() / 2)
+                .copied()
+                .ok_or(MeshError::NoViews { what: "depth maps" })?;
+            Ok(factor * m)
+        }
+    }
+}
+
+/// A quantile of the valid depths of a view, from a strided sample of its pixels.
+fn depth_quantile(view: &DepthView, q: f64) -> Option<f64> {
+    let n = view.depth.data.len();
+    let stride = (n / 20_000).max(1);
+    let mut d: Vec<f64> = (0..n)
+        .step_by(stride)
+        .filter(|&i| view.weight(i, f64::NEG_INFINITY) > 0.0)
+        .map(|i| view.depth.data[i] as f64)
+        .collect();
+    if d.is_empty() {
+        return None;
+    }
+    d.sort_by(f64::total_cmp);
+    Some(d[((d.len() - 1) as f64 * q).round() as usize])
+}
+
+impl TsdfVolume {
+    /// An empty volume with a resolved voxel size (see [`resolve_voxel_size`]).
+    pub fn new(voxel_size: f64, opts: &TsdfOptions) -> Result<Self> {
+        opts.validate()?;
+        positive("voxel_size", voxel_size)?;
+        Ok(Self {
+            voxel_size,
+            truncation: opts.truncation_voxels * voxel_size,
+            max_weight: opts.max_weight as f32,
+            min_confidence: opts.min_confidence,
+            max_blocks: opts.max_blocks,
+            index: HashMap::new(),
+            blocks: Vec::new(),
+        })
+    }
+
+    /// Number of allocated blocks.
+    pub fn num_blocks(&self) -> usize {
+        self.blocks.len()
+    }
+
+    /// The allocated blocks.
+    pub fn blocks(&self) -> &[Box<Block>] {
+        &self.blocks
+    }
+
+    /// The block with key `key`, if allocated.
+    pub fn block(&self, key: [i32; 3]) -> Option<&Block> {
+        self.index.get(&key).map(|&i| &*self.blocks[i])
+    }
+
+    /// Approximate bytes held by the blocks and the index.
+    pub fn memory_bytes(&self) -> usize {
+        self.blocks.len() * (BLOCK_BYTES + 40)
+    }
+
+    /// Integrates one depth map (`view_index` only labels errors).
+    pub fn integrate(&mut self, view: &DepthView, view_index: usize) -> Result<()> {
+        view.validate(view_index)?;
+        let proj = Projector::new(view.camera, &view.cam_from_world);
+        self.allocate(view, &proj, view_index)?;
+        let (vs, trunc) = (self.voxel_size, self.truncation);
+        let (max_w, min_conf) = (self.max_weight, self.min_confidence);
+        self.blocks
+            .par_iter_mut()
+            .for_each(|b| update_block(b, view, &proj, vs, trunc, max_w, min_conf));
+        Ok(())
+    }
+
+    /// Creates the blocks within the truncation band around the view's depths.
+    fn allocate(&mut self, view: &DepthView, proj: &Projector, view_index: usize) -> Result<()> {
+        let z95 = depth_quantile(view, 0.95).ok_or(MeshError::EmptyDepth { view: view_index })?;
+        let block_side = self.voxel_size * BLOCK as f64;
+        let footprint = z95 / view.camera.intrinsics.f;
+        let stride = ((0.25 * block_side / footprint).floor() as usize).clamp(1, 16);
+        let (w, h) = (view.depth.width, view.depth.height);
+        let trunc = self.truncation;
+        let n_steps = ((3.0 * trunc / (0.5 * block_side)).ceil() as usize).max(1);
+        let inv_block = 1.0 / block_side;
+        let min_conf = self.min_confidence;
+        let rt = proj.rot.transpose();
+        let keys: HashSet<[i32; 3]> = (0..h)
+            .into_par_iter()
+            .step_by(stride)
+            .fold(HashSet::new, |mut set, y| {
+                let mut last = [i32::MIN; 3];
+                for x in (0..w).step_by(stride) {
+                    if view.weight(y * w + x, min_conf) <= 0.0 {
+                        continue;
+                    }
+                    let z = view.depth.data[y * w + x] as f64;
+                    let n = view
+                        .camera
+                        .intrinsics
+                        .pixel_to_normalized(Vector2::new(x as f64, y as f64));
+                    let dir = rt * Vector3::new(n.x, n.y, 1.0);
+                    let scale = dir.norm();
+                    for s in 0..=n_steps {
+                        let zz = z + trunc * (2.0 * s as f64 / n_steps as f64 - 1.0) / scale * 1.5;
+                        if zz <= 0.0 {
+                            continue;
+                        }
+                        let p = proj.center + dir * zz;
+                        let k = [
+                            (p.x * inv_block + 0.5 / BLOCK as f64).floor() as i32,
+                            (p.y * inv_block + 0.5 / BLOCK as f64).floor() as i32,
+                            (p.z * inv_block + 0.5 / BLOCK as f64).floor() as i32,
+                        ];
+                        if k != last {
+                            set.insert(k);
+                            last = k;
+                        }
+                    }
+                }
+                set
+            })
+            .reduce(HashSet::new, |a, b| {
+                if a.len() < b.len() {
+                    merge_sets(b, a)
+                } else {
+                    merge_sets(a, b)
+                }
+            });
+        let mut new: Vec<[i32; 3]> = keys
+            .into_iter()
+            .filter(|k| !self.index.contains_key(k))
+            .collect();
+        // Sorted, so block order (and everything downstream) is reproducible.
+        new.sort_unstable();
+        if self.blocks.len() + new.len() > self.max_blocks {
+            return Err(MeshError::TooManyBlocks {
+                limit: self.max_blocks,
+                bytes_mib: (self.blocks.len() + new.len()) * BLOCK_BYTES >> 20,
+                voxel_size: self.voxel_size,
+            });
+        }
+        for k in new {
+            self.index.insert(k, self.blocks.len());
+            self.blocks.push(Box::new(Block::new(k)));
+        }
+        Ok(())
+    }
+
+    /// A volume sampled from an analytic signed distance `sdf(p)` (positive outside) over the box
+    /// `lo..hi`: blocks within the band are allocated and every voxel gets weight 1 and the maximal
+    /// observation count. Meant for tests and synthetic shapes.
+    pub fn from_sdf(
+        voxel_size: f64,
+        truncation_voxels: f64,
+        lo: Point3<f64>,
+        hi: Point3<f64>,
+        sdf: impl Fn(&Point3<f64>) -> f64 + Sync,
+    ) -> Result<Self> {
+        let opts = TsdfOptions {
+            voxel_size: VoxelSize::Absolute(voxel_size),
+            truncation_voxels,
+            ..TsdfOptions::default()
+        };
+        let mut vol = Self::new(voxel_size, &opts)?;
+        let side = voxel_size * BLOCK as f64;
+        let kl = (lo.coords / side).map(|v| v.floor() as i32);
+        let kh = (hi.coords / side).map(|v| v.ceil() as i32);
+        let reach = vol.truncation + side;
+        for kz in kl.z..=kh.z {
+            for ky in kl.y..=kh.y {
+                for kx in kl.x..=kh.x {
+                    let key = [kx, ky, kz];
+                    let c = (Vector3::new(kx as f64, ky as f64, kz as f64) + Vector3::repeat(0.5))
+                        * side;
+                    if sdf(&Point3::from(c)).abs() > reach {
+                        continue;
+                    }
+                    if vol.blocks.len() >= vol.max_blocks {
+                        return Err(MeshError::TooManyBlocks {
+                            limit: vol.max_blocks,
+                            bytes_mib: vol.blocks.len() * BLOCK_BYTES >> 20,
+                            voxel_size,
+                        });
+                    }
+                    vol.index.insert(key, vol.blocks.len());
+                    vol.blocks.push(Box::new(Block::new(key)));
+                }
+            }
+        }
+        let trunc = vol.truncation;
+        vol.blocks.par_iter_mut().for_each(|b| {
+            for i in 0..BLOCK_VOXELS {
+                let g = [
+                    b.key[0] * BLOCK as i32 + (i % BLOCK) as i32,
+                    b.key[1] * BLOCK as i32 + (i / BLOCK % BLOCK) as i32,
+                    b.key[2] * BLOCK as i32 + (i / (BLOCK * BLOCK)) as i32,
+                ];
+                let p = Point3::new(g[0] as f64, g[1] as f64, g[2] as f64) * voxel_size;
+                b.tsdf[i] = (sdf(&p) / trunc).clamp(-1.0, 1.0) as f32;
+                b.weight[i] = 1.0;
+                b.observations[i] = u8::MAX;
+            }
+        });
+        Ok(vol)
+    }
+
+    /// Distance (normalised), weight and observation count of the voxel at global index `g`.
+    pub fn voxel(&self, g: [i32; 3]) -> Option<(f32, f32, u8)> {
+        let b = BLOCK as i32;
+        let key = [g[0].div_euclid(b), g[1].div_euclid(b), g[2].div_euclid(b)];
+        let blk = self.block(key)?;
+        let l = [g[0].rem_euclid(b), g[1].rem_euclid(b), g[2].rem_euclid(b)];
+        let i = (l[0] + b * (l[1] + b * l[2])) as usize;
+        Some((blk.tsdf[i], blk.weight[i], blk.observations[i]))
+    }
+
+    /// World position of the centre of voxel `g`.
+    pub fn voxel_center(&self, g: [i32; 3]) -> Point3<f64> {
+        Point3::new(g[0] as f64, g[1] as f64, g[2] as f64) * self.voxel_size
+    }
+
+    /// Voxels that received any weight.
+    pub fn observed_voxels(&self) -> usize {
+        self.blocks
+            .par_iter()
+            .map(|b| b.weight.iter().filter(|&&w| w > 0.0).count())
+            .sum()
+    }
+}
+
+fn merge_sets(mut a: HashSet<[i32; 3]>, b: HashSet<[i32; 3]>) -> HashSet<[i32; 3]> {
+    a.extend(b);
+    a
+}
+
+/// The update pass of one block for one view (see the module documentation).
+fn update_block(
+    b: &mut Block,
+    view: &DepthView,
+    proj: &Projector,
+    vs: f64,
+    trunc: f64,
+    max_w: f32,
+    min_conf: f64,
+) {
+    let n = BLOCK as f64;
+    let origin = Vector3::new(b.key[0] as f64, b.key[1] as f64, b.key[2] as f64) * n * vs;
+    // Cheap rejection: the block's bounding sphere is behind the camera.
+    let centre = proj.rot * (origin + Vector3::repeat(0.5 * (n - 1.0) * vs)) + proj.trans;
+    if centre.z < -(n * vs) {
+        return;
+    }
+    let base = proj.rot * origin + proj.trans;
+    let (ex, ey, ez) = (
+        proj.rot.column(0) * vs,
+        proj.rot.column(1) * vs,
+        proj.rot.column(2) * vs,
+    );
+    let w = view.depth.width;
+    let (wi, hi) = (view.depth.width as i64, view.depth.height as i64);
+    for z in 0..BLOCK {
+        for y in 0..BLOCK {
+            let row = base + ez * z as f64 + ey * y as f64;
+            for x in 0..BLOCK {
+                let pc = row + ex * x as f64;
+                let Some(px) = proj.cam_to_pixel(&pc) else {
+                    continue;
+                };
+                let (rx, ry) = (px.x.round() as i64, px.y.round() as i64);
+                if rx < 0 || ry < 0 || rx >= wi || ry >= hi {
+                    continue;
+                }
+                let wgt = view.weight(ry as usize * w + rx as usize, min_conf);
+                if wgt <= 0.0 {
+                    continue;
+                }
+                let Some(d) = sample_depth(view.depth, &px, 0.5 * trunc / pc.z) else {
+                    continue;
+                };
+                let sdf = (d - pc.z) * pc.norm() / pc.z;
+                if sdf < -trunc {
+                    continue;
+                }
+                let i = x + BLOCK * (y + BLOCK * z);
+                let v = (sdf / trunc).min(1.0) as f32;
+                let (old_w, new_w) = (b.weight[i], wgt as f32);
+                b.tsdf[i] = (b.tsdf[i] * old_w + v * new_w) / (old_w + new_w);
+                b.weight[i] = (old_w + new_w).min(max_w);
+                if sdf < trunc {
+                    b.observations[i] = b.observations[i].saturating_add(1);
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,311 @@
+//! The inputs every surface stage shares: a posed camera with its depth map (and optional
+//! confidence), or with its colour image, plus the projection helpers on top of them.
+//!
+//! Depth maps hold the camera-frame `z` of the surface seen through each pixel centre of the
+//! *original* (distorted) image; non-finite or non-positive values are missing. Pixels are lifted
+//! with the camera's undistortion ([`handheld_core::Intrinsics::pixel_to_normalized`]) and points are
+//! projected with its distortion, so no rectified or undistorted copy is ever made.
+
+use handheld_core::pose::center_of;
+use handheld_core::{Camera, FloatMap, Rigid3};
+use image::RgbImage;
+use nalgebra::{Matrix3, Point3, Vector2, Vector3};
+
+use crate::error::{MeshError, Result};
+
+/// One depth map with the camera that took it. World frame = the sparse model's frame.
+#[derive(Clone, Copy, Debug)]
+pub struct DepthView<'a> {
+    pub camera: &'a Camera,
+    /// Pose of the camera, `p_in_cam = cam_from_world · p_in_world`.
+    pub cam_from_world: Rigid3,
+    /// Camera-frame `z` per pixel, one channel, at the camera's resolution.
+    pub depth: &'a FloatMap,
+    /// Optional per-pixel confidence (e.g. the multi-view linking count or inverse variance), one
+    /// channel at the camera's resolution; used as the fusion weight. `None` weighs every pixel 1.
+    pub confidence: Option<&'a FloatMap>,
+}
+
+/// One colour image with the camera that took it, and optionally its depth map for occlusion tests.
+#[derive(Clone, Copy, Debug)]
+pub struct ImageView<'a> {
+    pub camera: &'a Camera,
+    pub cam_from_world: Rigid3,
+    /// The original (distorted) image, at the camera's resolution.
+    pub image: &'a RgbImage,
+    /// Optional depth map of this view (same convention as [`DepthView::depth`]).
+    pub depth: Option<&'a FloatMap>,
+}
+
+/// Checks a camera and pose for finiteness and a usable focal length.
+pub(crate) fn check_camera(view: usize, camera: &Camera, pose: &Rigid3) -> Result<()> {
+    camera
+        .intrinsics
+        .validate()
+        .map_err(|reason| MeshError::BadCamera { view, reason })?;
+    if camera.width == 0 || camera.height == 0 {
+        return Err(MeshError::BadCamera {
+            view,
+            reason: format!("image size {}x{}", camera.width, camera.height),
+        });
+    }
+    let finite = pose.translation.vector.iter().all(|v| v.is_finite())
+        && pose.rotation.coords.iter().all(|v| v.is_finite());
+    if !finite {
+        return Err(MeshError::BadCamera {
+            view,
+            reason: "the pose contains a non-finite value".into(),
+        });
+    }
+    Ok(())
+}
+
+/// Checks that a one-channel map has the camera's size and a consistent data length.
+pub(crate) fn check_map(
+    view: usize,
+    what: &'static str,
+    map: &FloatMap,
+    cam: &Camera,
+) -> Result<()> {
+    if map.channels != 1 {
+        return Err(MeshError::MalformedMap {
+            view,
+            what,
+            reason: format!("{} channels, expected 1", map.channels),
+        });
+    }
+    if map.data.len() != map.width * map.height {
+        return Err(MeshError::MalformedMap {
+            view,
+            what,
+            reason: format!(
+                "{} values for {}x{} pixels",
+                map.data.len(),
+                map.width,
+                map.height
+            ),
+        });
+    }
+    if map.width != cam.width as usize || map.height != cam.height as usize {
+        return Err(MeshError::SizeMismatch {
+            view,
+            what,
+            got_w: map.width,
+            got_h: map.height,
+            cam_w: cam.width as usize,
+            cam_h: cam.height as usize,
+        });
+    }
+    Ok(())
+}
+
+impl DepthView<'_> {
+    /// Checks camera, pose, the depth and confidence maps' sizes, and that some depth is valid.
+    pub fn validate(&self, view: usize) -> Result<()> {
+        check_camera(view, self.camera, &self.cam_from_world)?;
+        check_map(view, "depth map", self.depth, self.camera)?;
+        if let Some(c) = self.confidence {
+            check_map(view, "confidence map", c, self.camera)?;
+        }
+        Ok(())
+    }
+
+    /// Weight of pixel `i` (row-major): `0` when the depth is missing or the confidence is not
+    /// above `min_confidence`, else the confidence (1 without a confidence map).
+    pub(crate) fn weight(&self, i: usize, min_confidence: f64) -> f64 {
+        let d = self.depth.data[i];
+        if !(d.is_finite() && d > 0.0) {
+            return 0.0;
+        }
+        match self.confidence {
+            Some(c) => {
+                let w = c.data[i] as f64;
+                if w.is_finite() && w > min_confidence {
+                    w
+                } else {
+                    0.0
+                }
+            }
+            None => 1.0,
+        }
+    }
+}
+
+impl ImageView<'_> {
+    /// Checks camera, pose, and the image's and optional depth map's sizes.
+    pub fn validate(&self, view: usize) -> Result<()> {
+        check_camera(view, self.camera, &self.cam_from_world)?;
+        let (w, h) = self.image.dimensions();
+        if w != self.camera.width || h != self.camera.height {
+            return Err(MeshError::SizeMismatch {
+                view,
+                what: "image",
+                got_w: w as usize,
+                got_h: h as usize,
+                cam_w: self.camera.width as usize,
+                cam_h: self.camera.height as usize,
+            });
+        }
+        if let Some(d) = self.depth {
+            check_map(view, "depth map", d, self.camera)?;
+        }
+        Ok(())
+    }
+}
+
+/// Precomputed projection of one view: rotation, translation, centre, and the largest normalised
+/// radius inside the image (beyond it the polynomial distortion may fold back, so points there are
+/// treated as outside).
+#[derive(Clone, Debug)]
+pub(crate) struct Projector {
+    pub camera: Camera,
+    pub rot: Matrix3<f64>,
+    pub trans: Vector3<f64>,
+    pub center: Point3<f64>,
+    max_radius2: f64,
+}
+
+impl Projector {
+    pub fn new(camera: &Camera, cam_from_world: &Rigid3) -> Self {
+        let k = &camera.intrinsics;
+        let (w, h) = (camera.width as f64, camera.height as f64);
+        let corners = [
+            (-0.5, -0.5),
+            (w - 0.5, -0.5),
+            (-0.5, h - 0.5),
+            (w - 0.5, h - 0.5),
+        ];
+        let r = corners
+            .iter()
+            .map(|&(x, y)| k.pixel_to_normalized(Vector2::new(x, y)).norm())
+            .fold(0.0, f64::max);
+        Self {
+            camera: camera.clone(),
+            rot: *cam_from_world.rotation.to_rotation_matrix().matrix(),
+            trans: cam_from_world.translation.vector,
+            center: center_of(cam_from_world),
+            max_radius2: (1.05 * r).powi(2),
+        }
+    }
+
+    /// World point → camera frame.
+    pub fn to_cam(&self, p: &Point3<f64>) -> Vector3<f64> {
+        self.rot * p.coords + self.trans
+    }
+
+    /// Camera-frame point → distorted pixel, `None` behind the camera or beyond the image's radius.
+    pub fn cam_to_pixel(&self, pc: &Vector3<f64>) -> Option<Vector2<f64>> {
+        if pc.z <= 0.0 {
+            return None;
+        }
+        let n = Vector2::new(pc.x / pc.z, pc.y / pc.z);
+        if n.norm_squared() > self.max_radius2 {
+            return None;
+        }
+        Some(self.camera.intrinsics.normalized_to_pixel(n))
+    }
+
+    /// Pixel `(x, y)` with depth `z` → world point.
+    pub fn lift(&self, x: f64, y: f64, z: f64) -> Point3<f64> {
+        let n = self
+            .camera
+            .intrinsics
+            .pixel_to_normalized(Vector2::new(x, y));
+        let pc = Vector3::new(n.x * z, n.y * z, z);
+        Point3::from(self.rot.transpose() * (pc - self.trans))
+    }
+}
+
+/// Bilinear sample of a one-channel depth map at a (distorted) pixel position. The four
+/// neighbours must all be valid and within `max_rel_spread` of each other (relative), else the
+/// nearest valid neighbour is returned, so depths never blend across a discontinuity.
+pub(crate) fn sample_depth(map: &FloatMap, px: &Vector2<f64>, max_rel_spread: f64) -> Option<f64> {
+    let (w, h) = (map.width as i64, map.height as i64);
+    let (fx, fy) = (px.x.floor(), px.y.floor());
+    let (x0, y0) = (fx as i64, fy as i64);
+    if x0 < -1 || y0 < -1 || x0 >= w || y0 >= h {
+        return None;
+    }
+    let (ax, ay) = (px.x - fx, px.y - fy);
+    let at = |x: i64, y: i64| -> Option<f64> {
+        if x < 0 || y < 0 || x >= w || y >= h {
+            return None;
+        }
+        let v = map.data[(y * w + x) as usize];
+        (v.is_finite() && v > 0.0).then_some(v as f64)
+    };
+    let q = [
+        at(x0, y0),
+        at(x0 + 1, y0),
+        at(x0, y0 + 1),
+        at(x0 + 1, y0 + 1),
+    ];
+    if let [Some(a), Some(b), Some(c), Some(d)] = q {
+        let (lo, hi) = (a.min(b).min(c).min(d), a.max(b).max(c).max(d));
+        if hi - lo <= max_rel_spread * lo {
+            let top = a + (b - a) * ax;
+            let bottom = c + (d - c) * ax;
+            return Some(top + (bottom - top) * ay);
+        }
+    }
+    let nx = if ax < 0.5 { 0 } else { 1 };
+    let ny = if ay < 0.5 { 0 } else { 1 };
+    q[ny * 2 + nx]
+}
+
+/// Bilinear colour sample of an image at a (distorted) pixel position, clamped at the borders.
+pub(crate) fn sample_rgb(img: &RgbImage, px: &Vector2<f64>) -> [f64; 3] {
+    let (w, h) = (img.width() as i64, img.height() as i64);
+    let x = px.x.clamp(0.0, (w - 1) as f64);
+    let y = px.y.clamp(0.0, (h - 1) as f64);
+    let (x0, y0) = (x.floor() as i64, y.floor() as i64);
+    let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
+    let (ax, ay) = (x - x0 as f64, y - y0 as f64);
+    let raw = img.as_raw();
+    let get = |xx: i64, yy: i64, c: usize| raw[((yy * w + xx) * 3) as usize + c] as f64;
+    let mut out = [0.0; 3];
+    for (c, o) in out.iter_mut().enumerate() {
+        let top = get(x0, y0, c) * (1.0 - ax) + get(x1, y0, c) * ax;
+        let bottom = get(x0, y1, c) * (1.0 - ax) + get(x1, y1, c) * ax;
+        *o = top * (1.0 - ay) + bottom * ay;
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use handheld_core::{CameraId, Intrinsics};
+
+    #[test]
+    fn lift_then_project_round_trips_with_distortion() {
+        let mut k = Intrinsics::pinhole(300.0, 159.5, 119.5);
+        k.k1 = -0.1;
+        k.k2 = 0.02;
+        let cam = Camera {
+            id: CameraId(0),
+            width: 320,
+            height: 240,
+            intrinsics: k,
+        };
+        let pose = Rigid3::new(Vector3::new(0.1, -0.2, 0.3), Vector3::new(0.05, 0.1, -0.02));
+        let p = Projector::new(&cam, &pose);
+        let w = p.lift(12.0, 200.0, 3.5);
+        let pc = p.to_cam(&w);
+        assert!((pc.z - 3.5).abs() < 1e-9);
+        let px = p.cam_to_pixel(&pc).unwrap();
+        assert!((px - Vector2::new(12.0, 200.0)).norm() < 1e-7);
+    }
+
+    #[test]
+    fn depth_sampling_does_not_blend_discontinuities() {
+        let mut m = FloatMap::filled(4, 4, 1, 2.0);
+        m.set(2, 1, 0, 5.0);
+        let v = sample_depth(&m, &Vector2::new(0.5, 0.5), 0.05).unwrap();
+        assert!((v - 2.0).abs() < 1e-12);
+        let v = sample_depth(&m, &Vector2::new(1.6, 1.2), 0.05).unwrap();
+        assert_eq!(v, 5.0);
+        m.set(0, 0, 0, f32::NAN);
+        assert!(sample_depth(&m, &Vector2::new(0.1, 0.1), 0.05).is_none());
+    }
+}
