@@ -174,6 +174,27 @@ pub struct InputArgs {
     /// of width + height (eq. 25's u ≈ v ≈ 0 in K_N units).
     #[arg(long, default_value_t = 0.005)]
     pub principal_point_prior: f64,
+    /// Dense: images are downscaled so their longer side is at most this (0 = full resolution).
+    #[arg(long, default_value_t = 1600)]
+    pub dense_max_size: u32,
+    /// Dense: stereo method of each rectified pair (§4.2).
+    #[arg(long, value_enum, default_value_t = StereoMethodArg::Sgm)]
+    pub stereo_method: StereoMethodArg,
+    /// Dense: N, the views linked per reference view (the reference and (N−1)/2 on each side, §4.3).
+    #[arg(long, default_value_t = 11)]
+    pub link_views: usize,
+    /// Dense: V_min, the fewest views a kept depth must be linked through (reference included).
+    #[arg(long, default_value_t = 3)]
+    pub min_visibility: usize,
+}
+
+/// Stereo matcher of the dense stage.
+#[derive(Debug, Clone, Copy, ValueEnum, PartialEq, Eq)]
+pub enum StereoMethodArg {
+    /// Semi-global matching (census cost); the more accurate, measured on Middlebury.
+    Sgm,
+    /// The paper's scanline dynamic programming (§4.2).
+    Dp,
 }
 
 /// Whether metric BA estimates the aspect ratio (§3.4).

@@ -70,7 +70,7 @@ fn write_sequence(dir: &Path, seq: &SyntheticSequence, bars: &Bars) -> Result<()
 
 /// Ground-truth views keyed by the name the workspace gives them: the rendered file name for the
 /// photo folder, `frame_<index>.png` (the ingest stage's name for decoded frames) for the video.
-fn gt_by_name(
+pub fn gt_by_name(
     gt: &handheld_core::MetricReconstruction,
     video: bool,
 ) -> std::collections::HashMap<String, &handheld_core::View> {
@@ -332,11 +332,17 @@ pub fn run(a: &DemoArgs, g: &GlobalArgs, bars: &Bars) -> Result<()> {
         aspect: crate::args::AspectArg::Auto,
         fixed_principal_point: false,
         principal_point_prior: 0.005,
+        dense_max_size: 1600,
+        stereo_method: crate::args::StereoMethodArg::Sgm,
+        link_views: 11,
+        min_visibility: 3,
     };
     let reports = pipeline::run(&input, pipeline::Stage::LAST, bars)?;
     let matching = matching_accuracy(&a.output, &workspace, a.video)
         .unwrap_or_else(|e| json!({ "error": format!("{e:#}") }));
     let sparse = sparse_accuracy(&a.output, &workspace, a.video)
+        .unwrap_or_else(|e| json!({ "error": format!("{e:#}") }));
+    let dense = crate::demo_dense::dense_accuracy(&a.output, &workspace, a.video)
         .unwrap_or_else(|e| json!({ "error": format!("{e:#}") }));
     let summary = json!({
         "demo": a.output,
@@ -349,11 +355,11 @@ pub fn run(a: &DemoArgs, g: &GlobalArgs, bars: &Bars) -> Result<()> {
         "render_seconds": render_s,
         "ground_truth": gt_summary,
         "stages": reports,
-        "accuracy": { "matching": matching.clone(), "sparse": sparse.clone() },
+        "accuracy": { "matching": matching.clone(), "sparse": sparse.clone(), "dense": dense.clone() },
         "accuracy_note": "matching is scored against the exact relative poses; cameras against the exact cameras after a similarity fit of the centres; the input was uncalibrated (no focal given)",
     });
     let human = format!(
-        "demo: {} frames {}×{} in {}\n  rendering + ground truth: {:.2} s\n  stages: {}\n  matching accuracy: {}\n  camera accuracy (uncalibrated): {}",
+        "demo: {} frames {}×{} in {}\n  rendering + ground truth: {:.2} s\n  stages: {}\n  matching accuracy: {}\n  camera accuracy (uncalibrated): {}\n  depth accuracy: {}",
         a.frames,
         a.width,
         a.height,
@@ -361,7 +367,8 @@ pub fn run(a: &DemoArgs, g: &GlobalArgs, bars: &Bars) -> Result<()> {
         render_s,
         reports.iter().map(|r| format!("{} ({}, {:.2} s)", r.stage.dir_name(), r.status, r.seconds)).collect::<Vec<_>>().join(", "),
         matching,
-        sparse
+        sparse,
+        dense
     );
     print_result(g, &summary, &human);
     Ok(())

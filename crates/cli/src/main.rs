@@ -5,6 +5,7 @@ mod args;
 mod bench_bundle;
 mod bench_matching;
 mod demo;
+mod demo_dense;
 mod pipeline;
 mod stages;
 mod stereo;

@@ -29,16 +29,19 @@ pub enum Stage {
     Matches,
     /// Uncalibrated structure and motion with self-calibration (§3); writes the COLMAP model.
     Sparse,
+    /// Rectification, stereo and multi-view linking (§4); writes depth maps and fused.ply.
+    Dense,
 }
 
 impl Stage {
     /// The last implemented stage: what `reconstruct` runs up to by default.
-    pub const LAST: Stage = Stage::Sparse;
-    pub const ALL: [Stage; 4] = [
+    pub const LAST: Stage = Stage::Dense;
+    pub const ALL: [Stage; 5] = [
         Stage::Ingest,
         Stage::Features,
         Stage::Matches,
         Stage::Sparse,
+        Stage::Dense,
     ];
 
     /// The stage's folder name in the workspace.
@@ -48,6 +51,7 @@ impl Stage {
             Stage::Features => "features",
             Stage::Matches => "matches",
             Stage::Sparse => "sparse",
+            Stage::Dense => "dense",
         }
     }
 }
@@ -144,6 +148,7 @@ pub fn run(a: &InputArgs, until: Stage, bars: &Bars) -> Result<Vec<StageReport>>
     let feature_opts = stages::features::options(a)?;
     let match_opts = stages::matches::options(a)?;
     let sparse_opts = stages::sparse::options(a)?;
+    let dense_opts = stages::dense::options(a)?;
     if !a.input.exists() {
         anyhow::bail!("{}: does not exist", a.input.display());
     }
@@ -155,6 +160,7 @@ pub fn run(a: &InputArgs, until: Stage, bars: &Bars) -> Result<Vec<StageReport>>
             Stage::Features => stages::features::run(&ws, &feature_opts, a.force, bars)?,
             Stage::Matches => stages::matches::run(&ws, &match_opts, a.force, bars)?,
             Stage::Sparse => stages::sparse::run(&ws, &sparse_opts, a.force, bars)?,
+            Stage::Dense => stages::dense::run(&ws, &dense_opts, a.force, bars)?,
         };
         match report.status {
             "ran" => tracing::info!("{}: done in {:.2} s", stage.dir_name(), report.seconds),

@@ -49,6 +49,7 @@ pub mod pair;
 pub mod rectify;
 mod refine;
 mod sgm;
+pub mod stage;
 mod stereo;
 #[cfg(test)]
 mod synthetic;
@@ -61,4 +62,7 @@ pub use link::{link_depth, LinkOptions, LinkView, LinkedDepth};
 pub use options::{HoleFill, MatchingCost, SgmPaths, StereoMethod, StereoOptions};
 pub use pair::{match_pair, DenseView, PairDisparity, PairOptions};
 pub use rectify::{rectify_pair, Rectification, RectifyMethod, RectifyOptions};
+pub use stage::{
+    dense_reconstruct, scale_camera, DenseInputView, DenseOptions, DenseSummary, DenseViewResult,
+};
 pub use stereo::{match_rectified, StereoMatcher, SGM_BAND_OVERLAP};

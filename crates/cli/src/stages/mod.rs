@@ -1,6 +1,7 @@
 //! One module per pipeline stage: each fingerprints its inputs, calls its library stage and writes
 //! the results into its workspace folder through [`crate::pipeline::run_stage`].
 
+pub mod dense;
 pub mod features;
 pub mod ingest;
 pub mod matches;

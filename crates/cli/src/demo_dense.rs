@@ -1,0 +1,76 @@
+//! The demo's depth accuracy: each dense depth map against the exact rendered depth, after
+//! bringing the model's units to metres with the similarity that aligns the camera centres.
+
+use std::path::Path;
+
+use anyhow::{Context, Result};
+use serde_json::json;
+
+/// Median relative depth error and fill (over pixels where the ground truth has a surface) of
+/// every dense depth map in `workspace/dense/depth/`.
+pub fn dense_accuracy(out: &Path, workspace: &Path, video: bool) -> Result<serde_json::Value> {
+    let gt = handheld_io::colmap::read_reconstruction(&out.join("ground_truth").join("sparse"))?;
+    let est = handheld_io::colmap::read_reconstruction(&workspace.join("sparse"))?;
+    let by_name = super::demo::gt_by_name(&gt, video);
+    let pairs: Vec<_> = est
+        .views
+        .values()
+        .filter_map(|v| by_name.get(v.name.as_str()).map(|g| (v, *g)))
+        .collect();
+    if pairs.len() < 3 {
+        anyhow::bail!("only {} views registered", pairs.len());
+    }
+    let src: Vec<_> = pairs.iter().map(|p| p.0.center()).collect();
+    let dst: Vec<_> = pairs.iter().map(|p| p.1.center()).collect();
+    let sim = handheld_core::Sim3::align(&src, &dst).context("aligning the camera centres")?;
+    let ddir = workspace.join("dense").join("depth");
+    let (mut errors, mut gt_pixels, mut maps) = (Vec::new(), 0usize, 0usize);
+    for (e, g) in &pairs {
+        let path = ddir.join(format!("{}.pfm", e.name));
+        if !path.exists() {
+            continue;
+        }
+        let depth = handheld_io::pfm::read_pfm(&path)?;
+        let stem = Path::new(&g.name)
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let truth = handheld_io::pfm::read_pfm(
+            &out.join("ground_truth")
+                .join("depth")
+                .join(format!("{stem}.pfm")),
+        )?;
+        if (depth.width, depth.height) != (truth.width, truth.height) {
+            continue;
+        }
+        maps += 1;
+        for (z, t) in depth.data.iter().zip(&truth.data) {
+            if *t <= 0.0 {
+                continue;
+            }
+            gt_pixels += 1;
+            if z.is_finite() {
+                errors.push(((sim.scale * f64::from(*z) - f64::from(*t)) / f64::from(*t)).abs());
+            }
+        }
+    }
+    if maps == 0 {
+        anyhow::bail!(
+            "no dense depth map at the rendered resolution in {}",
+            ddir.display()
+        );
+    }
+    errors.sort_by(f64::total_cmp);
+    let q = |p: f64| {
+        errors
+            .get(((errors.len() as f64 - 1.0) * p) as usize)
+            .copied()
+    };
+    Ok(json!({
+        "depth_maps": maps,
+        "fill": errors.len() as f64 / gt_pixels.max(1) as f64,
+        "relative_error_median": q(0.5),
+        "relative_error_p90": q(0.9),
+        "within_1pct": errors.iter().filter(|e| **e <= 0.01).count() as f64 / gt_pixels.max(1) as f64,
+    }))
+}

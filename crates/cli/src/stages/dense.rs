@@ -1,0 +1,350 @@
+//! The dense stage (§4): reads the sparse model and the images, calls
+//! `handheld_dense::dense_reconstruct` and writes `dense/`:
+//! - `depth/<image>.pfm`: z-depth in the camera frame of the sparse model, model units, `NaN`
+//!   where nothing was kept (full-resolution maps unless `--dense-max-size` downscaled the view;
+//!   `cameras.json` holds the camera each map belongs to);
+//! - `variance/<image>.pfm`: the Kalman-fused depth variance (model units²);
+//! - `confidence/<image>.pfm`: `1 / (1 + σ/(0.005·z))`, 0.5 where the 1σ error is 0.5% of depth;
+//! - `visibility/<image>.pfm`: V, the number of views linked (reference included);
+//! - `preview/<image>.depth.png` and `preview/<image>.visibility.png`;
+//! - `fused.ply`, the coloured point cloud; `summary.json`.
+//!
+//! Video workspaces use their key-frames only.
+
+use std::collections::BTreeSet;
+use std::path::Path;
+
+use anyhow::{Context, Result};
+use handheld_core::{FloatMap, ImageId, MetricReconstruction};
+use handheld_dense::{
+    dense_reconstruct, scale_camera, DenseInputView, DenseOptions, LinkOptions, PairOptions,
+    StereoMethod, StereoOptions,
+};
+use handheld_io::images::{load_image, ImageIngestOptions};
+use handheld_io::workspace::{Fingerprint, Workspace};
+use rayon::prelude::*;
+use serde_json::json;
+
+use crate::args::{InputArgs, StereoMethodArg};
+use crate::pipeline::{run_stage, Stage, StageOutput, StageReport};
+use crate::ui::Bars;
+
+/// The dense stage's options plus the image size limit (an I/O concern of the CLI).
+pub struct DenseStageOptions {
+    pub dense: DenseOptions,
+    pub max_size: u32,
+    pub fingerprint: serde_json::Value,
+}
+
+pub fn options(a: &InputArgs) -> Result<DenseStageOptions> {
+    if a.link_views < 3 || a.link_views % 2 == 0 {
+        anyhow::bail!(
+            "--link-views must be odd and at least 3, got {}",
+            a.link_views
+        );
+    }
+    if a.min_visibility < 1 || a.min_visibility > a.link_views {
+        anyhow::bail!(
+            "--min-visibility must be between 1 and --link-views ({}), got {}",
+            a.link_views,
+            a.min_visibility
+        );
+    }
+    let method = match a.stereo_method {
+        StereoMethodArg::Sgm => StereoMethod::Sgm,
+        StereoMethodArg::Dp => StereoMethod::Dp,
+    };
+    let dense = DenseOptions {
+        pair: PairOptions {
+            stereo: StereoOptions::for_method(method),
+            ..Default::default()
+        },
+        link: LinkOptions {
+            max_links: (a.link_views - 1) / 2,
+            min_visibility: a.min_visibility,
+            ..Default::default()
+        },
+        ..Default::default()
+    };
+    dense.validate()?;
+    Ok(DenseStageOptions {
+        fingerprint: json!({
+            "max_size": a.dense_max_size,
+            "method": format!("{method:?}"),
+            "link_views": a.link_views,
+            "min_visibility": a.min_visibility,
+        }),
+        dense,
+        max_size: a.dense_max_size,
+    })
+}
+
+/// The views to densify, in sequence order: every registered view, or the key-frames of a video.
+fn key_views(ws: &Workspace, rec: &MetricReconstruction) -> Result<Vec<ImageId>> {
+    let ids: Vec<ImageId> = rec.views.keys().copied().collect();
+    if let Some(tracks) = super::tracks::load_tracks(ws)? {
+        let keys: BTreeSet<u32> = tracks.keyframes.iter().map(|k| k.0 as u32 + 1).collect();
+        let kept: Vec<ImageId> = ids
+            .iter()
+            .copied()
+            .filter(|i| keys.contains(&i.0))
+            .collect();
+        if kept.len() >= 2 {
+            return Ok(kept);
+        }
+    }
+    Ok(ids)
+}
+
+fn load_views(
+    ws: &Workspace,
+    rec: &MetricReconstruction,
+    ids: &[ImageId],
+    max_size: u32,
+) -> Result<Vec<DenseInputView>> {
+    let ingest = super::load_ingest(ws)?;
+    let opts = ImageIngestOptions {
+        min_dimension: 1,
+        ..Default::default()
+    };
+    ids.par_iter()
+        .map(|id| {
+            let view = &rec.views[id];
+            let info = ingest
+                .images
+                .iter()
+                .find(|i| i.info.name == view.name)
+                .with_context(|| {
+                    format!(
+                        "{}: not in the ingest stage (rerun with --force)",
+                        view.name
+                    )
+                })?;
+            let camera = rec
+                .cameras
+                .get(&view.camera_id)
+                .with_context(|| format!("{}: camera missing from the sparse model", view.name))?;
+            let img = load_image(&info.info.path, &opts)
+                .with_context(|| format!("{}: cannot read the image", info.info.path.display()))?
+                .image
+                .to_rgb8();
+            if (img.width(), img.height()) != (camera.width, camera.height) {
+                anyhow::bail!(
+                    "{}: image is {}x{} but the sparse model says {}x{} (rerun with --force)",
+                    info.info.path.display(),
+                    img.width(),
+                    img.height(),
+                    camera.width,
+                    camera.height
+                );
+            }
+            let longer = img.width().max(img.height());
+            let (img, camera) = if max_size > 0 && longer > max_size {
+                let s = max_size as f64 / longer as f64;
+                let w = (img.width() as f64 * s).round() as u32;
+                let h = (img.height() as f64 * s).round() as u32;
+                let small =
+                    image::imageops::resize(&img, w, h, image::imageops::FilterType::Triangle);
+                let c = scale_camera(
+                    camera,
+                    w as f64 / img.width() as f64,
+                    h as f64 / img.height() as f64,
+                );
+                (small, c)
+            } else {
+                (img, camera.clone())
+            };
+            Ok(DenseInputView {
+                name: view.name.clone(),
+                camera,
+                cam_from_world: view.cam_from_world,
+                image: FloatMap {
+                    width: img.width() as usize,
+                    height: img.height() as usize,
+                    channels: 3,
+                    data: img.as_raw().iter().map(|&v| f32::from(v)).collect(),
+                },
+            })
+        })
+        .collect()
+}
+
+/// A false-colour preview of a map (turbo-like ramp between robust min and max; black = missing).
+fn preview(map: &FloatMap, path: &Path) -> Result<()> {
+    let mut vals: Vec<f32> = map
+        .data
+        .iter()
+        .copied()
+        .filter(|v| v.is_finite() && *v > 0.0)
+        .collect();
+    vals.sort_by(f32::total_cmp);
+    let (lo, hi) = match vals.len() {
+        0 => (0.0, 1.0),
+        n => (vals[n / 50], vals[n - 1 - n / 50].max(vals[n / 50] + 1e-6)),
+    };
+    let mut img = image::RgbImage::new(map.width as u32, map.height as u32);
+    for (i, p) in img.pixels_mut().enumerate() {
+        let v = map.data[i];
+        if v.is_finite() && v > 0.0 {
+            let t = ((v - lo) / (hi - lo)).clamp(0.0, 1.0);
+            p.0 = ramp(t);
+        }
+    }
+    let mut bytes = Vec::new();
+    img.write_to(
+        &mut std::io::Cursor::new(&mut bytes),
+        image::ImageFormat::Png,
+    )?;
+    handheld_io::atomic::write_bytes_atomic(path, &bytes)?;
+    Ok(())
+}
+
+/// Blue → cyan → yellow → red.
+fn ramp(t: f32) -> [u8; 3] {
+    let c = |a: f32, b: f32, s: f32| (a + (b - a) * s).round().clamp(0.0, 255.0) as u8;
+    if t < 0.33 {
+        let s = t / 0.33;
+        [c(40.0, 30.0, s), c(30.0, 200.0, s), c(160.0, 230.0, s)]
+    } else if t < 0.66 {
+        let s = (t - 0.33) / 0.33;
+        [c(30.0, 250.0, s), c(200.0, 220.0, s), c(230.0, 40.0, s)]
+    } else {
+        let s = (t - 0.66) / 0.34;
+        [c(250.0, 200.0, s), c(220.0, 30.0, s), c(40.0, 20.0, s)]
+    }
+}
+
+pub fn run(
+    ws: &Workspace,
+    opts: &DenseStageOptions,
+    force: bool,
+    bars: &Bars,
+) -> Result<StageReport> {
+    run_stage(
+        ws,
+        Stage::Dense,
+        Fingerprint::new(),
+        opts.fingerprint.clone(),
+        force,
+        |dir| {
+            let sparse = ws.root.join(Stage::Sparse.dir_name());
+            let rec = handheld_io::colmap::read_reconstruction(&sparse)
+                .with_context(|| format!("{}: cannot read the sparse model", sparse.display()))?;
+            let ids = key_views(ws, &rec)?;
+            let views = load_views(ws, &rec, &ids, opts.max_size)?;
+            let points: Vec<_> = rec.points.values().map(|p| p.xyz).collect();
+            for sub in ["depth", "variance", "confidence", "visibility", "preview"] {
+                std::fs::create_dir_all(dir.join(sub))?;
+            }
+            let mut per_view = Vec::new();
+            let mut outputs = Vec::new();
+            let (cloud, summary) =
+                dense_reconstruct(&views, &points, &opts.dense, bars, |v, r| {
+                    let name = &v.name;
+                    let l = &r.linked;
+                    let conf = FloatMap {
+                        data: l
+                            .depth
+                            .data
+                            .iter()
+                            .zip(&l.variance.data)
+                            .map(|(z, var)| {
+                                if z.is_finite() {
+                                    1.0 / (1.0 + var.sqrt() / (0.005 * z))
+                                } else {
+                                    0.0
+                                }
+                            })
+                            .collect(),
+                        ..l.depth.clone()
+                    };
+                    let write = || -> Result<()> {
+                        for (sub, map) in [
+                            ("depth", &l.depth),
+                            ("variance", &l.variance),
+                            ("confidence", &conf),
+                            ("visibility", &l.visibility),
+                        ] {
+                            handheld_io::pfm::write_pfm(
+                                &dir.join(sub).join(format!("{name}.pfm")),
+                                map,
+                            )?;
+                        }
+                        preview(
+                            &l.depth,
+                            &dir.join("preview").join(format!("{name}.depth.png")),
+                        )?;
+                        preview(
+                            &l.visibility,
+                            &dir.join("preview").join(format!("{name}.visibility.png")),
+                        )?;
+                        Ok(())
+                    };
+                    write().map_err(|e| handheld_dense::DenseError::Linking {
+                        reason: format!("{name}: cannot write the maps: {e:#}"),
+                    })?;
+                    for sub in ["depth", "variance", "confidence", "visibility"] {
+                        outputs.push(format!("{sub}/{name}.pfm"));
+                    }
+                    tracing::info!(
+                        "dense: {name}: {:.1} % filled in {:.2} s",
+                        l.fill() * 100.0,
+                        r.seconds
+                    );
+                    per_view.push(json!({
+                        "image": name,
+                        "width": v.camera.width,
+                        "height": v.camera.height,
+                        "fill": l.fill(),
+                        "seconds": r.seconds,
+                    }));
+                    Ok(())
+                })?;
+            handheld_io::ply::write_point_cloud(
+                &dir.join("fused.ply"),
+                &cloud,
+                Default::default(),
+            )?;
+            let cameras: Vec<_> = views
+                .iter()
+                .map(|v| {
+                    json!({
+                        "image": v.name,
+                        "camera": v.camera,
+                        "cam_from_world": v.cam_from_world,
+                    })
+                })
+                .collect();
+            handheld_io::atomic::write_bytes_atomic(
+                &dir.join("cameras.json"),
+                &serde_json::to_vec_pretty(&cameras)?,
+            )?;
+            let s = json!({
+                "views": summary.views,
+                "pairs_matched": summary.pairs_matched,
+                "polar_pairs": summary.polar_pairs,
+                "pairs_failed": summary.pairs_failed.iter().map(|(p, why)| json!({"pair": [views[*p].name, views[*p + 1].name], "reason": why})).collect::<Vec<_>>(),
+                "fused_points": summary.fused_points,
+                "seconds_pairs": summary.seconds_pairs,
+                "seconds_linking": summary.seconds_linking,
+                "seconds_per_view": (summary.seconds_pairs + summary.seconds_linking) / summary.views.max(1) as f64,
+                "per_view": per_view,
+            });
+            handheld_io::atomic::write_bytes_atomic(
+                &dir.join("summary.json"),
+                &serde_json::to_vec_pretty(&s)?,
+            )?;
+            outputs.extend([
+                "fused.ply".into(),
+                "cameras.json".into(),
+                "summary.json".into(),
+            ]);
+            let mut short = s.clone();
+            short["per_view"] = json!(null);
+            Ok(StageOutput {
+                outputs,
+                summary: short,
+            })
+        },
+    )
+}

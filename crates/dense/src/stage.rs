@@ -1,0 +1,263 @@
+//! The dense stage (paper §4) over a whole sequence: every adjacent pair is rectified and
+//! matched once, every view is linked through its neighbours (eq. 28, Kalman fusion), and the
+//! linked depths are merged into one coloured point cloud.
+//!
+//! Pairs are computed lazily in a sliding window of `2·max_links` pairs around the current
+//! reference view, so memory stays bounded for long sequences.
+
+use std::time::Instant;
+
+use handheld_core::{Camera, FloatMap, PointCloud, Progress, Rigid3};
+use nalgebra::{Point3, Vector2, Vector3};
+
+use crate::error::{DenseError, Result};
+use crate::link::{link_depth, LinkOptions, LinkView, LinkedDepth};
+use crate::pair::{match_pair, DenseView, PairDisparity, PairOptions};
+
+/// One input view of [`dense_reconstruct`], in sequence order.
+#[derive(Clone, Debug)]
+pub struct DenseInputView {
+    pub name: String,
+    pub camera: Camera,
+    pub cam_from_world: Rigid3,
+    /// RGB or grey, 0..=255, the size of `camera`.
+    pub image: FloatMap,
+}
+
+/// Options of [`dense_reconstruct`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct DenseOptions {
+    pub pair: PairOptions,
+    pub link: LinkOptions,
+    /// Pixel stride of the fused point cloud.
+    pub fused_stride: usize,
+    /// A fused point is skipped when an earlier view's depth map already holds it within this
+    /// relative depth difference.
+    pub fused_duplicate_tolerance: f64,
+}
+
+impl Default for DenseOptions {
+    fn default() -> Self {
+        Self {
+            pair: PairOptions::default(),
+            link: LinkOptions::default(),
+            fused_stride: 2,
+            fused_duplicate_tolerance: 0.01,
+        }
+    }
+}
+
+impl DenseOptions {
+    pub fn validate(&self) -> Result<()> {
+        self.pair.stereo.validate()?;
+        self.pair.rectify.validate()?;
+        self.link.validate()?;
+        if self.fused_stride == 0 {
+            return Err(DenseError::InvalidOption {
+                option: "fused_stride",
+                reason: "must be at least 1".into(),
+            });
+        }
+        Ok(())
+    }
+}
+
+/// The result for one reference view.
+#[derive(Clone, Debug)]
+pub struct DenseViewResult {
+    pub index: usize,
+    pub linked: LinkedDepth,
+    /// Seconds spent on this view (its share of pair matching plus linking).
+    pub seconds: f64,
+}
+
+/// What happened to the whole sequence.
+#[derive(Clone, Debug, Default)]
+pub struct DenseSummary {
+    pub views: usize,
+    pub pairs_matched: usize,
+    /// Pairs that could not be rectified or matched, with the reason.
+    pub pairs_failed: Vec<(usize, String)>,
+    pub polar_pairs: usize,
+    pub fused_points: usize,
+    pub seconds_pairs: f64,
+    pub seconds_linking: f64,
+}
+
+/// Depth of every view of a sequence. `points` are the sparse points (for disparity ranges).
+/// `on_view` receives each view's result as soon as it is ready (to be written out), and the
+/// fused cloud is returned with the summary.
+pub fn dense_reconstruct(
+    views: &[DenseInputView],
+    points: &[Point3<f64>],
+    opts: &DenseOptions,
+    progress: &dyn Progress,
+    mut on_view: impl FnMut(&DenseInputView, DenseViewResult) -> Result<()>,
+) -> Result<(PointCloud, DenseSummary)> {
+    opts.validate()?;
+    if views.len() < 2 {
+        return Err(DenseError::Linking {
+            reason: format!(
+                "dense matching needs at least 2 registered views, got {}",
+                views.len()
+            ),
+        });
+    }
+    for v in views {
+        if (v.image.width, v.image.height) != (v.camera.width as usize, v.camera.height as usize) {
+            return Err(DenseError::Linking {
+                reason: format!(
+                    "{}: image is {}x{} but its camera is {}x{}",
+                    v.name, v.image.width, v.image.height, v.camera.width, v.camera.height
+                ),
+            });
+        }
+    }
+    let n = views.len();
+    let links = opts.link.max_links.max(1);
+    let mut pairs: Vec<Option<PairDisparity>> = vec![None; n - 1];
+    let mut computed = vec![false; n - 1];
+    let mut summary = DenseSummary {
+        views: n,
+        ..Default::default()
+    };
+    let link_views: Vec<LinkView> = views
+        .iter()
+        .map(|v| LinkView {
+            camera: &v.camera,
+            cam_from_world: &v.cam_from_world,
+        })
+        .collect();
+    let mut cloud = PointCloud::default();
+    let mut recent: Vec<(usize, LinkedDepth)> = Vec::new();
+    progress.start("dense", n as u64);
+    for k in 0..n {
+        let t0 = Instant::now();
+        let lo = k.saturating_sub(links);
+        let hi = (k + links).min(n - 1);
+        for p in lo..hi {
+            if computed[p] {
+                continue;
+            }
+            computed[p] = true;
+            let (a, b) = (&views[p], &views[p + 1]);
+            fn dv(v: &DenseInputView) -> DenseView<'_> {
+                DenseView {
+                    camera: &v.camera,
+                    cam_from_world: &v.cam_from_world,
+                    image: &v.image,
+                }
+            }
+            let tp = Instant::now();
+            match match_pair(dv(a), dv(b), points, &opts.pair) {
+                Ok(pd) => {
+                    summary.pairs_matched += 1;
+                    summary.polar_pairs += usize::from(pd.rectification.is_polar());
+                    pairs[p] = Some(pd);
+                }
+                Err(e) => {
+                    tracing::warn!("dense: pair {} – {} skipped: {e}", a.name, b.name);
+                    summary.pairs_failed.push((p, e.to_string()));
+                }
+            }
+            summary.seconds_pairs += tp.elapsed().as_secs_f64();
+        }
+        // Pairs left of the window are no longer needed.
+        for p in pairs.iter_mut().take(lo) {
+            *p = None;
+        }
+        let tl = Instant::now();
+        let linked = link_depth(&link_views, &pairs, k, &opts.link)?;
+        summary.seconds_linking += tl.elapsed().as_secs_f64();
+        append_fused(&mut cloud, &views[k], &linked, &recent, views, opts);
+        recent.retain(|(i, _)| i + links > k);
+        recent.push((k, linked.clone()));
+        on_view(
+            &views[k],
+            DenseViewResult {
+                index: k,
+                linked,
+                seconds: t0.elapsed().as_secs_f64(),
+            },
+        )?;
+        progress.inc(1);
+    }
+    progress.finish();
+    summary.fused_points = cloud.len();
+    Ok((cloud, summary))
+}
+
+/// Adds a view's linked depths to the fused cloud, skipping points an earlier view's depth map
+/// already holds (so each surface patch appears about once).
+fn append_fused(
+    cloud: &mut PointCloud,
+    view: &DenseInputView,
+    linked: &LinkedDepth,
+    recent: &[(usize, LinkedDepth)],
+    views: &[DenseInputView],
+    opts: &DenseOptions,
+) {
+    let world_from_cam = view.cam_from_world.inverse();
+    let (w, h) = (linked.depth.width, linked.depth.height);
+    let s = opts.fused_stride;
+    for y in (0..h).step_by(s) {
+        for x in (0..w).step_by(s) {
+            let z = linked.depth.get(x, y, 0);
+            if !(z.is_finite() && z > 0.0) {
+                continue;
+            }
+            let n = view
+                .camera
+                .intrinsics
+                .pixel_to_normalized(Vector2::new(x as f64, y as f64));
+            let pc = Vector3::new(n.x, n.y, 1.0) * f64::from(z);
+            let pw = world_from_cam.transform_point(&Point3::from(pc));
+            let seen_before = recent.iter().any(|(i, d)| {
+                let o = &views[*i];
+                o.camera.project(&o.cam_from_world, &pw).is_some_and(|m| {
+                    let (xi, yi) = (m.x.round(), m.y.round());
+                    if xi < 0.0
+                        || yi < 0.0
+                        || xi >= d.depth.width as f64
+                        || yi >= d.depth.height as f64
+                    {
+                        return false;
+                    }
+                    let zo = d.depth.get(xi as usize, yi as usize, 0);
+                    let zp = o.cam_from_world.transform_point(&pw).z;
+                    zo.is_finite()
+                        && ((f64::from(zo) - zp) / zp).abs() < opts.fused_duplicate_tolerance
+                })
+            });
+            if seen_before {
+                continue;
+            }
+            cloud
+                .positions
+                .push([pw.x as f32, pw.y as f32, pw.z as f32]);
+            let img = &view.image;
+            let i = (y * img.width + x) * img.channels;
+            let c = if img.channels >= 3 {
+                [img.data[i], img.data[i + 1], img.data[i + 2]]
+            } else {
+                [img.data[i]; 3]
+            };
+            cloud
+                .colors
+                .push(c.map(|v| v.round().clamp(0.0, 255.0) as u8));
+        }
+    }
+}
+
+/// Scales a camera for an image resized by `(sx, sy)` (pixel centres at integer positions).
+pub fn scale_camera(camera: &Camera, sx: f64, sy: f64) -> Camera {
+    let mut c = camera.clone();
+    let i = &mut c.intrinsics;
+    i.f *= sx;
+    i.aspect *= sy / sx;
+    i.skew *= sx;
+    i.pp = Vector2::new((i.pp.x + 0.5) * sx - 0.5, (i.pp.y + 0.5) * sy - 0.5);
+    c.width = (camera.width as f64 * sx).round() as u32;
+    c.height = (camera.height as f64 * sy).round() as u32;
+    c
+}
