@@ -27,7 +27,7 @@ use nalgebra::{Point3, Vector2, Vector3};
 use rayon::prelude::*;
 
 use crate::error::{in_range, positive, MeshError, Result};
-use crate::view::{sample_depth, DepthView, Projector};
+use crate::view::{incidence_map, sample_depth, DepthView, Projector};
 
 /// Voxels per block edge.
 pub const BLOCK: usize = 8;
@@ -210,11 +210,19 @@ impl TsdfVolume {
         view.validate(view_index)?;
         let proj = Projector::new(view.camera, &view.cam_from_world);
         self.allocate(view, &proj, view_index)?;
-        let (vs, trunc) = (self.voxel_size, self.truncation);
-        let (max_w, min_conf) = (self.max_weight, self.min_confidence);
+        let cos = incidence_map(view);
+        let ctx = UpdateContext {
+            view,
+            proj: &proj,
+            cos: &cos,
+            vs: self.voxel_size,
+            trunc: self.truncation,
+            max_w: self.max_weight,
+            min_conf: self.min_confidence,
+        };
         self.blocks
             .par_iter_mut()
-            .for_each(|b| update_block(b, view, &proj, vs, trunc, max_w, min_conf));
+            .for_each(|b| update_block(b, &ctx));
         Ok(())
     }
 
@@ -379,16 +387,27 @@ fn merge_sets(mut a: HashSet<[i32; 3]>, b: HashSet<[i32; 3]>) -> HashSet<[i32; 3
     a
 }
 
-/// The update pass of one block for one view (see the module documentation).
-fn update_block(
-    b: &mut Block,
-    view: &DepthView,
-    proj: &Projector,
+/// What the update pass needs of one view.
+struct UpdateContext<'a> {
+    view: &'a DepthView<'a>,
+    proj: &'a Projector,
+    /// Per-pixel incidence cosine ([`incidence_map`]).
+    cos: &'a [f32],
     vs: f64,
     trunc: f64,
     max_w: f32,
     min_conf: f64,
-) {
+}
+
+/// Smallest incidence cosine used (about 78°): beyond it the normal estimate is unreliable.
+const MIN_COS: f64 = 0.2;
+
+/// The update pass of one block for one view (see the module documentation). The distance along
+/// the line of sight is multiplied by the incidence cosine, which turns it into the distance to the
+/// (locally planar) surface, so the band has the same thickness at grazing angles; the sample's
+/// weight is its confidence times that cosine (Curless & Levoy 1996, §4).
+fn update_block(b: &mut Block, ctx: &UpdateContext) {
+    let (view, proj, vs, trunc) = (ctx.view, ctx.proj, ctx.vs, ctx.trunc);
     let n = BLOCK as f64;
     let origin = Vector3::new(b.key[0] as f64, b.key[1] as f64, b.key[2] as f64) * n * vs;
     // Cheap rejection: the block's bounding sphere is behind the camera.
@@ -416,22 +435,24 @@ fn update_block(
                 if rx < 0 || ry < 0 || rx >= wi || ry >= hi {
                     continue;
                 }
-                let wgt = view.weight(ry as usize * w + rx as usize, min_conf);
-                if wgt <= 0.0 {
+                let pix = ry as usize * w + rx as usize;
+                let conf = view.weight(pix, ctx.min_conf);
+                if conf <= 0.0 {
                     continue;
                 }
                 let Some(d) = sample_depth(view.depth, &px, 0.5 * trunc / pc.z) else {
                     continue;
                 };
-                let sdf = (d - pc.z) * pc.norm() / pc.z;
+                let cos = (ctx.cos[pix] as f64).max(MIN_COS);
+                let sdf = (d - pc.z) * pc.norm() / pc.z * cos;
                 if sdf < -trunc {
                     continue;
                 }
                 let i = x + BLOCK * (y + BLOCK * z);
                 let v = (sdf / trunc).min(1.0) as f32;
-                let (old_w, new_w) = (b.weight[i], wgt as f32);
+                let (old_w, new_w) = (b.weight[i], (conf * cos) as f32);
                 b.tsdf[i] = (b.tsdf[i] * old_w + v * new_w) / (old_w + new_w);
-                b.weight[i] = (old_w + new_w).min(max_w);
+                b.weight[i] = (old_w + new_w).min(ctx.max_w);
                 if sdf < trunc {
                     b.observations[i] = b.observations[i].saturating_add(1);
                 }

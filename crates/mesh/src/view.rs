@@ -216,6 +216,72 @@ impl Projector {
     }
 }
 
+/// Per pixel, `|cos|` of the angle between the viewing ray and the surface normal estimated from
+/// the depth map (cross product of the lifted right/down neighbours, falling back to left/up; a
+/// neighbour farther than 10% in depth is a discontinuity, not surface). Pixels without a usable
+/// neighbourhood get 1. Curless & Levoy 1996 weigh samples by this cosine; the fusion also uses it
+/// to turn distances along the line of sight into distances to the surface.
+pub(crate) fn incidence_map(view: &DepthView) -> Vec<f32> {
+    use rayon::prelude::*;
+    let (w, h) = (view.depth.width, view.depth.height);
+    let k = &view.camera.intrinsics;
+    let ray_row = |y: usize| -> Vec<Vector3<f64>> {
+        (0..w)
+            .map(|x| {
+                let n = k.pixel_to_normalized(Vector2::new(x as f64, y as f64));
+                Vector3::new(n.x, n.y, 1.0)
+            })
+            .collect()
+    };
+    let depth = |x: usize, y: usize| -> Option<f64> {
+        let d = view.depth.data[y * w + x];
+        (d.is_finite() && d > 0.0).then_some(d as f64)
+    };
+    (0..h)
+        .into_par_iter()
+        .flat_map_iter(|y| {
+            let rows: Vec<Option<Vec<Vector3<f64>>>> =
+                [y.checked_sub(1), Some(y), (y + 1 < h).then_some(y + 1)]
+                    .iter()
+                    .map(|r| r.map(ray_row))
+                    .collect();
+            let mut out = vec![1f32; w];
+            for (x, o) in out.iter_mut().enumerate() {
+                let Some(d0) = depth(x, y) else { continue };
+                let centre = rows[1].as_ref().map(|r| r[x] * d0).unwrap_or_default();
+                let near = |xx: usize, yy: usize, row: usize| -> Option<Vector3<f64>> {
+                    let d = depth(xx, yy)?;
+                    ((d - d0).abs() <= 0.1 * d0).then(|| rows[row].as_ref().map(|r| r[xx] * d))?
+                };
+                let dx = (x + 1 < w)
+                    .then(|| near(x + 1, y, 1).map(|p| p - centre))
+                    .flatten()
+                    .or_else(|| {
+                        (x > 0)
+                            .then(|| near(x - 1, y, 1).map(|p| centre - p))
+                            .flatten()
+                    });
+                let dy = (y + 1 < h)
+                    .then(|| near(x, y + 1, 2).map(|p| p - centre))
+                    .flatten()
+                    .or_else(|| {
+                        (y > 0)
+                            .then(|| near(x, y - 1, 0).map(|p| centre - p))
+                            .flatten()
+                    });
+                if let (Some(a), Some(b)) = (dx, dy) {
+                    let n = a.cross(&b);
+                    let denom = n.norm() * centre.norm();
+                    if denom > 0.0 {
+                        *o = (n.dot(&centre).abs() / denom) as f32;
+                    }
+                }
+            }
+            out
+        })
+        .collect()
+}
+
 /// Bilinear sample of a one-channel depth map at a (distorted) pixel position. The four
 /// neighbours must all be valid and within `max_rel_spread` of each other (relative), else the
 /// nearest valid neighbour is returned, so depths never blend across a discontinuity.

@@ -1,0 +1,48 @@
+//! A small rendered synthetic sequence shared by the integration tests.
+
+#![allow(dead_code)]
+
+use handheld_mesh::{DepthView, ImageView};
+use handheld_testkit::{render_sequence, SequenceOptions, SyntheticSequence};
+
+/// `n` frames of the default orbit at `width`×`height` (¾ aspect), exact depth, no image noise.
+pub fn sequence(n: usize, width: u32) -> SyntheticSequence {
+    let opts = SequenceOptions {
+        seed: 7,
+        width,
+        height: width * 3 / 4,
+        num_frames: n,
+        samples_per_axis: 1,
+        image_noise_sigma: 0.0,
+        ..SequenceOptions::default()
+    };
+    render_sequence(&opts).expect("valid sequence options")
+}
+
+pub fn depth_views(seq: &SyntheticSequence) -> Vec<DepthView<'_>> {
+    (0..seq.depths.len())
+        .filter_map(|i| {
+            let (camera, pose) = seq.frame(i)?;
+            Some(DepthView {
+                camera,
+                cam_from_world: *pose,
+                depth: &seq.depths[i],
+                confidence: None,
+            })
+        })
+        .collect()
+}
+
+pub fn image_views(seq: &SyntheticSequence) -> Vec<ImageView<'_>> {
+    (0..seq.images.len())
+        .filter_map(|i| {
+            let (camera, pose) = seq.frame(i)?;
+            Some(ImageView {
+                camera,
+                cam_from_world: *pose,
+                image: &seq.images[i],
+                depth: Some(&seq.depths[i]),
+            })
+        })
+        .collect()
+}
