@@ -131,3 +131,89 @@ pub(crate) fn compact(mesh: &TriMesh, faces: &[[u32; 3]]) -> TriMesh {
     out.compute_vertex_normals();
     out
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::marching_cubes::{extract_mesh, ExtractOptions};
+    use crate::topology::edge_report;
+    use crate::tsdf::TsdfVolume;
+    use handheld_core::NoProgress;
+    use nalgebra::{Point3, Vector3};
+    use std::collections::HashSet;
+
+    /// A sphere with its top cut off: an open border to preserve.
+    fn open_sphere() -> TriMesh {
+        let c = Point3::new(0.1, 0.2, 0.3);
+        let vol = TsdfVolume::from_sdf(
+            0.03,
+            4.0,
+            c - Vector3::repeat(1.0),
+            c + Vector3::repeat(1.0),
+            |p| (p - c).norm() - 0.8,
+        )
+        .unwrap();
+        let opts = ExtractOptions {
+            min_observations: 1,
+            ..Default::default()
+        };
+        let m = extract_mesh(&vol, &opts, &NoProgress).unwrap();
+        let kept: Vec<[u32; 3]> = m
+            .faces
+            .iter()
+            .filter(|f| f.iter().all(|&i| m.vertices.positions[i as usize][2] < 0.7))
+            .copied()
+            .collect();
+        compact(&m, &kept)
+    }
+
+    fn border_positions(m: &TriMesh) -> HashSet<[u32; 3]> {
+        let mut directed = HashSet::new();
+        for f in &m.faces {
+            for k in 0..3 {
+                directed.insert((f[k], f[(k + 1) % 3]));
+            }
+        }
+        directed
+            .iter()
+            .filter(|(a, b)| !directed.contains(&(*b, *a)))
+            .flat_map(|(a, b)| [*a, *b])
+            .map(|i| m.vertices.positions[i as usize].map(f32::to_bits))
+            .collect()
+    }
+
+    #[test]
+    fn reaches_the_target_and_keeps_the_border() {
+        let mesh = open_sphere();
+        assert!(edge_report(&mesh).0 > 50, "the cut leaves a border");
+        let target = mesh.faces.len() / 10;
+        let opts = SimplifyOptions {
+            target_faces: target,
+            max_relative_error: 1.0,
+            lock_border: true,
+        };
+        let (out, s) = simplify(&mesh, &opts).unwrap();
+        out.validate().unwrap();
+        assert_eq!(s.faces_before, mesh.faces.len());
+        assert!(
+            s.faces_after <= target && s.faces_after * 10 >= target * 8,
+            "{s:?}"
+        );
+        assert!(border_positions(&mesh).is_subset(&border_positions(&out)));
+        assert_eq!(edge_report(&out).1, 0, "still manifold");
+        // Below the target already: unchanged.
+        let (same, s2) = simplify(&out, &opts).unwrap();
+        assert_eq!(
+            (same.faces.len(), s2.relative_error),
+            (out.faces.len(), 0.0)
+        );
+        let bad = SimplifyOptions {
+            target_faces: 0,
+            ..opts
+        };
+        assert!(matches!(
+            simplify(&mesh, &bad),
+            Err(MeshError::InvalidOption { .. })
+        ));
+    }
+}
