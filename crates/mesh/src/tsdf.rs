@@ -289,7 +289,7 @@ impl TsdfVolume {
         if self.blocks.len() + new.len() > self.max_blocks {
             return Err(MeshError::TooManyBlocks {
                 limit: self.max_blocks,
-                bytes_mib: (self.blocks.len() + new.len()) * BLOCK_BYTES >> 20,
+                bytes_mib: ((self.blocks.len() + new.len()) * BLOCK_BYTES) >> 20,
                 voxel_size: self.voxel_size,
             });
         }
@@ -332,7 +332,7 @@ impl TsdfVolume {
                     if vol.blocks.len() >= vol.max_blocks {
                         return Err(MeshError::TooManyBlocks {
                             limit: vol.max_blocks,
-                            bytes_mib: vol.blocks.len() * BLOCK_BYTES >> 20,
+                            bytes_mib: (vol.blocks.len() * BLOCK_BYTES) >> 20,
                             voxel_size,
                         });
                     }
