@@ -40,6 +40,8 @@ pub enum Command {
     Features(IngestArgs),
     /// Run the pipeline up to the matches stage (verified pairs in COLMAP's database.db).
     Match(IngestArgs),
+    /// The dense stage alone (§4) on a COLMAP model and its images: depth maps and fused.ply.
+    Dense(DenseModelArgs),
     /// Dense matching of one already-rectified pair (§4.2): the left view's disparity as PFM.
     Stereo(crate::stereo::StereoArgs),
     /// Benchmarks; each prints one JSON object (use with --json).
@@ -60,6 +62,8 @@ pub enum BenchCommand {
     Matching(crate::bench_matching::BenchMatchingArgs),
     /// SGM and DP stereo on the Middlebury pairs, scored against GT (compare with OpenCV SGBM).
     Stereo(crate::stereo::BenchStereoArgs),
+    /// Dense targets: multi-view linking curve, polar rectification, pair speed.
+    Dense(crate::bench_dense::BenchDenseArgs),
 }
 
 /// Camera path of the synthetic sequence.
@@ -174,6 +178,13 @@ pub struct InputArgs {
     /// of width + height (eq. 25's u ≈ v ≈ 0 in K_N units).
     #[arg(long, default_value_t = 0.005)]
     pub principal_point_prior: f64,
+    #[command(flatten)]
+    pub dense: DenseArgs,
+}
+
+/// Options of the dense stage (§4).
+#[derive(Debug, Clone, Args)]
+pub struct DenseArgs {
     /// Dense: images are downscaled so their longer side is at most this (0 = full resolution).
     #[arg(long, default_value_t = 1600)]
     pub dense_max_size: u32,
@@ -186,6 +197,33 @@ pub struct InputArgs {
     /// Dense: V_min, the fewest views a kept depth must be linked through (reference included).
     #[arg(long, default_value_t = 3)]
     pub min_visibility: usize,
+}
+
+impl Default for DenseArgs {
+    fn default() -> Self {
+        Self {
+            dense_max_size: 1600,
+            stereo_method: StereoMethodArg::Sgm,
+            link_views: 11,
+            min_visibility: 3,
+        }
+    }
+}
+
+/// `handheld dense`: the dense stage alone, on any COLMAP model and its images.
+#[derive(Debug, Args)]
+pub struct DenseModelArgs {
+    /// A COLMAP sparse model (text or binary), e.g. WORKSPACE/sparse or COLMAP's sparse/0.
+    #[arg(long)]
+    pub model: PathBuf,
+    /// The folder holding the model's images (by the names in images.txt).
+    #[arg(long)]
+    pub images: PathBuf,
+    /// Output folder (the layout of WORKSPACE/dense).
+    #[arg(long, short)]
+    pub output: PathBuf,
+    #[command(flatten)]
+    pub dense: DenseArgs,
 }
 
 /// Stereo matcher of the dense stage.

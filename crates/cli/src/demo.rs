@@ -332,10 +332,7 @@ pub fn run(a: &DemoArgs, g: &GlobalArgs, bars: &Bars) -> Result<()> {
         aspect: crate::args::AspectArg::Auto,
         fixed_principal_point: false,
         principal_point_prior: 0.005,
-        dense_max_size: 1600,
-        stereo_method: crate::args::StereoMethodArg::Sgm,
-        link_views: 11,
-        min_visibility: 3,
+        dense: crate::args::DenseArgs::default(),
     };
     let reports = pipeline::run(&input, pipeline::Stage::LAST, bars)?;
     let matching = matching_accuracy(&a.output, &workspace, a.video)

@@ -3,6 +3,7 @@
 
 mod args;
 mod bench_bundle;
+mod bench_dense;
 mod bench_matching;
 mod demo;
 mod demo_dense;
@@ -69,8 +70,20 @@ fn run(cmd: &Command, g: &GlobalArgs) -> anyhow::Result<()> {
             BenchCommand::Bundle(a) => bench_bundle::run(a, g, &bars),
             BenchCommand::Matching(a) => bench_matching::run(a, g, &bars),
             BenchCommand::Stereo(a) => stereo::bench(a, g),
+            BenchCommand::Dense(a) => bench_dense::run(a, g),
         },
         Command::Stereo(a) => stereo::run(a, g),
+        Command::Dense(a) => {
+            let summary = stages::dense::run_on_model(a, &bars)?;
+            let human = format!(
+                "dense: {} → {}\n  {}",
+                a.model.display(),
+                a.output.display(),
+                summary
+            );
+            ui::print_result(g, &summary, &human);
+            Ok(())
+        }
         Command::Ingest(a) => run_until(g, a, pipeline::Stage::Ingest, &bars),
         Command::Features(a) => run_until(g, a, pipeline::Stage::Features, &bars),
         Command::Match(a) => run_until(g, a, pipeline::Stage::Matches, &bars),

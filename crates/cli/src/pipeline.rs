@@ -148,7 +148,7 @@ pub fn run(a: &InputArgs, until: Stage, bars: &Bars) -> Result<Vec<StageReport>>
     let feature_opts = stages::features::options(a)?;
     let match_opts = stages::matches::options(a)?;
     let sparse_opts = stages::sparse::options(a)?;
-    let dense_opts = stages::dense::options(a)?;
+    let dense_opts = stages::dense::options(&a.dense)?;
     if !a.input.exists() {
         anyhow::bail!("{}: does not exist", a.input.display());
     }

@@ -11,8 +11,8 @@
 //!
 //! Video workspaces use their key-frames only.
 
-use std::collections::BTreeSet;
-use std::path::Path;
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use handheld_core::{FloatMap, ImageId, MetricReconstruction};
@@ -25,7 +25,7 @@ use handheld_io::workspace::{Fingerprint, Workspace};
 use rayon::prelude::*;
 use serde_json::json;
 
-use crate::args::{InputArgs, StereoMethodArg};
+use crate::args::{DenseArgs, DenseModelArgs, StereoMethodArg};
 use crate::pipeline::{run_stage, Stage, StageOutput, StageReport};
 use crate::ui::Bars;
 
@@ -36,7 +36,7 @@ pub struct DenseStageOptions {
     pub fingerprint: serde_json::Value,
 }
 
-pub fn options(a: &InputArgs) -> Result<DenseStageOptions> {
+pub fn options(a: &DenseArgs) -> Result<DenseStageOptions> {
     if a.link_views < 3 || a.link_views % 2 == 0 {
         anyhow::bail!(
             "--link-views must be odd and at least 3, got {}",
@@ -97,12 +97,11 @@ fn key_views(ws: &Workspace, rec: &MetricReconstruction) -> Result<Vec<ImageId>>
 }
 
 fn load_views(
-    ws: &Workspace,
+    paths: &BTreeMap<String, PathBuf>,
     rec: &MetricReconstruction,
     ids: &[ImageId],
     max_size: u32,
 ) -> Result<Vec<DenseInputView>> {
-    let ingest = super::load_ingest(ws)?;
     let opts = ImageIngestOptions {
         min_dimension: 1,
         ..Default::default()
@@ -110,28 +109,21 @@ fn load_views(
     ids.par_iter()
         .map(|id| {
             let view = &rec.views[id];
-            let info = ingest
-                .images
-                .iter()
-                .find(|i| i.info.name == view.name)
-                .with_context(|| {
-                    format!(
-                        "{}: not in the ingest stage (rerun with --force)",
-                        view.name
-                    )
-                })?;
+            let path = paths
+                .get(&view.name)
+                .with_context(|| format!("{}: no such image among the inputs", view.name))?;
             let camera = rec
                 .cameras
                 .get(&view.camera_id)
                 .with_context(|| format!("{}: camera missing from the sparse model", view.name))?;
-            let img = load_image(&info.info.path, &opts)
-                .with_context(|| format!("{}: cannot read the image", info.info.path.display()))?
+            let img = load_image(&path, &opts)
+                .with_context(|| format!("{}: cannot read the image", path.display()))?
                 .image
                 .to_rgb8();
             if (img.width(), img.height()) != (camera.width, camera.height) {
                 anyhow::bail!(
                     "{}: image is {}x{} but the sparse model says {}x{} (rerun with --force)",
-                    info.info.path.display(),
+                    path.display(),
                     img.width(),
                     img.height(),
                     camera.width,
@@ -231,120 +223,146 @@ pub fn run(
             let rec = handheld_io::colmap::read_reconstruction(&sparse)
                 .with_context(|| format!("{}: cannot read the sparse model", sparse.display()))?;
             let ids = key_views(ws, &rec)?;
-            let views = load_views(ws, &rec, &ids, opts.max_size)?;
-            let points: Vec<_> = rec.points.values().map(|p| p.xyz).collect();
-            for sub in ["depth", "variance", "confidence", "visibility", "preview"] {
-                std::fs::create_dir_all(dir.join(sub))?;
-            }
-            let mut per_view = Vec::new();
-            let mut outputs = Vec::new();
-            let (cloud, summary) =
-                dense_reconstruct(&views, &points, &opts.dense, bars, |v, r| {
-                    let name = &v.name;
-                    let l = &r.linked;
-                    let conf = FloatMap {
-                        data: l
-                            .depth
-                            .data
-                            .iter()
-                            .zip(&l.variance.data)
-                            .map(|(z, var)| {
-                                if z.is_finite() {
-                                    1.0 / (1.0 + var.sqrt() / (0.005 * z))
-                                } else {
-                                    0.0
-                                }
-                            })
-                            .collect(),
-                        ..l.depth.clone()
-                    };
-                    let write = || -> Result<()> {
-                        for (sub, map) in [
-                            ("depth", &l.depth),
-                            ("variance", &l.variance),
-                            ("confidence", &conf),
-                            ("visibility", &l.visibility),
-                        ] {
-                            handheld_io::pfm::write_pfm(
-                                &dir.join(sub).join(format!("{name}.pfm")),
-                                map,
-                            )?;
-                        }
-                        preview(
-                            &l.depth,
-                            &dir.join("preview").join(format!("{name}.depth.png")),
-                        )?;
-                        preview(
-                            &l.visibility,
-                            &dir.join("preview").join(format!("{name}.visibility.png")),
-                        )?;
-                        Ok(())
-                    };
-                    write().map_err(|e| handheld_dense::DenseError::Linking {
-                        reason: format!("{name}: cannot write the maps: {e:#}"),
-                    })?;
-                    for sub in ["depth", "variance", "confidence", "visibility"] {
-                        outputs.push(format!("{sub}/{name}.pfm"));
-                    }
-                    tracing::info!(
-                        "dense: {name}: {:.1} % filled in {:.2} s",
-                        l.fill() * 100.0,
-                        r.seconds
-                    );
-                    per_view.push(json!({
-                        "image": name,
-                        "width": v.camera.width,
-                        "height": v.camera.height,
-                        "fill": l.fill(),
-                        "seconds": r.seconds,
-                    }));
-                    Ok(())
-                })?;
-            handheld_io::ply::write_point_cloud(
-                &dir.join("fused.ply"),
-                &cloud,
-                Default::default(),
-            )?;
-            let cameras: Vec<_> = views
-                .iter()
-                .map(|v| {
-                    json!({
-                        "image": v.name,
-                        "camera": v.camera,
-                        "cam_from_world": v.cam_from_world,
-                    })
-                })
+            let paths = super::load_ingest(ws)?
+                .images
+                .into_iter()
+                .map(|i| (i.info.name, i.info.path))
                 .collect();
-            handheld_io::atomic::write_bytes_atomic(
-                &dir.join("cameras.json"),
-                &serde_json::to_vec_pretty(&cameras)?,
-            )?;
-            let s = json!({
-                "views": summary.views,
-                "pairs_matched": summary.pairs_matched,
-                "polar_pairs": summary.polar_pairs,
-                "pairs_failed": summary.pairs_failed.iter().map(|(p, why)| json!({"pair": [views[*p].name, views[*p + 1].name], "reason": why})).collect::<Vec<_>>(),
-                "fused_points": summary.fused_points,
-                "seconds_pairs": summary.seconds_pairs,
-                "seconds_linking": summary.seconds_linking,
-                "seconds_per_view": (summary.seconds_pairs + summary.seconds_linking) / summary.views.max(1) as f64,
-                "per_view": per_view,
-            });
-            handheld_io::atomic::write_bytes_atomic(
-                &dir.join("summary.json"),
-                &serde_json::to_vec_pretty(&s)?,
-            )?;
-            outputs.extend([
-                "fused.ply".into(),
-                "cameras.json".into(),
-                "summary.json".into(),
-            ]);
-            let mut short = s.clone();
-            short["per_view"] = json!(null);
-            Ok(StageOutput {
-                outputs,
-                summary: short,
-            })
+            densify(&rec, &paths, &ids, opts, dir, bars)
         },
     )
+}
+
+/// Densifies the views `ids` of `rec` (images found through `paths`, by view name) into `dir`.
+pub fn densify(
+    rec: &MetricReconstruction,
+    paths: &BTreeMap<String, PathBuf>,
+    ids: &[ImageId],
+    opts: &DenseStageOptions,
+    dir: &Path,
+    bars: &Bars,
+) -> Result<StageOutput> {
+    let views = load_views(paths, rec, ids, opts.max_size)?;
+    let points: Vec<_> = rec.points.values().map(|p| p.xyz).collect();
+    for sub in ["depth", "variance", "confidence", "visibility", "preview"] {
+        std::fs::create_dir_all(dir.join(sub))?;
+    }
+    let mut per_view = Vec::new();
+    let mut outputs = Vec::new();
+    let (cloud, summary) = dense_reconstruct(&views, &points, &opts.dense, bars, |v, r| {
+        let name = &v.name;
+        let l = &r.linked;
+        let conf = FloatMap {
+            data: l
+                .depth
+                .data
+                .iter()
+                .zip(&l.variance.data)
+                .map(|(z, var)| {
+                    if z.is_finite() {
+                        1.0 / (1.0 + var.sqrt() / (0.005 * z))
+                    } else {
+                        0.0
+                    }
+                })
+                .collect(),
+            ..l.depth.clone()
+        };
+        let write = || -> Result<()> {
+            for (sub, map) in [
+                ("depth", &l.depth),
+                ("variance", &l.variance),
+                ("confidence", &conf),
+                ("visibility", &l.visibility),
+            ] {
+                handheld_io::pfm::write_pfm(&dir.join(sub).join(format!("{name}.pfm")), map)?;
+            }
+            preview(
+                &l.depth,
+                &dir.join("preview").join(format!("{name}.depth.png")),
+            )?;
+            preview(
+                &l.visibility,
+                &dir.join("preview").join(format!("{name}.visibility.png")),
+            )?;
+            Ok(())
+        };
+        write().map_err(|e| handheld_dense::DenseError::Linking {
+            reason: format!("{name}: cannot write the maps: {e:#}"),
+        })?;
+        for sub in ["depth", "variance", "confidence", "visibility"] {
+            outputs.push(format!("{sub}/{name}.pfm"));
+        }
+        tracing::info!(
+            "dense: {name}: {:.1} % filled in {:.2} s",
+            l.fill() * 100.0,
+            r.seconds
+        );
+        per_view.push(json!({
+            "image": name,
+            "width": v.camera.width,
+            "height": v.camera.height,
+            "fill": l.fill(),
+            "seconds": r.seconds,
+        }));
+        Ok(())
+    })?;
+    handheld_io::ply::write_point_cloud(&dir.join("fused.ply"), &cloud, Default::default())?;
+    let cameras: Vec<_> = views
+        .iter()
+        .map(|v| {
+            json!({
+                "image": v.name,
+                "camera": v.camera,
+                "cam_from_world": v.cam_from_world,
+            })
+        })
+        .collect();
+    handheld_io::atomic::write_bytes_atomic(
+        &dir.join("cameras.json"),
+        &serde_json::to_vec_pretty(&cameras)?,
+    )?;
+    let s = json!({
+        "views": summary.views,
+        "pairs_matched": summary.pairs_matched,
+        "polar_pairs": summary.polar_pairs,
+        "pairs_failed": summary.pairs_failed.iter().map(|(p, why)| json!({"pair": [views[*p].name, views[*p + 1].name], "reason": why})).collect::<Vec<_>>(),
+        "fused_points": summary.fused_points,
+        "seconds_pairs": summary.seconds_pairs,
+        "seconds_linking": summary.seconds_linking,
+        "seconds_per_view": (summary.seconds_pairs + summary.seconds_linking) / summary.views.max(1) as f64,
+        "per_view": per_view,
+    });
+    handheld_io::atomic::write_bytes_atomic(
+        &dir.join("summary.json"),
+        &serde_json::to_vec_pretty(&s)?,
+    )?;
+    outputs.extend([
+        "fused.ply".into(),
+        "cameras.json".into(),
+        "summary.json".into(),
+    ]);
+    let mut short = s.clone();
+    short["per_view"] = json!(null);
+    Ok(StageOutput {
+        outputs,
+        summary: short,
+    })
+}
+
+/// `handheld dense --model M --images I -o OUT`: the dense stage on any COLMAP model.
+pub fn run_on_model(a: &DenseModelArgs, bars: &Bars) -> Result<serde_json::Value> {
+    let opts = options(&a.dense)?;
+    let rec = handheld_io::colmap::read_reconstruction(&a.model)
+        .with_context(|| format!("{}: cannot read the COLMAP model", a.model.display()))?;
+    let paths: BTreeMap<String, PathBuf> = rec
+        .views
+        .values()
+        .map(|v| (v.name.clone(), a.images.join(&v.name)))
+        .collect();
+    let ids: Vec<ImageId> = rec.views.keys().copied().collect();
+    std::fs::create_dir_all(&a.output)
+        .with_context(|| format!("{}: cannot create", a.output.display()))?;
+    let out = densify(&rec, &paths, &ids, &opts, &a.output, bars)?;
+    Ok(out.summary)
 }
