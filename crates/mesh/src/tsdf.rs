@@ -59,7 +59,8 @@ pub struct TsdfOptions {
     /// Cap on the accumulated weight of a voxel (keeps the average responsive). Default 1e4.
     pub max_weight: f64,
     /// Upper bound on the number of blocks; exceeding it is an error, not a silent crop.
-    /// Default 500 000 (about 2.3 GB).
+    /// Default 300 000 (about 1.4 GB of voxels; with the extracted mesh the stage stays near 4 GB
+    /// at that size).
     pub max_blocks: usize,
 }
 
@@ -70,7 +71,7 @@ impl Default for TsdfOptions {
             truncation_voxels: 4.0,
             min_confidence: 0.0,
             max_weight: 1e4,
-            max_blocks: 500_000,
+            max_blocks: 300_000,
         }
     }
 }
@@ -410,17 +411,22 @@ fn update_block(b: &mut Block, ctx: &UpdateContext) {
     let (view, proj, vs, trunc) = (ctx.view, ctx.proj, ctx.vs, ctx.trunc);
     let n = BLOCK as f64;
     let origin = Vector3::new(b.key[0] as f64, b.key[1] as f64, b.key[2] as f64) * n * vs;
-    // Cheap rejection: the block's bounding sphere is behind the camera.
-    let centre = proj.rot * (origin + Vector3::repeat(0.5 * (n - 1.0) * vs)) + proj.trans;
-    if centre.z < -(n * vs) {
-        return;
-    }
     let base = proj.rot * origin + proj.trans;
     let (ex, ey, ez) = (
         proj.rot.column(0) * vs,
         proj.rot.column(1) * vs,
         proj.rot.column(2) * vs,
     );
+    // Cheap rejection: the block's eight corner voxels all outside the frustum (or behind).
+    let m = n - 1.0;
+    let corners: [Vector3<f64>; 8] = std::array::from_fn(|c| {
+        base + ex * (m * (c & 1) as f64)
+            + ey * (m * (c >> 1 & 1) as f64)
+            + ez * (m * (c >> 2 & 1) as f64)
+    });
+    if proj.outside_frustum(&corners) {
+        return;
+    }
     let w = view.depth.width;
     let (wi, hi) = (view.depth.width as i64, view.depth.height as i64);
     for z in 0..BLOCK {

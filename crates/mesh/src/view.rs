@@ -163,6 +163,9 @@ pub(crate) struct Projector {
     pub trans: Vector3<f64>,
     pub center: Point3<f64>,
     max_radius2: f64,
+    /// Bounds `[x_min, x_max, y_min, y_max]` of the image border in normalised (undistorted)
+    /// coordinates, with a small margin.
+    pub bounds: [f64; 4],
 }
 
 impl Projector {
@@ -179,13 +182,59 @@ impl Projector {
             .iter()
             .map(|&(x, y)| k.pixel_to_normalized(Vector2::new(x, y)).norm())
             .fold(0.0, f64::max);
+        let mut bounds = [
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+        ];
+        let steps = 64;
+        for i in 0..=steps {
+            let t = i as f64 / steps as f64;
+            let (x, y) = (-0.5 + t * w, -0.5 + t * h);
+            for (px, py) in [(x, -0.5), (x, h - 0.5), (-0.5, y), (w - 0.5, y)] {
+                let n = k.pixel_to_normalized(Vector2::new(px, py));
+                bounds = [
+                    bounds[0].min(n.x),
+                    bounds[1].max(n.x),
+                    bounds[2].min(n.y),
+                    bounds[3].max(n.y),
+                ];
+            }
+        }
+        let (mx, my) = (
+            0.02 * (bounds[1] - bounds[0]),
+            0.02 * (bounds[3] - bounds[2]),
+        );
         Self {
             camera: camera.clone(),
             rot: *cam_from_world.rotation.to_rotation_matrix().matrix(),
             trans: cam_from_world.translation.vector,
             center: center_of(cam_from_world),
             max_radius2: (1.05 * r).powi(2),
+            bounds: [
+                bounds[0] - mx,
+                bounds[1] + mx,
+                bounds[2] - my,
+                bounds[3] + my,
+            ],
         }
+    }
+
+    /// True when the convex hull of the camera-frame points `pc` certainly misses the view frustum:
+    /// all behind the camera, or all (in front) beyond one side of the image.
+    pub fn outside_frustum(&self, pc: &[Vector3<f64>]) -> bool {
+        if pc.iter().all(|p| p.z <= 0.0) {
+            return true;
+        }
+        if pc.iter().any(|p| p.z <= 0.0) {
+            return false;
+        }
+        let b = &self.bounds;
+        pc.iter().all(|p| p.x < b[0] * p.z)
+            || pc.iter().all(|p| p.x > b[1] * p.z)
+            || pc.iter().all(|p| p.y < b[2] * p.z)
+            || pc.iter().all(|p| p.y > b[3] * p.z)
     }
 
     /// World point → camera frame.
@@ -237,43 +286,46 @@ pub(crate) fn incidence_map(view: &DepthView) -> Vec<f32> {
         let d = view.depth.data[y * w + x];
         (d.is_finite() && d > 0.0).then_some(d as f64)
     };
-    (0..h)
+    // Rows in chunks, each computing its rays (one undistortion per pixel) plus a one-row border.
+    const CHUNK: usize = 32;
+    (0..h.div_ceil(CHUNK))
         .into_par_iter()
-        .flat_map_iter(|y| {
-            let rows: Vec<Option<Vec<Vector3<f64>>>> =
-                [y.checked_sub(1), Some(y), (y + 1 < h).then_some(y + 1)]
-                    .iter()
-                    .map(|r| r.map(ray_row))
-                    .collect();
-            let mut out = vec![1f32; w];
-            for (x, o) in out.iter_mut().enumerate() {
-                let Some(d0) = depth(x, y) else { continue };
-                let centre = rows[1].as_ref().map(|r| r[x] * d0).unwrap_or_default();
-                let near = |xx: usize, yy: usize, row: usize| -> Option<Vector3<f64>> {
-                    let d = depth(xx, yy)?;
-                    ((d - d0).abs() <= 0.1 * d0).then(|| rows[row].as_ref().map(|r| r[xx] * d))?
-                };
-                let dx = (x + 1 < w)
-                    .then(|| near(x + 1, y, 1).map(|p| p - centre))
-                    .flatten()
-                    .or_else(|| {
-                        (x > 0)
-                            .then(|| near(x - 1, y, 1).map(|p| centre - p))
-                            .flatten()
-                    });
-                let dy = (y + 1 < h)
-                    .then(|| near(x, y + 1, 2).map(|p| p - centre))
-                    .flatten()
-                    .or_else(|| {
-                        (y > 0)
-                            .then(|| near(x, y - 1, 0).map(|p| centre - p))
-                            .flatten()
-                    });
-                if let (Some(a), Some(b)) = (dx, dy) {
-                    let n = a.cross(&b);
-                    let denom = n.norm() * centre.norm();
-                    if denom > 0.0 {
-                        *o = (n.dot(&centre).abs() / denom) as f32;
+        .flat_map_iter(|c| {
+            let (y0, y1) = (c * CHUNK, ((c + 1) * CHUNK).min(h));
+            let first = y0.saturating_sub(1);
+            let rays: Vec<Vec<Vector3<f64>>> = (first..(y1 + 1).min(h)).map(ray_row).collect();
+            let ray = |x: usize, y: usize| rays[y - first][x];
+            let mut out = vec![1f32; (y1 - y0) * w];
+            for y in y0..y1 {
+                for x in 0..w {
+                    let Some(d0) = depth(x, y) else { continue };
+                    let centre = ray(x, y) * d0;
+                    let near = |xx: usize, yy: usize| -> Option<Vector3<f64>> {
+                        let d = depth(xx, yy)?;
+                        ((d - d0).abs() <= 0.1 * d0).then(|| ray(xx, yy) * d)
+                    };
+                    let dx = (x + 1 < w)
+                        .then(|| near(x + 1, y).map(|p| p - centre))
+                        .flatten()
+                        .or_else(|| {
+                            (x > 0)
+                                .then(|| near(x - 1, y).map(|p| centre - p))
+                                .flatten()
+                        });
+                    let dy = (y + 1 < h)
+                        .then(|| near(x, y + 1).map(|p| p - centre))
+                        .flatten()
+                        .or_else(|| {
+                            (y > 0)
+                                .then(|| near(x, y - 1).map(|p| centre - p))
+                                .flatten()
+                        });
+                    if let (Some(a), Some(b)) = (dx, dy) {
+                        let n = a.cross(&b);
+                        let denom = n.norm() * centre.norm();
+                        if denom > 0.0 {
+                            out[(y - y0) * w + x] = (n.dot(&centre).abs() / denom) as f32;
+                        }
                     }
                 }
             }
