@@ -177,12 +177,13 @@ impl MeshIndex {
     }
 
     /// Distance from `p` to the nearest triangle when it is below `max_distance`, else
-    /// `max_distance` or more (faster for thresholded counts).
+    /// `f64::INFINITY` (faster for thresholded counts).
     pub fn distance_within(&self, p: &Point3<f64>, max_distance: f64) -> f64 {
         if self.nodes.is_empty() {
             return f64::INFINITY;
         }
-        let mut best = max_distance * max_distance;
+        let limit = max_distance * max_distance;
+        let mut best = limit;
         let mut stack = vec![0usize];
         while let Some(n) = stack.pop() {
             let node = &self.nodes[n];
@@ -206,7 +207,11 @@ impl MeshIndex {
                 stack.push(r);
             }
         }
-        best.sqrt()
+        if best < limit {
+            best.sqrt()
+        } else {
+            f64::INFINITY
+        }
     }
 }
 

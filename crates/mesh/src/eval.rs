@@ -82,7 +82,7 @@ pub fn sample_surface(mesh: &TriMesh, spacing: f64) -> Vec<Point3<f64>> {
         }
         let (a, b, c) = (pos(f[0]), pos(f[1]), pos(f[2]));
         carry += 0.5 * (b - a).cross(&(c - a)).norm() * inv;
-        while carry >= 1.0 {
+        while carry >= 1.0 - 1e-9 {
             carry -= 1.0;
             k += 1;
             let (mut u, mut v) = ((0.5 + g1 * k as f64).fract(), (0.5 + g2 * k as f64).fract());
@@ -171,4 +171,54 @@ pub fn evaluate(
         reconstruction_samples: samples.len(),
         ground_truth_samples: ground_truth_samples.len(),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use handheld_core::PointCloud;
+
+    fn square(z: f32) -> TriMesh {
+        TriMesh {
+            vertices: PointCloud {
+                positions: vec![[0.0, 0.0, z], [1.0, 0.0, z], [1.0, 1.0, z], [0.0, 1.0, z]],
+                ..Default::default()
+            },
+            uvs: Vec::new(),
+            faces: vec![[0, 1, 2], [0, 2, 3]],
+        }
+    }
+
+    #[test]
+    fn samples_percentiles_and_scores() {
+        let s = sample_surface(&square(0.0), 0.1);
+        assert_eq!(s.len(), 4 + 100);
+        assert!(s
+            .iter()
+            .all(|p| (0.0..=1.0).contains(&p.x) && (0.0..=1.0).contains(&p.y)));
+        let mut v: Vec<f64> = (1..=10).map(f64::from).collect();
+        assert_eq!(percentile(&mut v, 0.9), 9.0);
+        assert_eq!(percentile(&mut v, 1.0), 10.0);
+        let gt = square(0.0);
+        let samples = sample_surface(&gt, 0.05);
+        let opts = EvalOptions {
+            completeness_threshold: 0.02,
+            sample_spacing: 0.05,
+            ..Default::default()
+        };
+        // A copy lifted by 1 cm: accuracy 1 cm, complete within 2 cm, not within 5 mm.
+        let lifted = evaluate(&square(0.01), &gt, &samples, &opts).unwrap();
+        assert!((lifted.accuracy - 0.01).abs() < 1e-6 && lifted.completeness == 1.0);
+        let strict = EvalOptions {
+            completeness_threshold: 0.005,
+            ..opts.clone()
+        };
+        assert_eq!(
+            evaluate(&square(0.01), &gt, &samples, &strict)
+                .unwrap()
+                .completeness,
+            0.0
+        );
+        assert!(evaluate(&TriMesh::default(), &gt, &samples, &opts).is_err());
+    }
 }

@@ -1,6 +1,6 @@
 //! The volumetric stage of §5.1 as one call: depth maps → TSDF ([`crate::tsdf`], Curless & Levoy
 //! 1996) → marching cubes ([`crate::marching_cubes`], Lorensen & Cline 1987) → removal of floating
-//! specks → quadric simplification ([`crate::simplify`], Garland & Heckbert 1997).
+//! specks → quadric simplification ([`mod@crate::simplify`], Garland & Heckbert 1997).
 //!
 //! Bad input fails loudly: a map whose size differs from its camera, an all-empty map, depth maps
 //! that never agree on a surface ([`MeshError::NoOverlap`]) or an empty extraction are errors, never

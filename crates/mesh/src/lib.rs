@@ -1,19 +1,38 @@
 //! Surface models from calibrated views and depth maps (paper §5.1).
 //!
+//! Split by concept:
+//! * [`view`]: the inputs ([`DepthView`], [`ImageView`]) and their projection helpers;
 //! * [`single`]: the §5.1 mesh of one depth map (triangle grid over the image, depth smoothing,
-//!   discontinuity test) and [`enhance`]: its texture's robust median over the linked views
+//!   85° discontinuity test) and [`enhance`]: its texture's robust median over the linked views
 //!   (Ofek et al. 1997);
 //! * [`tsdf`]: Curless–Levoy volumetric fusion in sparse voxel blocks; [`marching_cubes`] with the
 //!   derived case table of [`mc_tables`]: the fused surface as one welded, oriented mesh;
-//! * [`simplify`]: Garland–Heckbert quadric decimation (meshoptimizer), borders locked;
-//! * [`texture`]: a view per face, charts, an atlas (`atlas`) with seam levelling (`seams`);
+//! * [`mod@simplify`]: Garland–Heckbert quadric decimation (meshoptimizer), borders locked;
 //! * [`fusion`]: [`fuse_depth_maps`], the volumetric stage in one call (TSDF → marching cubes →
 //!   speck removal → simplification), with its summary; [`topology`]: connectivity helpers;
-//! * [`eval`]: Middlebury multi-view accuracy and completeness against a ground-truth mesh.
+//! * [`texture`]: a view per face, charts, an atlas (`atlas`) with seam levelling (`seams`);
+//! * [`eval`]: Middlebury multi-view accuracy and completeness against a ground-truth mesh, over a
+//!   triangle hierarchy ([`MeshIndex`]).
 //!
 //! World frame = the sparse model's frame; poses are `cam_from_world`; depth maps are camera-frame
 //! `z` of the original (distorted) images. Nothing here touches a file (`handheld-io` writes OBJ,
 //! glTF and PLY).
+//!
+//! # Measured (issue #7)
+//!
+//! Synthetic default scene (testkit seed 7, scene size = bounding-box diagonal 8.85 m), 10 exact
+//! depth maps of 320×240 on the default orbit, 2 cm voxels, 8 cm truncation
+//! (`cargo test -p handheld-mesh --test fusion -- --nocapture`): accuracy at 90% 2.5 mm (0.028% of
+//! the scene size; bound 0.5%), completeness within 1% of the scene size 100% (bound 95%);
+//! 294 k faces, fused in about 2 s on 2 shared cores; simplified to 29 k faces: 3.4 mm, 100%.
+//! With ±0.87% depth noise, 2% outliers marked by a zero confidence: 13 mm (0.15%), 100%.
+//! A textured held-out view is reproduced to 18.3 grey levels mean absolute difference, against
+//! 16.3 between two neighbouring input images (the texture's own resampling floor).
+//!
+//! Eleven 3072×2048 depth maps fused at 1 cm (`cargo run -p handheld-mesh --example fuse_large`,
+//! dev profile): 16 k blocks (8.2 M voxels), 949 k faces extracted and 500 k after simplification,
+//! 16 s for the fusion stage, peak resident memory 659 MiB with the depth maps and images held
+//! (467 MiB of it); accuracy 0.3 mm at 90%, completeness 100%.
 
 mod atlas;
 mod bvh;

@@ -13,7 +13,7 @@
 //!    (data cost `1 − score/best`, [`TextureOptions::smoothness`] per seam edge) merge the labels into
 //!    fewer, larger charts with fewer seams.
 //! 3. *Charts* (edge-connected faces with one label) are packed into an atlas and seams are levelled
-//!    by per-vertex colour offsets ([`crate::atlas`]).
+//!    by per-vertex colour offsets (the private `atlas` and `seams` modules).
 
 use std::time::Instant;
 

@@ -57,11 +57,29 @@ fn fused_mesh_meets_the_middlebury_bounds() {
         100.0 * simple_scores.accuracy / size,
         100.0 * simple_scores.completeness
     );
+    // A stricter look than the bound: completeness within 0.1% of the scene size (under half a voxel).
+    let strict = EvalOptions {
+        completeness_threshold: 0.001 * size,
+        ..eval.clone()
+    };
+    let tight = evaluate(&mesh, &seq.mesh, &gt_samples, &strict).unwrap();
+    println!(
+        "completeness within 0.1% of the size: {:.2}%",
+        100.0 * tight.completeness
+    );
     assert!(scores.accuracy <= 0.005 * size, "{scores:?}");
     assert!(scores.completeness >= 0.95, "{scores:?}");
     assert!(simple_scores.accuracy <= 0.005 * size, "{simple_scores:?}");
     assert!(simple_scores.completeness >= 0.95, "{simple_scores:?}");
     assert_eq!(edge_report(&mesh).1, 0, "no non-manifold edge");
+    // The portable default: voxel size from the pixel footprint, simplification on.
+    let (coarse, s) = fuse_depth_maps(&views, &FusionOptions::default(), &NoProgress).unwrap();
+    println!(
+        "defaults: voxel {:.4}, {} -> {} faces",
+        s.voxel_size, s.faces_extracted, s.faces_final
+    );
+    assert!((0.01..0.1).contains(&s.voxel_size), "{s:?}");
+    assert!(!coarse.faces.is_empty());
 }
 
 /// A hash-based uniform number in [0, 1) (deterministic, no generator state).
