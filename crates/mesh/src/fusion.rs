@@ -23,8 +23,8 @@ pub struct FusionOptions {
     pub tsdf: TsdfOptions,
     /// Surface extraction; `min_observations` is clamped to the number of views.
     pub extract: ExtractOptions,
-    /// Connected components with fewer faces are dropped as noise; 0 keeps everything.
-    /// Default 0.
+    /// Connected components with fewer faces are dropped as floating specks of noise; 0 keeps
+    /// everything. Default 100.
     pub min_component_faces: usize,
     /// Simplification after extraction; `None` keeps the marching-cubes mesh. Default
     /// `Some(SimplifyOptions::default())`.
@@ -47,7 +47,7 @@ impl Default for FusionOptions {
         Self {
             tsdf: TsdfOptions::default(),
             extract: ExtractOptions::default(),
-            min_component_faces: 0,
+            min_component_faces: 100,
             simplify: Some(SimplifyOptions::default()),
         }
     }
@@ -100,9 +100,13 @@ pub fn fuse_depth_maps(
     let t0 = Instant::now();
     let voxel_size = resolve_voxel_size(views, &opts.tsdf)?;
     let mut vol = TsdfVolume::new(voxel_size, &opts.tsdf)?;
-    progress.start("TSDF fusion", views.len() as u64);
+    progress.start("TSDF fusion", 2 * views.len() as u64);
     for (i, v) in views.iter().enumerate() {
-        vol.integrate(v, i)?;
+        vol.allocate(v, i)?;
+        progress.inc(1);
+    }
+    for (i, v) in views.iter().enumerate() {
+        vol.update(v, i)?;
         progress.inc(1);
     }
     progress.finish();

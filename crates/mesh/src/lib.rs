@@ -22,9 +22,9 @@
 //!
 //! Synthetic default scene (testkit seed 7, scene size = bounding-box diagonal 8.85 m), 10 exact
 //! depth maps of 320×240 on the default orbit, 2 cm voxels, 8 cm truncation
-//! (`cargo test -p handheld-mesh --test fusion -- --nocapture`): accuracy at 90% 2.5 mm (0.028% of
-//! the scene size; bound 0.5%), completeness within 1% of the scene size 99.7% (bound 95%; 98.2%
-//! within 0.1%); 294 k faces, fused in 2–4 s on 2 shared cores; simplified to 29 k faces: 3.4 mm,
+//! (`cargo test -p handheld-mesh --test fusion -- --nocapture`): accuracy at 90% 2.4 mm (0.028% of
+//! the scene size; bound 0.5%), completeness within 1% of the scene size 99.7% (bound 95%; 98.1%
+//! within 0.1%); 294 k faces, fused in 2–5 s on 2 shared cores; simplified to 29 k faces: 3.3 mm,
 //! 99.7%. With ±0.87% depth noise and 2% outliers marked by a zero confidence: 13 mm (0.15%),
 //! 99.7%. A textured held-out view is reproduced to 18.3 grey levels mean absolute difference,
 //! against 16.3 between two neighbouring input images (the texture's own resampling floor).

@@ -7,7 +7,8 @@
 //! boxed block holds only the blocks within the truncation band of some observed surface.
 //! Voxel `g = (i, j, k)` has its centre at `g · voxel_size` in the world (= sparse model) frame.
 //!
-//! Each depth map is integrated in two passes:
+//! Depth maps are integrated in two passes (the fusion runs the first over all views before the
+//! second, so every view updates every block and the result does not depend on the view order):
 //! 1. *allocation*: every (strided) valid pixel's ray is sampled within `±truncation` of its depth
 //!    and the blocks it crosses are created;
 //! 2. *update*: every voxel of every block is projected into the view (with the lens distortion);
@@ -206,11 +207,26 @@ impl TsdfVolume {
         self.blocks.len() * (BLOCK_BYTES + 40)
     }
 
-    /// Integrates one depth map (`view_index` only labels errors).
+    /// Integrates one depth map (`view_index` only labels errors): [`Self::allocate`] then
+    /// [`Self::update`]. Blocks created by later views miss this view's free-space evidence;
+    /// allocate every view first for an order-independent result (as [`crate::fuse_depth_maps`]
+    /// does).
     pub fn integrate(&mut self, view: &DepthView, view_index: usize) -> Result<()> {
+        self.allocate(view, view_index)?;
+        self.update(view, view_index)
+    }
+
+    /// Creates the blocks within the truncation band around one view's depths.
+    pub fn allocate(&mut self, view: &DepthView, view_index: usize) -> Result<()> {
         view.validate(view_index)?;
         let proj = Projector::new(view.camera, &view.cam_from_world);
-        self.allocate(view, &proj, view_index)?;
+        self.allocate_blocks(view, &proj, view_index)
+    }
+
+    /// The update pass of one view over every allocated block (see the module documentation).
+    pub fn update(&mut self, view: &DepthView, view_index: usize) -> Result<()> {
+        view.validate(view_index)?;
+        let proj = Projector::new(view.camera, &view.cam_from_world);
         let cos = incidence_map(view);
         let ctx = UpdateContext {
             view,
@@ -227,8 +243,12 @@ impl TsdfVolume {
         Ok(())
     }
 
-    /// Creates the blocks within the truncation band around the view's depths.
-    fn allocate(&mut self, view: &DepthView, proj: &Projector, view_index: usize) -> Result<()> {
+    fn allocate_blocks(
+        &mut self,
+        view: &DepthView,
+        proj: &Projector,
+        view_index: usize,
+    ) -> Result<()> {
         let z95 = depth_quantile(view, 0.95).ok_or(MeshError::EmptyDepth { view: view_index })?;
         let block_side = self.voxel_size * BLOCK as f64;
         let footprint = z95 / view.camera.intrinsics.f;
