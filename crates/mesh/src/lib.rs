@@ -31,8 +31,9 @@
 //!
 //! Eleven 3072×2048 depth maps fused at 1 cm (`cargo run -p handheld-mesh --example fuse_large`,
 //! dev profile, 2 shared cores): 16 k blocks (8.2 M voxels), 949 k faces extracted and 500 k after
-//! simplification, 16 s for the fusion stage (15 s integration), peak resident memory 658 MiB with
-//! the depth maps and images held (467 MiB of it), 735 MiB after texturing (5.4 s, 5158×5365
+//! simplification, 16–20 s for the fusion stage (15–18 s integration, varying with the other load),
+//! peak resident memory 667 MiB with the depth maps and images held (467 MiB of it), 752 MiB after
+//! texturing (6 s, 5156×5298
 //! atlas); accuracy 0.3 mm at 90%, completeness 99.8%.
 
 mod atlas;
