@@ -4,7 +4,8 @@
 //!   relative depth error (the paper's Fig. 6).
 //! - `polar_forward`: a synthetic forward-motion pair (epipole inside the image): polar
 //!   rectification's worst row disagreement of corresponding points.
-//! - `speed_640`: rectification (polar, forced) + SGM with 100 disparities on a 640×480 pair.
+//! - `speed_640`: rectification (polar, forced) + SGM (the dense stage's 4 paths; 8 paths timed
+//!   too) with 100 disparities on a 640×480 pair.
 //! - `speed_large` (with `--model` and `--images`): the same on the model's first two views at
 //!   full resolution (e.g. fountain-P11, 3072×2048).
 
@@ -190,21 +191,28 @@ fn time_pair(
     let stereo = StereoOptions {
         min_disparity: -50,
         max_disparity: 49,
-        ..StereoOptions::sgm()
+        ..PairOptions::default().stereo
     };
-    let (mut tr, mut tm, mut size) = (Vec::new(), Vec::new(), (0, 0));
+    let eight = StereoOptions {
+        sgm_paths: handheld_dense::SgmPaths::Eight,
+        ..stereo.clone()
+    };
+    let (mut tr, mut tm, mut t8, mut size) = (Vec::new(), Vec::new(), Vec::new(), (0, 0));
     for _ in 0..runs.max(1) {
         let t = Instant::now();
         let rect = rectify_pair(c0, p0, c1, p1, &ropts)?;
-        let (a, _) = rect.resample(0, l);
-        let (b, _) = rect.resample(1, r);
+        let (a, _) = rect.resample(0, &handheld_dense::pair::to_grey(l));
+        let (b, _) = rect.resample(1, &handheld_dense::pair::to_grey(r));
         tr.push(t.elapsed().as_secs_f64());
         let t = Instant::now();
         match_rectified(&a, &b, &stereo)?;
         tm.push(t.elapsed().as_secs_f64());
+        let t = Instant::now();
+        match_rectified(&a, &b, &eight)?;
+        t8.push(t.elapsed().as_secs_f64());
         size = rect.size();
     }
-    let (tr, tm) = (median(tr), median(tm));
+    let (tr, tm, t8) = (median(tr), median(tm), median(t8));
     Ok(json!({
         "image": [l.width, l.height],
         "rectified_size": size,
@@ -212,6 +220,7 @@ fn time_pair(
         "rectify_seconds": tr,
         "sgm_seconds": tm,
         "total_seconds": tr + tm,
+        "sgm_8_paths_seconds": t8,
     }))
 }
 

