@@ -42,6 +42,8 @@ pub enum Command {
     Match(IngestArgs),
     /// The dense stage alone (§4) on a COLMAP model and its images: depth maps and fused.ply.
     Dense(DenseModelArgs),
+    /// The mesh stage alone (§5.1) on a dense folder: fused textured model and per-view meshes.
+    Mesh(MeshStageArgs),
     /// Dense matching of one already-rectified pair (§4.2): the left view's disparity as PFM.
     Stereo(crate::stereo::StereoArgs),
     /// Benchmarks; each prints one JSON object (use with --json).
@@ -180,6 +182,8 @@ pub struct InputArgs {
     pub principal_point_prior: f64,
     #[command(flatten)]
     pub dense: DenseArgs,
+    #[command(flatten)]
+    pub mesh: MeshArgs,
 }
 
 /// Options of the dense stage (§4).
@@ -208,6 +212,59 @@ impl Default for DenseArgs {
             min_visibility: 3,
         }
     }
+}
+
+/// Options of the mesh stage (§5.1).
+#[derive(Debug, Clone, Args)]
+pub struct MeshArgs {
+    /// Mesh: `fused` (TSDF over all depth maps, plus per-view meshes) or `single` (per-view only).
+    #[arg(long, value_enum, default_value_t = MeshMode::Fused)]
+    pub mode: MeshMode,
+    /// Mesh: face count after quadric simplification.
+    #[arg(long, default_value_t = 500_000)]
+    pub target_faces: usize,
+    /// Mesh: TSDF voxel size in model units (default: three pixel footprints at the median depth).
+    #[arg(long)]
+    pub voxel_size: Option<f64>,
+    /// Mesh: skip the per-view §5.1 meshes (mesh/views/).
+    #[arg(long)]
+    pub no_view_meshes: bool,
+}
+
+impl Default for MeshArgs {
+    fn default() -> Self {
+        Self {
+            mode: MeshMode::Fused,
+            target_faces: 500_000,
+            voxel_size: None,
+            no_view_meshes: false,
+        }
+    }
+}
+
+/// Which surface models the mesh stage builds.
+#[derive(Debug, Clone, Copy, ValueEnum, PartialEq, Eq)]
+pub enum MeshMode {
+    /// One volumetric model from all depth maps, textured from all views; per-view meshes too.
+    Fused,
+    /// Only the per-view meshes of §5.1.
+    Single,
+}
+
+/// `handheld mesh`: the mesh stage alone, on a dense folder.
+#[derive(Debug, Args)]
+pub struct MeshStageArgs {
+    /// A dense folder (WORKSPACE/dense or `handheld dense` output: cameras.json, depth/, confidence/).
+    #[arg(long)]
+    pub depth_maps: PathBuf,
+    /// The folder holding the images named in cameras.json.
+    #[arg(long)]
+    pub images: PathBuf,
+    /// Output folder (the layout of WORKSPACE/mesh).
+    #[arg(long, short)]
+    pub output: PathBuf,
+    #[command(flatten)]
+    pub mesh: MeshArgs,
 }
 
 /// `handheld dense`: the dense stage alone, on any COLMAP model and its images.

@@ -333,6 +333,7 @@ pub fn run(a: &DemoArgs, g: &GlobalArgs, bars: &Bars) -> Result<()> {
         fixed_principal_point: false,
         principal_point_prior: 0.005,
         dense: crate::args::DenseArgs::default(),
+        mesh: crate::args::MeshArgs::default(),
     };
     let reports = pipeline::run(&input, pipeline::Stage::LAST, bars)?;
     let matching = matching_accuracy(&a.output, &workspace, a.video)
@@ -340,6 +341,8 @@ pub fn run(a: &DemoArgs, g: &GlobalArgs, bars: &Bars) -> Result<()> {
     let sparse = sparse_accuracy(&a.output, &workspace, a.video)
         .unwrap_or_else(|e| json!({ "error": format!("{e:#}") }));
     let dense = crate::demo_dense::dense_accuracy(&a.output, &workspace, a.video)
+        .unwrap_or_else(|e| json!({ "error": format!("{e:#}") }));
+    let mesh = crate::demo_dense::mesh_accuracy(&a.output, &workspace, a.video)
         .unwrap_or_else(|e| json!({ "error": format!("{e:#}") }));
     let summary = json!({
         "demo": a.output,
@@ -352,11 +355,11 @@ pub fn run(a: &DemoArgs, g: &GlobalArgs, bars: &Bars) -> Result<()> {
         "render_seconds": render_s,
         "ground_truth": gt_summary,
         "stages": reports,
-        "accuracy": { "matching": matching.clone(), "sparse": sparse.clone(), "dense": dense.clone() },
+        "accuracy": { "matching": matching.clone(), "sparse": sparse.clone(), "dense": dense.clone(), "mesh": mesh.clone() },
         "accuracy_note": "matching is scored against the exact relative poses; cameras against the exact cameras after a similarity fit of the centres; the input was uncalibrated (no focal given)",
     });
     let human = format!(
-        "demo: {} frames {}×{} in {}\n  rendering + ground truth: {:.2} s\n  stages: {}\n  matching accuracy: {}\n  camera accuracy (uncalibrated): {}\n  depth accuracy: {}",
+        "demo: {} frames {}×{} in {}\n  rendering + ground truth: {:.2} s\n  stages: {}\n  matching accuracy: {}\n  camera accuracy (uncalibrated): {}\n  depth accuracy: {}\n  mesh accuracy: {}",
         a.frames,
         a.width,
         a.height,
@@ -365,7 +368,8 @@ pub fn run(a: &DemoArgs, g: &GlobalArgs, bars: &Bars) -> Result<()> {
         reports.iter().map(|r| format!("{} ({}, {:.2} s)", r.stage.dir_name(), r.status, r.seconds)).collect::<Vec<_>>().join(", "),
         matching,
         sparse,
-        dense
+        dense,
+        mesh
     );
     print_result(g, &summary, &human);
     Ok(())

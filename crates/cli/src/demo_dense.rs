@@ -74,3 +74,81 @@ pub fn dense_accuracy(out: &Path, workspace: &Path, video: bool) -> Result<serde
         "within_1pct": errors.iter().filter(|e| **e <= 0.01).count() as f64 / gt_pixels.max(1) as f64,
     }))
 }
+
+/// Middlebury multi-view accuracy (90%) and completeness (within 1% of the scene size) of the
+/// fused mesh against the exact scene mesh, over the scene surface the rendered views saw.
+pub fn mesh_accuracy(out: &Path, workspace: &Path, video: bool) -> Result<serde_json::Value> {
+    use handheld_mesh::{eval::visible_surface_samples, evaluate, DepthView, EvalOptions};
+    let gt = handheld_io::colmap::read_reconstruction(&out.join("ground_truth").join("sparse"))?;
+    let est = handheld_io::colmap::read_reconstruction(&workspace.join("sparse"))?;
+    let by_name = super::demo::gt_by_name(&gt, video);
+    let pairs: Vec<_> = est
+        .views
+        .values()
+        .filter_map(|v| by_name.get(v.name.as_str()).map(|g| (v, *g)))
+        .collect();
+    if pairs.len() < 3 {
+        anyhow::bail!("only {} views registered", pairs.len());
+    }
+    let src: Vec<_> = pairs.iter().map(|p| p.0.center()).collect();
+    let dst: Vec<_> = pairs.iter().map(|p| p.1.center()).collect();
+    let sim = handheld_core::Sim3::align(&src, &dst).context("aligning the camera centres")?;
+    let mut mesh = handheld_io::ply::read_mesh(&workspace.join("mesh").join("model.ply"))?;
+    for p in mesh.vertices.positions.iter_mut() {
+        let q = sim.transform_point(&nalgebra::Point3::new(
+            f64::from(p[0]),
+            f64::from(p[1]),
+            f64::from(p[2]),
+        ));
+        *p = [q.x as f32, q.y as f32, q.z as f32];
+    }
+    let truth = handheld_io::ply::read_mesh(&out.join("ground_truth").join("mesh.ply"))?;
+    let (mut lo, mut hi) = ([f64::MAX; 3], [f64::MIN; 3]);
+    for p in &truth.vertices.positions {
+        for k in 0..3 {
+            lo[k] = lo[k].min(f64::from(p[k]));
+            hi[k] = hi[k].max(f64::from(p[k]));
+        }
+    }
+    let size = ((hi[0] - lo[0]).powi(2) + (hi[1] - lo[1]).powi(2) + (hi[2] - lo[2]).powi(2)).sqrt();
+    let mut depths = Vec::new();
+    for g in gt.views.values() {
+        let stem = Path::new(&g.name)
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        depths.push((
+            g,
+            handheld_io::pfm::read_pfm(
+                &out.join("ground_truth")
+                    .join("depth")
+                    .join(format!("{stem}.pfm")),
+            )?,
+        ));
+    }
+    let views: Vec<DepthView> = depths
+        .iter()
+        .filter_map(|(g, d)| {
+            Some(DepthView {
+                camera: gt.cameras.get(&g.camera_id)?,
+                cam_from_world: g.cam_from_world,
+                depth: d,
+                confidence: None,
+            })
+        })
+        .collect();
+    let samples = visible_surface_samples(&views, 4)?;
+    let opts = EvalOptions {
+        accuracy_fraction: 0.9,
+        completeness_threshold: 0.01 * size,
+        sample_spacing: 0.002 * size,
+    };
+    let s = evaluate(&mesh, &truth, &samples, &opts)?;
+    Ok(json!({
+        "faces": mesh.faces.len(),
+        "scene_size_m": size,
+        "accuracy_90_m": s.accuracy,
+        "accuracy_90_pct_of_scene": 100.0 * s.accuracy / size,
+        "completeness_within_1pct": s.completeness,
+    }))
+}

@@ -73,6 +73,17 @@ fn run(cmd: &Command, g: &GlobalArgs) -> anyhow::Result<()> {
             BenchCommand::Dense(a) => bench_dense::run(a, g),
         },
         Command::Stereo(a) => stereo::run(a, g),
+        Command::Mesh(a) => {
+            let summary = stages::mesh::run_standalone(a, &bars)?;
+            let human = format!(
+                "mesh: {} → {}\n  {}",
+                a.depth_maps.display(),
+                a.output.display(),
+                summary
+            );
+            ui::print_result(g, &summary, &human);
+            Ok(())
+        }
         Command::Dense(a) => {
             let summary = stages::dense::run_on_model(a, &bars)?;
             let human = format!(

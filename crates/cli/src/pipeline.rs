@@ -31,17 +31,20 @@ pub enum Stage {
     Sparse,
     /// Rectification, stereo and multi-view linking (§4); writes depth maps and fused.ply.
     Dense,
+    /// Surface models (§5.1): fused textured mesh (OBJ, glTF, PLY) and per-view meshes.
+    Mesh,
 }
 
 impl Stage {
     /// The last implemented stage: what `reconstruct` runs up to by default.
-    pub const LAST: Stage = Stage::Dense;
-    pub const ALL: [Stage; 5] = [
+    pub const LAST: Stage = Stage::Mesh;
+    pub const ALL: [Stage; 6] = [
         Stage::Ingest,
         Stage::Features,
         Stage::Matches,
         Stage::Sparse,
         Stage::Dense,
+        Stage::Mesh,
     ];
 
     /// The stage's folder name in the workspace.
@@ -52,6 +55,7 @@ impl Stage {
             Stage::Matches => "matches",
             Stage::Sparse => "sparse",
             Stage::Dense => "dense",
+            Stage::Mesh => "mesh",
         }
     }
 }
@@ -149,6 +153,7 @@ pub fn run(a: &InputArgs, until: Stage, bars: &Bars) -> Result<Vec<StageReport>>
     let match_opts = stages::matches::options(a)?;
     let sparse_opts = stages::sparse::options(a)?;
     let dense_opts = stages::dense::options(&a.dense)?;
+    let mesh_opts = stages::mesh::options(&a.mesh)?;
     if !a.input.exists() {
         anyhow::bail!("{}: does not exist", a.input.display());
     }
@@ -161,6 +166,7 @@ pub fn run(a: &InputArgs, until: Stage, bars: &Bars) -> Result<Vec<StageReport>>
             Stage::Matches => stages::matches::run(&ws, &match_opts, a.force, bars)?,
             Stage::Sparse => stages::sparse::run(&ws, &sparse_opts, a.force, bars)?,
             Stage::Dense => stages::dense::run(&ws, &dense_opts, a.force, bars)?,
+            Stage::Mesh => stages::mesh::run(&ws, &mesh_opts, a.force, bars)?,
         };
         match report.status {
             "ran" => tracing::info!("{}: done in {:.2} s", stage.dir_name(), report.seconds),

@@ -5,6 +5,7 @@ pub mod dense;
 pub mod features;
 pub mod ingest;
 pub mod matches;
+pub mod mesh;
 pub mod sparse;
 pub mod tracks;
 

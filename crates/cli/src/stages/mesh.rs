@@ -1,0 +1,323 @@
+//! The mesh stage (§5.1): reads `dense/` (cameras.json, depth and confidence maps) and the
+//! images, and writes `mesh/`:
+//! - `model.obj` + `model.mtl` + `model.png` (texture atlas), `model.glb` (texture embedded),
+//!   `model.ply` (binary, vertex colours): the fused surface (TSDF → marching cubes →
+//!   simplification → texturing), in the sparse model's frame and units;
+//! - `views/<image>.glb`: each key view's own §5.1 mesh, textured with its image;
+//! - `summary.json`.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result};
+use handheld_core::{Camera, FloatMap, Rigid3};
+use handheld_io::images::{load_image, ImageIngestOptions};
+use handheld_io::workspace::{Fingerprint, Workspace};
+use handheld_mesh::{
+    fuse_depth_maps, mesh_from_depth_map, texture_mesh, DepthView, FusionOptions, ImageView,
+    SimplifyOptions, SingleMeshOptions, TextureOptions, TsdfOptions, VoxelSize,
+};
+use image::RgbImage;
+use rayon::prelude::*;
+use serde_json::json;
+
+use crate::args::{MeshArgs, MeshMode, MeshStageArgs};
+use crate::pipeline::{run_stage, Stage, StageOutput, StageReport};
+use crate::ui::Bars;
+
+/// The mesh stage's options.
+pub struct MeshStageOptions {
+    pub mode: MeshMode,
+    pub fusion: FusionOptions,
+    pub single: SingleMeshOptions,
+    pub texture: TextureOptions,
+    pub view_meshes: bool,
+    pub fingerprint: serde_json::Value,
+}
+
+pub fn options(a: &MeshArgs) -> Result<MeshStageOptions> {
+    if a.target_faces < 100 {
+        anyhow::bail!(
+            "--target-faces must be at least 100, got {}",
+            a.target_faces
+        );
+    }
+    let voxel_size = match a.voxel_size {
+        Some(v) if !(v.is_finite() && v > 0.0) => {
+            anyhow::bail!("--voxel-size must be positive, got {v}")
+        }
+        Some(v) => VoxelSize::Absolute(v),
+        None => TsdfOptions::default().voxel_size,
+    };
+    let fusion = FusionOptions {
+        tsdf: TsdfOptions {
+            voxel_size,
+            ..Default::default()
+        },
+        simplify: Some(SimplifyOptions {
+            target_faces: a.target_faces,
+            ..Default::default()
+        }),
+        ..Default::default()
+    };
+    Ok(MeshStageOptions {
+        mode: a.mode,
+        fusion,
+        single: SingleMeshOptions::default(),
+        texture: TextureOptions::default(),
+        view_meshes: !a.no_view_meshes,
+        fingerprint: json!({
+            "mode": format!("{:?}", a.mode),
+            "target_faces": a.target_faces,
+            "voxel_size": a.voxel_size,
+            "view_meshes": !a.no_view_meshes,
+        }),
+    })
+}
+
+/// One key view read back from `dense/`.
+struct KeyView {
+    name: String,
+    camera: Camera,
+    cam_from_world: Rigid3,
+    depth: FloatMap,
+    confidence: Option<FloatMap>,
+    image: RgbImage,
+}
+
+#[derive(serde::Deserialize)]
+struct CameraEntry {
+    image: String,
+    camera: Camera,
+    cam_from_world: Rigid3,
+}
+
+fn load_key_views(dense: &Path, paths: &BTreeMap<String, PathBuf>) -> Result<Vec<KeyView>> {
+    let cams_path = dense.join("cameras.json");
+    let entries: Vec<CameraEntry> =
+        serde_json::from_slice(&std::fs::read(&cams_path).with_context(|| {
+            format!(
+                "{}: cannot read (run the dense stage first)",
+                cams_path.display()
+            )
+        })?)
+        .with_context(|| format!("{}: corrupt (rerun the dense stage)", cams_path.display()))?;
+    let opts = ImageIngestOptions {
+        min_dimension: 1,
+        ..Default::default()
+    };
+    entries
+        .into_par_iter()
+        .map(|e| {
+            let dpath = dense.join("depth").join(format!("{}.pfm", e.image));
+            let depth = handheld_io::pfm::read_pfm(&dpath)
+                .with_context(|| format!("{}: cannot read the depth map", dpath.display()))?;
+            if (depth.width, depth.height) != (e.camera.width as usize, e.camera.height as usize) {
+                anyhow::bail!(
+                    "{}: depth map is {}x{} but its camera is {}x{}",
+                    dpath.display(),
+                    depth.width,
+                    depth.height,
+                    e.camera.width,
+                    e.camera.height
+                );
+            }
+            let cpath = dense.join("confidence").join(format!("{}.pfm", e.image));
+            let confidence = if cpath.exists() {
+                Some(handheld_io::pfm::read_pfm(&cpath).with_context(|| {
+                    format!("{}: cannot read the confidence map", cpath.display())
+                })?)
+            } else {
+                None
+            };
+            let path = paths
+                .get(&e.image)
+                .with_context(|| format!("{}: no such image among the inputs", e.image))?;
+            let img = load_image(path, &opts)
+                .with_context(|| format!("{}: cannot read the image", path.display()))?
+                .image
+                .to_rgb8();
+            let image = if (img.width(), img.height()) == (e.camera.width, e.camera.height) {
+                img
+            } else {
+                image::imageops::resize(
+                    &img,
+                    e.camera.width,
+                    e.camera.height,
+                    image::imageops::FilterType::Triangle,
+                )
+            };
+            Ok(KeyView {
+                name: e.image,
+                camera: e.camera,
+                cam_from_world: e.cam_from_world,
+                depth,
+                confidence,
+                image,
+            })
+        })
+        .collect()
+}
+
+pub fn run(
+    ws: &Workspace,
+    opts: &MeshStageOptions,
+    force: bool,
+    bars: &Bars,
+) -> Result<StageReport> {
+    run_stage(
+        ws,
+        Stage::Mesh,
+        Fingerprint::new(),
+        opts.fingerprint.clone(),
+        force,
+        |dir| {
+            let paths = super::load_ingest(ws)?
+                .images
+                .into_iter()
+                .map(|i| (i.info.name, i.info.path))
+                .collect();
+            build(
+                &ws.root.join(Stage::Dense.dir_name()),
+                &paths,
+                opts,
+                dir,
+                bars,
+            )
+        },
+    )
+}
+
+/// Builds the meshes of the dense folder `dense` into `dir`.
+pub fn build(
+    dense: &Path,
+    paths: &BTreeMap<String, PathBuf>,
+    opts: &MeshStageOptions,
+    dir: &Path,
+    bars: &Bars,
+) -> Result<StageOutput> {
+    let views = load_key_views(dense, paths)?;
+    if views.is_empty() {
+        anyhow::bail!(
+            "{}: no depth maps (run the dense stage first)",
+            dense.display()
+        );
+    }
+    let mut outputs = Vec::new();
+    let mut summary = json!({ "views": views.len() });
+    if opts.view_meshes || opts.mode == MeshMode::Single {
+        std::fs::create_dir_all(dir.join("views"))?;
+        let mut faces = Vec::new();
+        for v in &views {
+            let dv = DepthView {
+                camera: &v.camera,
+                cam_from_world: v.cam_from_world,
+                depth: &v.depth,
+                confidence: v.confidence.as_ref(),
+            };
+            let (mesh, s) = mesh_from_depth_map(&dv, Some(&v.image), &opts.single, bars)
+                .with_context(|| format!("{}: single-view mesh", v.name))?;
+            if mesh.faces.is_empty() {
+                tracing::warn!("{}: the depth map gives no triangles", v.name);
+                continue;
+            }
+            let out = format!("views/{}.glb", v.name);
+            handheld_io::glb::write_glb(&dir.join(&out), &mesh, Some(&v.image))?;
+            outputs.push(out);
+            faces.push(json!({ "image": v.name, "faces": mesh.faces.len(), "dropped_discontinuity": s.dropped_angle }));
+        }
+        summary["view_meshes"] = json!(faces);
+    }
+    if opts.mode == MeshMode::Fused {
+        let depth_views: Vec<DepthView> = views
+            .iter()
+            .map(|v| DepthView {
+                camera: &v.camera,
+                cam_from_world: v.cam_from_world,
+                depth: &v.depth,
+                confidence: v.confidence.as_ref(),
+            })
+            .collect();
+        let (mesh, fs) =
+            fuse_depth_maps(&depth_views, &opts.fusion, bars).context("volumetric fusion")?;
+        let image_views: Vec<ImageView> = views
+            .iter()
+            .map(|v| ImageView {
+                camera: &v.camera,
+                cam_from_world: v.cam_from_world,
+                image: &v.image,
+                depth: Some(&v.depth),
+            })
+            .collect();
+        let (textured, ts) =
+            texture_mesh(&mesh, &image_views, &opts.texture, bars).context("texturing")?;
+        let files = handheld_io::obj::write_obj(
+            &dir.join("model.obj"),
+            &textured.mesh,
+            Some(&textured.texture),
+        )?;
+        for p in [Some(files.obj), files.mtl, files.png]
+            .into_iter()
+            .flatten()
+        {
+            if let Some(n) = p.file_name() {
+                outputs.push(n.to_string_lossy().into_owned());
+            }
+        }
+        handheld_io::glb::write_glb(
+            &dir.join("model.glb"),
+            &textured.mesh,
+            Some(&textured.texture),
+        )?;
+        handheld_io::ply::write_mesh(
+            &dir.join("model.ply"),
+            &textured.mesh,
+            handheld_io::ply::PlyFormat::BinaryLittleEndian,
+        )?;
+        outputs.extend(["model.glb".into(), "model.ply".into()]);
+        summary["fusion"] = json!({
+            "voxel_size": fs.voxel_size,
+            "blocks": fs.blocks,
+            "voxels": fs.voxels,
+            "faces_extracted": fs.faces_extracted,
+            "faces_final": fs.faces_final,
+            "vertices_final": fs.vertices_final,
+            "integrate_seconds": fs.integrate_seconds,
+            "extract_seconds": fs.extract_seconds,
+            "simplify_seconds": fs.simplify_seconds,
+        });
+        summary["texture"] = json!({
+            "atlas": [textured.texture.width(), textured.texture.height()],
+            "untextured_faces": ts.untextured_faces,
+            "charts": ts.charts,
+            "seconds": ts.seconds,
+        });
+    }
+    handheld_io::atomic::write_bytes_atomic(
+        &dir.join("summary.json"),
+        &serde_json::to_vec_pretty(&summary)?,
+    )?;
+    outputs.push("summary.json".into());
+    if let Some(v) = summary.get_mut("view_meshes") {
+        *v = json!(v.as_array().map_or(0, Vec::len));
+    }
+    Ok(StageOutput { outputs, summary })
+}
+
+/// `handheld mesh --depth-maps DENSE --images I -o OUT`: the mesh stage alone.
+pub fn run_standalone(a: &MeshStageArgs, bars: &Bars) -> Result<serde_json::Value> {
+    let opts = options(&a.mesh)?;
+    let cams_path = a.depth_maps.join("cameras.json");
+    let entries: Vec<CameraEntry> = serde_json::from_slice(
+        &std::fs::read(&cams_path)
+            .with_context(|| format!("{}: cannot read", cams_path.display()))?,
+    )
+    .with_context(|| format!("{}: corrupt", cams_path.display()))?;
+    let paths = entries
+        .iter()
+        .map(|e| (e.image.clone(), a.images.join(&e.image)))
+        .collect();
+    std::fs::create_dir_all(&a.output)
+        .with_context(|| format!("{}: cannot create", a.output.display()))?;
+    Ok(build(&a.depth_maps, &paths, &opts, &a.output, bars)?.summary)
+}
