@@ -229,6 +229,10 @@ pub struct MeshArgs {
     /// Mesh: skip the per-view §5.1 meshes (mesh/views/).
     #[arg(long)]
     pub no_view_meshes: bool,
+    /// Mesh: leave this image's depth map and colours out of the fused model, render the model
+    /// from its camera and report the colour difference (`mesh/holdout.png`).
+    #[arg(long)]
+    pub hold_out: Option<String>,
 }
 
 impl Default for MeshArgs {
@@ -238,6 +242,7 @@ impl Default for MeshArgs {
             target_faces: 500_000,
             voxel_size: None,
             no_view_meshes: false,
+            hold_out: None,
         }
     }
 }

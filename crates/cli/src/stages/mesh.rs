@@ -32,6 +32,7 @@ pub struct MeshStageOptions {
     pub single: SingleMeshOptions,
     pub texture: TextureOptions,
     pub view_meshes: bool,
+    pub hold_out: Option<String>,
     pub fingerprint: serde_json::Value,
 }
 
@@ -66,7 +67,9 @@ pub fn options(a: &MeshArgs) -> Result<MeshStageOptions> {
         single: SingleMeshOptions::default(),
         texture: TextureOptions::default(),
         view_meshes: !a.no_view_meshes,
+        hold_out: a.hold_out.clone(),
         fingerprint: json!({
+            "hold_out": a.hold_out,
             "mode": format!("{:?}", a.mode),
             "target_faces": a.target_faces,
             "voxel_size": a.voxel_size,
@@ -228,9 +231,21 @@ pub fn build(
         }
         summary["view_meshes"] = json!(faces);
     }
+    let held = match &opts.hold_out {
+        Some(name) => Some(
+            views
+                .iter()
+                .position(|v| &v.name == name)
+                .with_context(|| format!("--hold-out {name}: not among the dense views"))?,
+        ),
+        None => None,
+    };
     if opts.mode == MeshMode::Fused {
         let depth_views: Vec<DepthView> = views
             .iter()
+            .enumerate()
+            .filter(|(i, _)| Some(*i) != held)
+            .map(|(_, v)| v)
             .map(|v| DepthView {
                 camera: &v.camera,
                 cam_from_world: v.cam_from_world,
@@ -242,6 +257,9 @@ pub fn build(
             fuse_depth_maps(&depth_views, &opts.fusion, bars).context("volumetric fusion")?;
         let image_views: Vec<ImageView> = views
             .iter()
+            .enumerate()
+            .filter(|(i, _)| Some(*i) != held)
+            .map(|(_, v)| v)
             .map(|v| ImageView {
                 camera: &v.camera,
                 cam_from_world: v.cam_from_world,
@@ -275,6 +293,10 @@ pub fn build(
             handheld_io::ply::PlyFormat::BinaryLittleEndian,
         )?;
         outputs.extend(["model.glb".into(), "model.ply".into()]);
+        if let Some(h) = held {
+            summary["hold_out"] = hold_out_check(&views[h], &textured, dir)?;
+            outputs.push("holdout.png".into());
+        }
         summary["fusion"] = json!({
             "voxel_size": fs.voxel_size,
             "blocks": fs.blocks,
@@ -302,6 +324,47 @@ pub fn build(
         *v = json!(v.as_array().map_or(0, Vec::len));
     }
     Ok(StageOutput { outputs, summary })
+}
+
+/// Renders the textured model from a view left out of it and compares with the photo; writes
+/// `holdout.png` (rendering | photo | 4× absolute difference).
+fn hold_out_check(
+    v: &KeyView,
+    textured: &handheld_mesh::TexturedMesh,
+    dir: &Path,
+) -> Result<serde_json::Value> {
+    let r = handheld_render::render_mesh(
+        &textured.mesh,
+        Some(&textured.texture),
+        &v.camera,
+        &v.cam_from_world,
+    );
+    let (mad, covered) = handheld_render::mean_absolute_difference(&r, &v.image);
+    let (w, h) = (v.image.width(), v.image.height());
+    let mut strip = RgbImage::new(3 * w, h);
+    for y in 0..h {
+        for x in 0..w {
+            let a = r.image.get_pixel(x, y).0;
+            let b = v.image.get_pixel(x, y).0;
+            let k = (y * w + x) as usize;
+            let d = if r.covered[k] {
+                [0, 1, 2].map(|c| (4 * (i32::from(a[c]) - i32::from(b[c])).abs()).min(255) as u8)
+            } else {
+                [0, 0, 60]
+            };
+            strip.put_pixel(x, y, image::Rgb(a));
+            strip.put_pixel(w + x, y, image::Rgb(b));
+            strip.put_pixel(2 * w + x, y, image::Rgb(d));
+        }
+    }
+    let bytes = handheld_io::obj::encode_png(&dir.join("holdout.png"), &strip)?;
+    handheld_io::atomic::write_bytes_atomic(&dir.join("holdout.png"), &bytes)?;
+    tracing::info!(
+        "held-out {}: mean absolute colour difference {mad:.1} over {:.1} % of the image",
+        v.name,
+        covered * 100.0
+    );
+    Ok(json!({ "image": v.name, "mean_absolute_difference": mad, "covered_fraction": covered }))
 }
 
 /// `handheld mesh --depth-maps DENSE --images I -o OUT`: the mesh stage alone.
