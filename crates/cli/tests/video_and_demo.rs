@@ -118,6 +118,11 @@ fn demo_writes_sequence_ground_truth_and_workspace() {
         "ground_truth/mesh.ply",
         "ground_truth/depth/frame_0003.pfm",
         "workspace/ingest/manifest.json",
+        "workspace/dense/fused.ply",
+        "workspace/dense/depth/frame_0003.png.pfm",
+        "workspace/mesh/model.glb",
+        "workspace/mesh/model.obj",
+        "workspace/mesh/model.png",
     ] {
         assert!(out.join(f).exists(), "{f} missing");
     }

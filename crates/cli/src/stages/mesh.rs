@@ -218,12 +218,18 @@ pub fn build(
                 depth: &v.depth,
                 confidence: v.confidence.as_ref(),
             };
-            let (mesh, s) = mesh_from_depth_map(&dv, Some(&v.image), &opts.single, bars)
-                .with_context(|| format!("{}: single-view mesh", v.name))?;
-            if mesh.faces.is_empty() {
-                tracing::warn!("{}: the depth map gives no triangles", v.name);
-                continue;
-            }
+            // A view whose depth map gives no triangle is skipped with a warning, not fatal.
+            let (mesh, s) = match mesh_from_depth_map(&dv, Some(&v.image), &opts.single, bars) {
+                Ok(r) if !r.0.faces.is_empty() => r,
+                Ok(_) => {
+                    tracing::warn!("{}: the depth map gives no triangles", v.name);
+                    continue;
+                }
+                Err(e) => {
+                    tracing::warn!("{}: no single-view mesh: {e}", v.name);
+                    continue;
+                }
+            };
             let out = format!("views/{}.glb", v.name);
             handheld_io::glb::write_glb(&dir.join(&out), &mesh, Some(&v.image))?;
             outputs.push(out);
