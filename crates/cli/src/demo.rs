@@ -115,23 +115,13 @@ fn encode_video(out: &Path) -> Result<std::path::PathBuf> {
 /// centre error after a similarity fit of the centres (as `eval_sfm.py`), focal error, and the focal
 /// error of self-calibration before metric BA.
 fn sparse_accuracy(out: &Path, workspace: &Path, video: bool) -> Result<serde_json::Value> {
-    let gt = handheld_io::colmap::read_reconstruction(&out.join("ground_truth").join("sparse"))?;
     let sparse = workspace.join("sparse");
-    let est = handheld_io::colmap::read_reconstruction(&sparse)?;
     let summary: serde_json::Value =
         serde_json::from_slice(&std::fs::read(sparse.join("summary.json"))?)?;
-    let by_name = gt_by_name(&gt, video);
-    let pairs: Vec<(&handheld_core::View, &handheld_core::View)> = est
-        .views
-        .values()
-        .filter_map(|v| by_name.get(v.name.as_str()).map(|g| (v, *g)))
-        .collect();
-    if pairs.len() < 3 {
-        anyhow::bail!("only {} views registered", pairs.len());
-    }
-    let src: Vec<_> = pairs.iter().map(|p| p.0.center()).collect();
+    let aligned = crate::demo_dense::Aligned::load(out, workspace, video)?;
+    let (gt, est, sim) = (&aligned.gt, &aligned.est, aligned.sim);
+    let pairs = aligned.pairs();
     let dst: Vec<_> = pairs.iter().map(|p| p.1.center()).collect();
-    let sim = handheld_core::Sim3::align(&src, &dst).context("aligning the camera centres")?;
     let mut rot: Vec<f64> = Vec::new();
     let mut cen: Vec<f64> = Vec::new();
     for (e, g) in &pairs {

@@ -4,25 +4,55 @@
 use std::path::Path;
 
 use anyhow::{Context, Result};
+use handheld_core::{MetricReconstruction, Sim3, View};
 use serde_json::json;
+
+/// A demo's ground truth and estimated model, with the similarity (model → ground truth) that
+/// aligns the registered camera centres.
+pub struct Aligned {
+    pub gt: MetricReconstruction,
+    pub est: MetricReconstruction,
+    pub sim: Sim3,
+    video: bool,
+}
+
+impl Aligned {
+    pub fn load(out: &Path, workspace: &Path, video: bool) -> Result<Self> {
+        let gt =
+            handheld_io::colmap::read_reconstruction(&out.join("ground_truth").join("sparse"))?;
+        let est = handheld_io::colmap::read_reconstruction(&workspace.join("sparse"))?;
+        let mut a = Self {
+            gt,
+            est,
+            sim: Sim3::identity(),
+            video,
+        };
+        let pairs = a.pairs();
+        if pairs.len() < 3 {
+            anyhow::bail!("only {} views registered", pairs.len());
+        }
+        let src: Vec<_> = pairs.iter().map(|p| p.0.center()).collect();
+        let dst: Vec<_> = pairs.iter().map(|p| p.1.center()).collect();
+        a.sim = Sim3::align(&src, &dst).context("aligning the camera centres")?;
+        Ok(a)
+    }
+
+    /// (estimated view, ground-truth view) for every registered view.
+    pub fn pairs(&self) -> Vec<(&View, &View)> {
+        let by_name = super::demo::gt_by_name(&self.gt, self.video);
+        self.est
+            .views
+            .values()
+            .filter_map(|v| by_name.get(v.name.as_str()).map(|g| (v, *g)))
+            .collect()
+    }
+}
 
 /// Median relative depth error and fill (over pixels where the ground truth has a surface) of
 /// every dense depth map in `workspace/dense/depth/`.
 pub fn dense_accuracy(out: &Path, workspace: &Path, video: bool) -> Result<serde_json::Value> {
-    let gt = handheld_io::colmap::read_reconstruction(&out.join("ground_truth").join("sparse"))?;
-    let est = handheld_io::colmap::read_reconstruction(&workspace.join("sparse"))?;
-    let by_name = super::demo::gt_by_name(&gt, video);
-    let pairs: Vec<_> = est
-        .views
-        .values()
-        .filter_map(|v| by_name.get(v.name.as_str()).map(|g| (v, *g)))
-        .collect();
-    if pairs.len() < 3 {
-        anyhow::bail!("only {} views registered", pairs.len());
-    }
-    let src: Vec<_> = pairs.iter().map(|p| p.0.center()).collect();
-    let dst: Vec<_> = pairs.iter().map(|p| p.1.center()).collect();
-    let sim = handheld_core::Sim3::align(&src, &dst).context("aligning the camera centres")?;
+    let aligned = Aligned::load(out, workspace, video)?;
+    let (pairs, sim) = (aligned.pairs(), aligned.sim);
     let ddir = workspace.join("dense").join("depth");
     let (mut errors, mut gt_pixels, mut maps) = (Vec::new(), 0usize, 0usize);
     for (e, g) in &pairs {
@@ -79,20 +109,8 @@ pub fn dense_accuracy(out: &Path, workspace: &Path, video: bool) -> Result<serde
 /// fused mesh against the exact scene mesh, over the scene surface the rendered views saw.
 pub fn mesh_accuracy(out: &Path, workspace: &Path, video: bool) -> Result<serde_json::Value> {
     use handheld_mesh::{eval::visible_surface_samples, evaluate, DepthView, EvalOptions};
-    let gt = handheld_io::colmap::read_reconstruction(&out.join("ground_truth").join("sparse"))?;
-    let est = handheld_io::colmap::read_reconstruction(&workspace.join("sparse"))?;
-    let by_name = super::demo::gt_by_name(&gt, video);
-    let pairs: Vec<_> = est
-        .views
-        .values()
-        .filter_map(|v| by_name.get(v.name.as_str()).map(|g| (v, *g)))
-        .collect();
-    if pairs.len() < 3 {
-        anyhow::bail!("only {} views registered", pairs.len());
-    }
-    let src: Vec<_> = pairs.iter().map(|p| p.0.center()).collect();
-    let dst: Vec<_> = pairs.iter().map(|p| p.1.center()).collect();
-    let sim = handheld_core::Sim3::align(&src, &dst).context("aligning the camera centres")?;
+    let aligned = Aligned::load(out, workspace, video)?;
+    let (gt, sim) = (&aligned.gt, aligned.sim);
     let mut mesh = handheld_io::ply::read_mesh(&workspace.join("mesh").join("model.ply"))?;
     for p in mesh.vertices.positions.iter_mut() {
         let q = sim.transform_point(&nalgebra::Point3::new(
