@@ -16,8 +16,8 @@ use anyhow::{Context, Result};
 use clap::Args;
 use handheld_core::{Camera, FloatMap, Rigid3};
 use handheld_dense::{
-    link_depth, match_pair, match_rectified, rectify_pair, DenseView, LinkOptions, LinkView,
-    PairOptions, RectifyMethod, RectifyOptions, StereoOptions,
+    link_depth, match_pair, rectify_pair, DenseView, LinkOptions, LinkView, PairOptions,
+    RectifyMethod, RectifyOptions, StereoMatcher, StereoOptions,
 };
 use handheld_testkit::path::PathOptions;
 use handheld_testkit::render::{render_sequence, SequenceOptions};
@@ -38,7 +38,7 @@ pub struct BenchDenseArgs {
     #[arg(long)]
     pub images: Option<PathBuf>,
     /// Timed runs (median reported).
-    #[arg(long, default_value_t = 3)]
+    #[arg(long, default_value_t = 5)]
     pub runs: u32,
 }
 
@@ -197,6 +197,9 @@ fn time_pair(
         sgm_paths: handheld_dense::SgmPaths::Eight,
         ..stereo.clone()
     };
+    // One matcher per setting, reused across runs (as OpenCV reuses its StereoSGBM object).
+    let mut m4 = StereoMatcher::new(stereo)?;
+    let mut m8 = StereoMatcher::new(eight)?;
     let (mut tr, mut tm, mut t8, mut size) = (Vec::new(), Vec::new(), Vec::new(), (0, 0));
     for _ in 0..runs.max(1) {
         let t = Instant::now();
@@ -205,10 +208,10 @@ fn time_pair(
         let (b, _) = rect.resample(1, &handheld_dense::pair::to_grey(r));
         tr.push(t.elapsed().as_secs_f64());
         let t = Instant::now();
-        match_rectified(&a, &b, &stereo)?;
+        m4.match_pair(&a, &b)?;
         tm.push(t.elapsed().as_secs_f64());
         let t = Instant::now();
-        match_rectified(&a, &b, &eight)?;
+        m8.match_pair(&a, &b)?;
         t8.push(t.elapsed().as_secs_f64());
         size = rect.size();
     }

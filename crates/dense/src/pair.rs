@@ -9,7 +9,7 @@ use crate::disparity::Disparity;
 use crate::error::{DenseError, Result};
 use crate::options::StereoOptions;
 use crate::rectify::{rectify_pair, Rectification, RectifyOptions};
-use crate::stereo::match_rectified;
+use crate::stereo::StereoMatcher;
 
 /// A calibrated view for dense matching: its camera, pose (`cam_from_world`) and image
 /// (1-channel grey or 3-channel RGB, 0..=255, the original distorted pixels).
@@ -38,8 +38,10 @@ impl Default for PairOptions {
             rectify: RectifyOptions::default(),
             // Four SGM paths: as accurate as eight on Middlebury (teddy bad1 10.8 % vs 11.1 %) and on
             // the synthetic linking curve, at about half the aggregation time.
+            // No hole filling: linking follows measured disparities only.
             stereo: StereoOptions {
                 sgm_paths: crate::options::SgmPaths::Four,
+                hole_fill: crate::options::HoleFill::None,
                 ..StereoOptions::default()
             },
             range_margin: 0.15,
@@ -60,6 +62,18 @@ pub struct PairDisparity {
 /// Rectifies and matches `left` against `right`. `points` are sparse world points (those both
 /// views see fix the disparity range, as §4.2 asks).
 pub fn match_pair(
+    left: DenseView<'_>,
+    right: DenseView<'_>,
+    points: &[Point3<f64>],
+    opts: &PairOptions,
+) -> Result<PairDisparity> {
+    let mut matcher = StereoMatcher::new(opts.stereo.clone())?;
+    match_pair_with(&mut matcher, left, right, points, opts)
+}
+
+/// [`match_pair`] with a reusable matcher (its options are `opts.stereo` apart from the range).
+pub fn match_pair_with(
+    matcher: &mut StereoMatcher,
     left: DenseView<'_>,
     right: DenseView<'_>,
     points: &[Point3<f64>],
@@ -101,10 +115,8 @@ pub fn match_pair(
     // The matcher works on grey levels: convert first, so resampling touches one channel.
     let (l, lmask) = rect.resample(0, &to_grey(left.image));
     let (r, rmask) = rect.resample(1, &to_grey(right.image));
-    let mut stereo = opts.stereo.clone();
-    stereo.min_disparity = range.0;
-    stereo.max_disparity = range.1.max(range.0 + 1);
-    let mut d = match_rectified(&l, &r, &stereo)?;
+    matcher.set_disparity_range(range.0, range.1.max(range.0 + 1))?;
+    let mut d = matcher.match_pair(&l, &r)?;
     restrict_to_images(&mut d, &lmask, &rmask);
     Ok(PairDisparity {
         rectification: rect,

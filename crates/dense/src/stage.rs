@@ -12,7 +12,8 @@ use nalgebra::{Point3, Vector2, Vector3};
 
 use crate::error::{DenseError, Result};
 use crate::link::{link_depth, LinkOptions, LinkView, LinkedDepth};
-use crate::pair::{match_pair, DenseView, PairDisparity, PairOptions};
+use crate::pair::{match_pair_with, DenseView, PairDisparity, PairOptions};
+use crate::stereo::StereoMatcher;
 
 /// One input view of [`dense_reconstruct`], in sequence order.
 #[derive(Clone, Debug)]
@@ -128,6 +129,7 @@ pub fn dense_reconstruct(
             cam_from_world: &v.cam_from_world,
         })
         .collect();
+    let mut matcher = StereoMatcher::new(opts.pair.stereo.clone())?;
     let mut cloud = PointCloud::default();
     let mut recent: Vec<(usize, LinkedDepth)> = Vec::new();
     progress.start("dense", n as u64);
@@ -149,7 +151,7 @@ pub fn dense_reconstruct(
                 }
             }
             let tp = Instant::now();
-            match match_pair(dv(a), dv(b), points, &opts.pair) {
+            match match_pair_with(&mut matcher, dv(a), dv(b), points, &opts.pair) {
                 Ok(pd) => {
                     summary.pairs_matched += 1;
                     summary.polar_pairs += usize::from(pd.rectification.is_polar());

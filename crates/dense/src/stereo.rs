@@ -68,6 +68,17 @@ impl StereoMatcher {
         })
     }
 
+    /// Changes the disparity range, keeping the volumes' storage (one matcher serves the pairs
+    /// of a sequence, each with its own range).
+    pub fn set_disparity_range(&mut self, min: i32, max: i32) -> Result<()> {
+        let mut o = self.opts.clone();
+        o.min_disparity = min;
+        o.max_disparity = max;
+        o.validate()?;
+        self.opts = o;
+        Ok(())
+    }
+
     /// The options in use.
     pub fn options(&self) -> &StereoOptions {
         &self.opts

@@ -58,6 +58,7 @@ pub fn options(a: &DenseArgs) -> Result<DenseStageOptions> {
         pair: PairOptions {
             stereo: StereoOptions {
                 sgm_paths: PairOptions::default().stereo.sgm_paths,
+                hole_fill: PairOptions::default().stereo.hole_fill,
                 ..StereoOptions::for_method(method)
             },
             ..Default::default()

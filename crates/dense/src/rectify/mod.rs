@@ -176,16 +176,32 @@ impl Rectification {
         let ch = image.channels;
         let mut out = FloatMap::filled(w, h, ch, 0.0);
         let mut mask = vec![false; w * h];
+        let view = &self.views[side];
         out.data
             .par_chunks_mut(w * ch)
             .zip(mask.par_chunks_mut(w))
             .enumerate()
             .for_each(|(y, (row, mrow))| {
+                // Polar rows are straight half-lines in ideal coordinates: one angle per row.
+                let ray = match &self.kind {
+                    Kind::Polar(k) => k.row_ray(side, y),
+                    Kind::Planar(_) => None,
+                };
                 for x in 0..w {
-                    let Some(m) = self.from_rect(side, Vector2::new(x as f64, y as f64)) else {
-                        continue;
+                    let m = match ray {
+                        Some((e, u, rho0)) => {
+                            let rho = x as f64 + rho0;
+                            if rho <= 0.0 {
+                                continue;
+                            }
+                            view.from_ideal(e + u * rho)
+                        }
+                        None => match self.from_rect(side, Vector2::new(x as f64, y as f64)) {
+                            Some(m) => m,
+                            None => continue,
+                        },
                     };
-                    if !self.views[side].contains(&m) {
+                    if !view.contains(&m) {
                         continue;
                     }
                     for c in 0..ch {

@@ -202,6 +202,13 @@ impl PolarRect {
         Some(Vector2::new(rho - self.rho_min[side], row))
     }
 
+    /// The half-line of integer row `row` in image `side`: epipole, unit direction, and the
+    /// distance from the epipole of column 0 (`R⁻¹(x, row) = e + (x + ρ₀)·u`).
+    pub fn row_ray(&self, side: usize, row: usize) -> Option<(Vector2<f64>, Vector2<f64>, f64)> {
+        let a = *self.angles[side].get(row)?;
+        Some((self.epipoles[side], unit(a), self.rho_min[side]))
+    }
+
     /// Rectified `(column, row)` → ideal pixel of image `side`; `None` off the rows.
     pub fn from_rect(&self, side: usize, r: Vector2<f64>) -> Option<Vector2<f64>> {
         let table = &self.angles[side];
