@@ -261,6 +261,10 @@ pub fn build(
             .collect();
         let (mesh, fs) =
             fuse_depth_maps(&depth_views, &opts.fusion, bars).context("volumetric fusion")?;
+        // Watertight where observed: no non-manifold or flipped edge; borders only where the
+        // views stop (counted before texturing splits vertices along chart borders).
+        let (border, non_manifold, flipped) = handheld_mesh::topology::edge_report(&mesh);
+        let (_, components) = handheld_mesh::topology::face_components(&mesh);
         let image_views: Vec<ImageView> = views
             .iter()
             .enumerate()
@@ -313,6 +317,10 @@ pub fn build(
             "integrate_seconds": fs.integrate_seconds,
             "extract_seconds": fs.extract_seconds,
             "simplify_seconds": fs.simplify_seconds,
+            "border_edges": border,
+            "non_manifold_edges": non_manifold,
+            "flipped_edges": flipped,
+            "components": components,
         });
         summary["texture"] = json!({
             "atlas": [textured.texture.width(), textured.texture.height()],
