@@ -43,12 +43,7 @@ pub struct BenchDenseArgs {
 }
 
 fn to_map(img: &image::RgbImage) -> FloatMap {
-    FloatMap {
-        width: img.width() as usize,
-        height: img.height() as usize,
-        channels: 3,
-        data: img.as_raw().iter().map(|&v| f32::from(v)).collect(),
-    }
+    FloatMap::from_u8(img.width() as usize, img.height() as usize, 3, img.as_raw())
 }
 
 fn median(mut v: Vec<f64>) -> f64 {

@@ -13,6 +13,16 @@ pub struct FloatMap {
 }
 
 impl FloatMap {
+    /// A map from interleaved 8-bit samples (e.g. an RGB image's raw buffer), values 0..=255.
+    pub fn from_u8(width: usize, height: usize, channels: usize, samples: &[u8]) -> Self {
+        Self {
+            width,
+            height,
+            channels,
+            data: samples.iter().map(|&v| f32::from(v)).collect(),
+        }
+    }
+
     /// A map filled with `value`.
     pub fn filled(width: usize, height: usize, channels: usize, value: f32) -> Self {
         Self {

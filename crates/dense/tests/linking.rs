@@ -20,12 +20,7 @@ fn sequence(width: u32, height: u32) -> SyntheticSequence {
 }
 
 fn to_map(img: &image::RgbImage) -> FloatMap {
-    FloatMap {
-        width: img.width() as usize,
-        height: img.height() as usize,
-        channels: 3,
-        data: img.as_raw().iter().map(|&v| v as f32).collect(),
-    }
+    FloatMap::from_u8(img.width() as usize, img.height() as usize, 3, img.as_raw())
 }
 
 /// (fill over GT-valid pixels, median relative depth error of the filled ones).

@@ -154,12 +154,12 @@ fn load_views(
                 name: view.name.clone(),
                 camera,
                 cam_from_world: view.cam_from_world,
-                image: FloatMap {
-                    width: img.width() as usize,
-                    height: img.height() as usize,
-                    channels: 3,
-                    data: img.as_raw().iter().map(|&v| f32::from(v)).collect(),
-                },
+                image: FloatMap::from_u8(
+                    img.width() as usize,
+                    img.height() as usize,
+                    3,
+                    img.as_raw(),
+                ),
             })
         })
         .collect()
