@@ -199,8 +199,12 @@ pub struct DenseArgs {
     #[arg(long, default_value_t = 11)]
     pub link_views: usize,
     /// Dense: V_min, the fewest views a kept depth must be linked through (reference included).
-    #[arg(long, default_value_t = 3)]
+    #[arg(long, default_value_t = 2)]
     pub min_visibility: usize,
+    /// Dense: the V a view keeps when at least half its depths reach it; views whose neighbours
+    /// are too far apart to link further (an object ring) keep --min-visibility.
+    #[arg(long, default_value_t = 3)]
+    pub preferred_visibility: usize,
 }
 
 impl Default for DenseArgs {
@@ -209,7 +213,8 @@ impl Default for DenseArgs {
             dense_max_size: 1600,
             stereo_method: StereoMethodArg::Sgm,
             link_views: 11,
-            min_visibility: 3,
+            min_visibility: 2,
+            preferred_visibility: 3,
         }
     }
 }
@@ -233,6 +238,10 @@ pub struct MeshArgs {
     /// from its camera and report the colour difference (`mesh/holdout.png`).
     #[arg(long)]
     pub hold_out: Option<String>,
+    /// Mesh: close holes inside observed surface whose boundary is at most this many voxel
+    /// lengths (0: leave every hole open). The outline where the views stop always stays open.
+    #[arg(long, default_value_t = 1000.0)]
+    pub max_hole_perimeter: f64,
 }
 
 impl Default for MeshArgs {
@@ -243,6 +252,7 @@ impl Default for MeshArgs {
             voxel_size: None,
             no_view_meshes: false,
             hold_out: None,
+            max_hole_perimeter: 1000.0,
         }
     }
 }

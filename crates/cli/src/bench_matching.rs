@@ -50,6 +50,10 @@ pub struct BenchMatchingArgs {
     /// SIFT: upsample the image first (octave −1), as COLMAP does by default.
     #[arg(long)]
     pub upsample: bool,
+    /// Brute force only over this many strongest keypoints per image, then guided matching over
+    /// all (0: brute force over all; default: the library default).
+    #[arg(long)]
+    pub seed_features: Option<usize>,
 }
 
 fn median(v: &mut [f64]) -> Option<f64> {
@@ -217,8 +221,12 @@ pub fn run(a: &BenchMatchingArgs, g: &GlobalArgs, bars: &Bars) -> Result<()> {
         sequential_pairs(feats.len(), 1)
     };
     let t1 = Instant::now();
-    let verified =
-        pool.install(|| verify_pairs(&feats, &pairs, &PairVerificationOptions::default(), bars));
+    let mut vopts = PairVerificationOptions::default();
+    if let Some(k) = a.seed_features {
+        vopts.seed_features = (k > 0).then_some(k);
+    }
+    vopts.validate().map_err(anyhow::Error::msg)?;
+    let verified = pool.install(|| verify_pairs(&feats, &pairs, &vopts, bars));
     let match_total = t1.elapsed().as_secs_f64();
     let adjacent: Vec<&VerifiedPair> = verified.iter().filter(|v| v.j == v.i + 1).collect();
     let mut inl: Vec<f64> = adjacent.iter().map(|v| v.inliers.len() as f64).collect();
@@ -231,6 +239,10 @@ pub fn run(a: &BenchMatchingArgs, g: &GlobalArgs, bars: &Bars) -> Result<()> {
         "pairs": pairs.len(),
         "matching_seconds_total": match_total,
         "matching_seconds_per_pair": match_total / pairs.len().max(1) as f64,
+        "seed_features": vopts.seed_features,
+        "verified_pairs": verified.iter().filter(|v| v.inliers.len() >= 15).count(),
+        "seeded_pairs": verified.iter().filter(|v| v.putative.len() < v.inliers.len()).count(),
+        "adjacent_guided_added": adjacent.iter().map(|v| v.guided_added).collect::<Vec<_>>(),
         "adjacent_inliers": adjacent.iter().map(|v| v.inliers.len()).collect::<Vec<_>>(),
         "adjacent_inliers_median": median(&mut inl),
         "adjacent_configurations": adjacent.iter().map(|v| v.geometry.configuration).collect::<Vec<_>>(),

@@ -24,8 +24,14 @@ pub struct LinkOptions {
     pub sigma_px: f64,
     /// Gate in standard deviations: a link farther than this from the fused depth ends the chain.
     pub gate: f64,
-    /// `V_min`: fewest views (reference included) a kept pixel must be linked through.
+    /// `V_min`: fewest views (reference included) a kept pixel must be linked through. Default 2
+    /// (one left-right-checked pair).
     pub min_visibility: usize,
+    /// The `V` a view keeps when it can: if at least half of the pixels that reach
+    /// `min_visibility` also reach this, only those are kept. Views whose neighbours are too far
+    /// apart to link further (an object ring, wide baselines) keep `min_visibility`. Default 3;
+    /// at or below `min_visibility` it changes nothing.
+    pub preferred_visibility: usize,
     /// Most links followed in each direction.
     pub max_links: usize,
 }
@@ -35,7 +41,8 @@ impl Default for LinkOptions {
         Self {
             sigma_px: 0.5,
             gate: 3.0,
-            min_visibility: 3,
+            min_visibility: 2,
+            preferred_visibility: 3,
             max_links: 5,
         }
     }
@@ -247,6 +254,23 @@ pub fn link_depth(
                 }
             }
         });
+    if opts.preferred_visibility > opts.min_visibility {
+        let v_pref = opts.preferred_visibility as f32;
+        let kept = visibility.data.iter().filter(|&&v| v > 0.0).count();
+        let strong = visibility.data.iter().filter(|&&v| v >= v_pref).count();
+        if 2 * strong >= kept {
+            for ((d, var), v) in depth
+                .data
+                .iter_mut()
+                .zip(variance.data.iter_mut())
+                .zip(visibility.data.iter_mut())
+            {
+                if *v > 0.0 && *v < v_pref {
+                    (*d, *var, *v) = (f32::NAN, f32::NAN, 0.0);
+                }
+            }
+        }
+    }
     Ok(LinkedDepth {
         depth,
         variance,

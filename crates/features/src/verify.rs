@@ -2,6 +2,14 @@
 //! matcher (step 1), RANSAC + model selection + eq. 12/13 refinement (steps 2–3, in
 //! `handheld-robust`), guided matching along the epipolar lines (step 4) and a final refinement on
 //! all correct matches (step 5). Runs in parallel over pairs.
+//!
+//! Seeded matching: with [`PairVerificationOptions::seed_features`], step 1 runs brute force only
+//! over the strongest keypoints of each image (by detector response). Those putative matches are
+//! enough for a reliable `F`, and step 4 then matches *every* keypoint along its epipolar band,
+//! which costs a few candidates per keypoint instead of a row of the full distance matrix. A pair
+//! the seeds cannot verify (too few inliers, or not a general configuration: planar scenes and
+//! pure rotation have no epipolar band) is matched again by brute force over all keypoints, so
+//! seeding never loses a pair that full matching would verify with the band.
 
 use handheld_core::Progress;
 use handheld_robust::{
@@ -12,7 +20,7 @@ use nalgebra::{Matrix3, Vector2, Vector3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::detector::Features;
+use crate::detector::{Descriptors, Features};
 use crate::matching::{match_descriptors, Match, MatchOptions};
 
 /// Options of [`verify_pairs`].
@@ -33,6 +41,10 @@ pub struct PairVerificationOptions {
     /// weakly supported `F` may be wrong, and matching along wrong epipolar lines invents thousands
     /// of consistent-looking false matches. Default 50.
     pub guided_min_inliers: usize,
+    /// Brute-force step 1 only over this many strongest keypoints per image, then guided matching
+    /// over all of them (see the module notes); `None` matches all keypoints by brute force.
+    /// Default `Some(2048)`. Needs `guided`.
+    pub seed_features: Option<usize>,
 }
 
 impl Default for PairVerificationOptions {
@@ -45,6 +57,7 @@ impl Default for PairVerificationOptions {
             guided_ratio: 0.9,
             guided_max_distance: 0.7,
             guided_min_inliers: 50,
+            seed_features: Some(2048),
         }
     }
 }
@@ -55,6 +68,9 @@ impl PairVerificationOptions {
         self.two_view.validate()?;
         if self.guided_max_epipolar_px.is_nan() || self.guided_max_epipolar_px <= 0.0 {
             return Err("guided_max_epipolar_px must be positive".into());
+        }
+        if self.seed_features.is_some_and(|k| k < 64) {
+            return Err("seed_features must be at least 64".into());
         }
         Ok(())
     }
@@ -331,6 +347,63 @@ pub fn verify_pair(
     }
 }
 
+/// Indices of the `k` keypoints with the largest detector response, in index order.
+fn strongest(f: &Features, k: usize) -> Vec<u32> {
+    let mut idx: Vec<u32> = (0..f.keypoints.len() as u32).collect();
+    if idx.len() > k {
+        idx.select_nth_unstable_by(k, |&a, &b| {
+            let (ra, rb) = (f.keypoints[a as usize].response, f.keypoints[b as usize].response);
+            rb.total_cmp(&ra).then(a.cmp(&b))
+        });
+        idx.truncate(k);
+        idx.sort_unstable();
+    }
+    idx
+}
+
+fn select_rows(d: &Descriptors, idx: &[u32]) -> Descriptors {
+    Descriptors {
+        dim: d.dim,
+        data: idx
+            .iter()
+            .flat_map(|&i| d.row(i as usize).iter().copied())
+            .collect(),
+    }
+}
+
+/// Steps 1–5 for one pair, seeded when [`PairVerificationOptions::seed_features`] says so.
+pub fn match_and_verify(
+    i: usize,
+    j: usize,
+    f1: &Features,
+    f2: &Features,
+    opts: &PairVerificationOptions,
+) -> VerifiedPair {
+    if let Some(k) = opts.seed_features.filter(|_| opts.guided) {
+        if f1.descriptors.len() > k || f2.descriptors.len() > k {
+            let (s1, s2) = (strongest(f1, k), strongest(f2, k));
+            let putative: Vec<Match> = match_descriptors(
+                &select_rows(&f1.descriptors, &s1),
+                &select_rows(&f2.descriptors, &s2),
+                &opts.matching,
+            )
+            .into_iter()
+            .map(|m| Match {
+                i: s1[m.i as usize],
+                j: s2[m.j as usize],
+                distance: m.distance,
+            })
+            .collect();
+            let v = verify_pair(i, j, f1, f2, putative, opts);
+            if v.guided_added > 0 {
+                return v;
+            }
+        }
+    }
+    let putative = match_descriptors(&f1.descriptors, &f2.descriptors, &opts.matching);
+    verify_pair(i, j, f1, f2, putative, opts)
+}
+
 /// Matches and verifies every pair, in parallel, reporting progress per pair.
 pub fn verify_pairs(
     features: &[Features],
@@ -343,8 +416,7 @@ pub fn verify_pairs(
         .par_iter()
         .filter_map(|&(i, j)| {
             let (f1, f2) = (features.get(i)?, features.get(j)?);
-            let putative = match_descriptors(&f1.descriptors, &f2.descriptors, &opts.matching);
-            let v = verify_pair(i, j, f1, f2, putative, opts);
+            let v = match_and_verify(i, j, f1, f2, opts);
             progress.inc(1);
             Some(v)
         })

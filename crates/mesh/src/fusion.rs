@@ -10,7 +10,8 @@ use std::time::Instant;
 
 use handheld_core::{Progress, TriMesh};
 
-use crate::error::{MeshError, Result};
+use crate::error::{in_range, MeshError, Result};
+use crate::holes::{fill_holes, remove_non_manifold, HoleFillOptions, HoleReport};
 use crate::marching_cubes::{extract_mesh, ExtractOptions};
 use crate::simplify::{compact, simplify, SimplifyOptions};
 use crate::topology::remove_small_components;
@@ -29,12 +30,22 @@ pub struct FusionOptions {
     /// Simplification after extraction; `None` keeps the marching-cubes mesh. Default
     /// `Some(SimplifyOptions::default())`.
     pub simplify: Option<SimplifyOptions>,
+    /// Holes inside observed surface ([`crate::holes`]) with a boundary of at most this many voxel
+    /// lengths are closed, before simplification and again after it (where non-manifold edges
+    /// were cut out); 0 leaves every hole open. Default 1000.
+    pub max_hole_perimeter_voxels: f64,
 }
 
 impl FusionOptions {
     pub fn validate(&self) -> Result<()> {
         self.tsdf.validate()?;
         self.extract.validate()?;
+        in_range(
+            "max_hole_perimeter_voxels",
+            self.max_hole_perimeter_voxels,
+            0.0,
+            1e9,
+        )?;
         if let Some(s) = &self.simplify {
             s.validate()?;
         }
@@ -49,6 +60,7 @@ impl Default for FusionOptions {
             extract: ExtractOptions::default(),
             min_component_faces: 100,
             simplify: Some(SimplifyOptions::default()),
+            max_hole_perimeter_voxels: 1000.0,
         }
     }
 }
@@ -74,6 +86,11 @@ pub struct FusionSummary {
     pub faces_extracted: usize,
     pub faces_cleaned: usize,
     pub faces_final: usize,
+    /// Hole filling on the marching-cubes mesh.
+    pub holes: HoleReport,
+    /// Faces cut out around non-manifold edges after simplification, and the refill.
+    pub non_manifold_faces_removed: usize,
+    pub holes_after_simplify: HoleReport,
     pub vertices_final: usize,
     pub integrate_seconds: f64,
     pub extract_seconds: f64,
@@ -158,11 +175,27 @@ pub fn fuse_depth_maps(
         }
     }
     summary.faces_cleaned = mesh.faces.len();
+    let hole_opts = HoleFillOptions {
+        max_perimeter: opts.max_hole_perimeter_voxels * voxel_size,
+        ..Default::default()
+    };
+    if opts.max_hole_perimeter_voxels > 0.0 {
+        summary.holes = fill_holes(&mut mesh, &hole_opts);
+        tracing::debug!(holes = ?summary.holes, "holes filled");
+    }
     summary.extract_seconds = t1.elapsed().as_secs_f64();
     let t2 = Instant::now();
     if let Some(s) = &opts.simplify {
         progress.start("simplification", 0);
         mesh = simplify(&mesh, s)?.0;
+        let (kept, removed) = remove_non_manifold(&mesh);
+        if removed > 0 {
+            summary.non_manifold_faces_removed = removed;
+            mesh = compact(&mesh, &kept);
+            if opts.max_hole_perimeter_voxels > 0.0 {
+                summary.holes_after_simplify = fill_holes(&mut mesh, &hole_opts);
+            }
+        }
         progress.finish();
     }
     summary.simplify_seconds = t2.elapsed().as_secs_f64();

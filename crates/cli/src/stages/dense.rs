@@ -50,6 +50,13 @@ pub fn options(a: &DenseArgs) -> Result<DenseStageOptions> {
             a.min_visibility
         );
     }
+    if a.preferred_visibility < 1 || a.preferred_visibility > a.link_views {
+        anyhow::bail!(
+            "--preferred-visibility must be between 1 and --link-views ({}), got {}",
+            a.link_views,
+            a.preferred_visibility
+        );
+    }
     let method = match a.stereo_method {
         StereoMethodArg::Sgm => StereoMethod::Sgm,
         StereoMethodArg::Dp => StereoMethod::Dp,
@@ -66,6 +73,7 @@ pub fn options(a: &DenseArgs) -> Result<DenseStageOptions> {
         link: LinkOptions {
             max_links: (a.link_views - 1) / 2,
             min_visibility: a.min_visibility,
+            preferred_visibility: a.preferred_visibility,
             ..Default::default()
         },
         ..Default::default()
@@ -77,6 +85,7 @@ pub fn options(a: &DenseArgs) -> Result<DenseStageOptions> {
             "method": format!("{method:?}"),
             "link_views": a.link_views,
             "min_visibility": a.min_visibility,
+            "preferred_visibility": a.preferred_visibility,
         }),
         dense,
         max_size: a.dense_max_size,

@@ -50,6 +50,12 @@ pub fn options(a: &MeshArgs) -> Result<MeshStageOptions> {
         Some(v) => VoxelSize::Absolute(v),
         None => TsdfOptions::default().voxel_size,
     };
+    if !(a.max_hole_perimeter.is_finite() && a.max_hole_perimeter >= 0.0) {
+        anyhow::bail!(
+            "--max-hole-perimeter must be zero or positive (voxel lengths), got {}",
+            a.max_hole_perimeter
+        );
+    }
     let fusion = FusionOptions {
         tsdf: TsdfOptions {
             voxel_size,
@@ -59,6 +65,7 @@ pub fn options(a: &MeshArgs) -> Result<MeshStageOptions> {
             target_faces: a.target_faces,
             ..Default::default()
         }),
+        max_hole_perimeter_voxels: a.max_hole_perimeter,
         ..Default::default()
     };
     Ok(MeshStageOptions {
@@ -73,6 +80,7 @@ pub fn options(a: &MeshArgs) -> Result<MeshStageOptions> {
             "mode": format!("{:?}", a.mode),
             "target_faces": a.target_faces,
             "voxel_size": a.voxel_size,
+            "max_hole_perimeter": a.max_hole_perimeter,
             "view_meshes": !a.no_view_meshes,
         }),
     })
@@ -265,6 +273,21 @@ pub fn build(
         // views stop (counted before texturing splits vertices along chart borders).
         let (border, non_manifold, flipped) = handheld_mesh::topology::edge_report(&mesh);
         let (_, components) = handheld_mesh::topology::face_components(&mesh);
+        let loops = handheld_mesh::holes::boundary_loops(
+            &mesh,
+            handheld_mesh::HoleFillOptions::default().closed_piece_ratio,
+        );
+        let open_holes = loops.iter().filter(|l| !l.outer).count();
+        let hole_json = |h: &handheld_mesh::HoleReport| {
+            json!({
+                "outer_loops": h.outer_loops,
+                "holes": h.holes,
+                "filled": h.filled,
+                "left_open": h.holes_open,
+                "largest_open_perimeter": h.largest_open_perimeter,
+                "faces_added": h.faces_added,
+            })
+        };
         let image_views: Vec<ImageView> = views
             .iter()
             .enumerate()
@@ -321,6 +344,11 @@ pub fn build(
             "non_manifold_edges": non_manifold,
             "flipped_edges": flipped,
             "components": components,
+            "outer_boundaries": loops.len() - open_holes,
+            "open_holes": open_holes,
+            "hole_filling": hole_json(&fs.holes),
+            "non_manifold_faces_removed": fs.non_manifold_faces_removed,
+            "hole_filling_after_simplify": hole_json(&fs.holes_after_simplify),
         });
         summary["texture"] = json!({
             "atlas": [textured.texture.width(), textured.texture.height()],
