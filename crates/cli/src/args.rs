@@ -161,6 +161,10 @@ pub struct InputArgs {
     /// Matching: skip guided matching along epipolar lines (Table 1 step 4).
     #[arg(long)]
     pub no_guided: bool,
+    /// Matching: brute force only over this many strongest features per image, then guided
+    /// matching over all of them (0: brute force over all features).
+    #[arg(long, default_value_t = 2048)]
+    pub seed_features: usize,
     /// Matching: with sequential pairs, do not look for close views outside the window (§3.2).
     #[arg(long)]
     pub no_close_views: bool,

@@ -316,6 +316,7 @@ pub fn run(a: &DemoArgs, g: &GlobalArgs, bars: &Bars) -> Result<()> {
         window: 8,
         ratio: 0.8,
         no_guided: false,
+        seed_features: 2048,
         no_close_views: false,
         seed: a.seed,
         distortion: crate::args::DistortionArg::K1,

@@ -1,6 +1,10 @@
 //! The volumetric stage of §5.1 as one call: depth maps → TSDF ([`crate::tsdf`], Curless & Levoy
 //! 1996) → marching cubes ([`crate::marching_cubes`], Lorensen & Cline 1987) → removal of floating
-//! specks → quadric simplification ([`mod@crate::simplify`], Garland & Heckbert 1997).
+//! specks → hole filling inside observed surface ([`crate::holes`]) → quadric simplification
+//! ([`mod@crate::simplify`], Garland & Heckbert 1997) → cutting out the non-manifold edges the
+//! collapses leave, and closing those small holes again. The result is watertight where observed:
+//! its only borders are the outlines where the views stop (and holes longer than
+//! [`FusionOptions::max_hole_perimeter_voxels`]).
 //!
 //! Bad input fails loudly: a map whose size differs from its camera, an all-empty map, depth maps
 //! that never agree on a surface ([`MeshError::NoOverlap`]) or an empty extraction are errors, never

@@ -7,9 +7,12 @@
 //!   (Ofek et al. 1997);
 //! * [`tsdf`]: Curless–Levoy volumetric fusion in sparse voxel blocks; [`marching_cubes`] with the
 //!   derived case table of [`mc_tables`]: the fused surface as one welded, oriented mesh;
+//! * [`holes`]: watertight where observed: boundary loops (outer outline vs holes), ear-clipping
+//!   hole filling, and the non-manifold repair simplification needs;
 //! * [`mod@simplify`]: Garland–Heckbert quadric decimation (meshoptimizer), borders locked;
 //! * [`fusion`]: [`fuse_depth_maps`], the volumetric stage in one call (TSDF → marching cubes →
-//!   speck removal → simplification), with its summary; [`topology`]: connectivity helpers;
+//!   speck removal → hole filling → simplification → non-manifold repair), with its summary;
+//!   [`topology`]: connectivity helpers;
 //! * [`texture`]: a view per face, charts, an atlas (`atlas`) with seam levelling (`seams`);
 //! * [`eval`]: Middlebury multi-view accuracy and completeness against a ground-truth mesh, over a
 //!   triangle hierarchy ([`MeshIndex`]).

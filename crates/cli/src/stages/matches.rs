@@ -29,6 +29,8 @@ pub struct MatchStageOptions {
     /// Ratio test of the putative matcher.
     pub ratio: f32,
     pub guided: bool,
+    /// Brute force over this many strongest features per image, then guided matching over all.
+    pub seed_features: Option<usize>,
     /// With sequential matching, also propose and verify close views outside the window (§3.2).
     pub close_views: bool,
 }
@@ -37,11 +39,18 @@ pub fn options(a: &InputArgs) -> Result<MatchStageOptions> {
     if !(a.ratio > 0.0 && a.ratio <= 1.0) {
         anyhow::bail!("--ratio must be in (0, 1], got {}", a.ratio);
     }
+    if a.seed_features > 0 && a.seed_features < 64 {
+        anyhow::bail!(
+            "--seed-features must be 0 (brute force over all) or at least 64, got {}",
+            a.seed_features
+        );
+    }
     Ok(MatchStageOptions {
         pairs: a.pairs,
         window: a.window,
         ratio: a.ratio,
         guided: !a.no_guided,
+        seed_features: (a.seed_features > 0).then_some(a.seed_features),
         close_views: !a.no_close_views,
     })
 }
@@ -49,6 +58,7 @@ pub fn options(a: &InputArgs) -> Result<MatchStageOptions> {
 fn verification_options(o: &MatchStageOptions) -> PairVerificationOptions {
     let mut v = PairVerificationOptions {
         guided: o.guided,
+        seed_features: o.seed_features,
         ..Default::default()
     };
     v.matching.ratio = o.ratio;
