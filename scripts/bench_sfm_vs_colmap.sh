@@ -12,7 +12,7 @@ command -v colmap >/dev/null || { echo '{"error":"colmap not installed (apt inst
 [ -x "$HH" ] || cargo build --release -p handheld >&2
 rm -rf "$WORK/hh" "$WORK/colmap"; mkdir -p "$WORK/colmap/sparse"
 t0=$(date +%s.%N)
-"$HH" --quiet reconstruct "$DATA/images" -o "$WORK/hh"
+"$HH" --quiet reconstruct "$DATA/images" -o "$WORK/hh" --until sparse
 t1=$(date +%s.%N)
 export QT_QPA_PLATFORM=offscreen
 colmap feature_extractor --database_path "$WORK/colmap/db.db" --image_path "$DATA/images" \

@@ -44,9 +44,9 @@ pub struct BenchMatchingArgs {
     /// SIFT contrast threshold (OpenCV convention; default: the library default).
     #[arg(long)]
     pub contrast_threshold: Option<f32>,
-    /// SIFT: keep at most this many features per image. Default 12 288, COLMAP's budget here (its
+    /// SIFT: keep at most this many features per image. Default 13 312, COLMAP's budget here (its
     /// extractor gives 10.5–13.2 k per fountain-P11 image); `reconstruct` keeps 8192.
-    #[arg(long, default_value_t = 12288)]
+    #[arg(long, default_value_t = 13312)]
     pub max_features: usize,
     /// SIFT: upsample the image first (octave −1), as COLMAP does by default.
     #[arg(long)]

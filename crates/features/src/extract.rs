@@ -37,7 +37,7 @@ pub const MIN_CONTRAST_THRESHOLD: f32 = 0.002;
 impl Default for ExtractionOptions {
     /// RootSIFT with COLMAP's contrast threshold (its `peak_threshold` 0.02/3 is 0.02 in the
     /// OpenCV convention used here), at most 8192 features, full resolution. `handheld bench
-    /// matching` raises the budget to 12 288 to compare with COLMAP, which extracts 10.5–13.2 k
+    /// matching` raises the budget to 13 312 to compare with COLMAP, which extracts 10.5–13.2 k
     /// per fountain-P11 image (see README).
     fn default() -> Self {
         Self {

@@ -1,0 +1,88 @@
+//! Seeded matching (brute force over the strongest keypoints, then guided matching over all of
+//! them) against brute force over every keypoint, on a rendered pair with exact ground truth:
+//! it must find at least as many correct matches, and as large a share of them correct.
+//! A match is correct when the first keypoint, back-projected by an exact ray cast, projects
+//! within 1.5 px of the second.
+
+mod common;
+use common::{back_project, project_visible};
+
+use handheld_features::extract::{extract_features, ExtractionOptions};
+use handheld_features::verify::{match_and_verify, PairVerificationOptions, VerifiedPair};
+use handheld_features::Features;
+use handheld_testkit::{render_sequence, PathOptions, SequenceOptions, SyntheticSequence};
+use image::DynamicImage;
+use nalgebra::Vector2;
+
+/// (correct, scored) inliers of a verified pair between frames 0 and 1.
+fn score(seq: &SyntheticSequence, f1: &Features, f2: &Features, v: &VerifiedPair) -> (usize, usize) {
+    let (mut good, mut scored) = (0, 0);
+    for &(a, b) in &v.inliers {
+        let (ka, kb) = (&f1.keypoints[a as usize], &f2.keypoints[b as usize]);
+        let Some(p) = back_project(seq, 0, ka.x as f64, ka.y as f64) else {
+            continue;
+        };
+        let Some(gt) = project_visible(seq, 1, &p) else {
+            continue;
+        };
+        scored += 1;
+        if (gt - Vector2::new(kb.x as f64, kb.y as f64)).norm() <= 1.5 {
+            good += 1;
+        }
+    }
+    (good, scored)
+}
+
+#[test]
+fn seeded_matching_finds_as_many_correct_matches_as_brute_force() {
+    let opts = SequenceOptions {
+        seed: 5,
+        width: 640,
+        height: 480,
+        num_frames: 2,
+        samples_per_axis: 2,
+        path: PathOptions {
+            sweep: 10.0,
+            ..PathOptions::orbit(2)
+        },
+        ..SequenceOptions::default()
+    };
+    let seq = render_sequence(&opts).expect("valid options");
+    let feats: Vec<Features> = seq
+        .images
+        .iter()
+        .map(|im| extract_features(&DynamicImage::ImageRgb8(im.clone()), &ExtractionOptions::default()))
+        .collect();
+    let (f1, f2) = (&feats[0], &feats[1]);
+    let n = f1.keypoints.len().min(f2.keypoints.len());
+    // Seeds well below the keypoint count, so the seeded path really runs.
+    let seeds = (n / 8).max(64);
+    let seeded_opts = PairVerificationOptions {
+        seed_features: Some(seeds),
+        ..Default::default()
+    };
+    let brute_opts = PairVerificationOptions {
+        seed_features: None,
+        ..Default::default()
+    };
+    let seeded = match_and_verify(0, 1, f1, f2, &seeded_opts);
+    let brute = match_and_verify(0, 1, f1, f2, &brute_opts);
+    let (sg, ss) = score(&seq, f1, f2, &seeded);
+    let (bg, bs) = score(&seq, f1, f2, &brute);
+    println!(
+        "{n} keypoints, {seeds} seeds: seeded {} inliers ({} guided), {sg}/{ss} correct; brute force {} inliers, {bg}/{bs} correct",
+        seeded.inliers.len(),
+        seeded.guided_added,
+        brute.inliers.len()
+    );
+    assert!(seeded.guided_added > 0, "the seeded path did not run");
+    assert!(seeded.putative.len() < brute.putative.len());
+    assert!(sg >= bg * 95 / 100, "seeded {sg} correct against {bg}");
+    let precision = |g: usize, s: usize| g as f64 / s.max(1) as f64;
+    assert!(
+        precision(sg, ss) >= 0.95 && precision(sg, ss) >= precision(bg, bs) - 0.02,
+        "precision seeded {} brute {}",
+        precision(sg, ss),
+        precision(bg, bs)
+    );
+}
