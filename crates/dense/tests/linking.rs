@@ -116,5 +116,8 @@ fn linking_fills_the_reference_view_and_gets_better_with_more_views() {
     eprintln!("last view, one link: V_min 3 fill {strict_fill:.3}; defaults fill {kept_fill:.3} at {:.3} %", kept_err * 100.0);
     assert_eq!(strict_fill, 0.0);
     // One pair, no second link to average with: looser than the N = 11 bound, still metric.
-    assert!(kept_fill >= 0.7 && kept_err <= 0.02, "{kept_fill} {kept_err}");
+    assert!(
+        kept_fill >= 0.7 && kept_err <= 0.02,
+        "{kept_fill} {kept_err}"
+    );
 }

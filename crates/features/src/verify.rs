@@ -201,10 +201,7 @@ impl Grid {
         let half = band * n / a.abs();
         let t = |s: f64| -(b * s + l.z) / a;
         for o in 0..outer {
-            let (t0, t1) = (
-                t(o as f64 * self.cell),
-                t((o + 1) as f64 * self.cell),
-            );
+            let (t0, t1) = (t(o as f64 * self.cell), t((o + 1) as f64 * self.cell));
             let lo = ((t0.min(t1) - half) / self.cell).floor().max(0.0);
             let hi = ((t0.max(t1) + half) / self.cell)
                 .floor()
@@ -416,7 +413,10 @@ fn strongest(f: &Features, k: usize) -> Vec<u32> {
     let mut idx: Vec<u32> = (0..f.keypoints.len() as u32).collect();
     if idx.len() > k {
         idx.select_nth_unstable_by(k, |&a, &b| {
-            let (ra, rb) = (f.keypoints[a as usize].response, f.keypoints[b as usize].response);
+            let (ra, rb) = (
+                f.keypoints[a as usize].response,
+                f.keypoints[b as usize].response,
+            );
             rb.total_cmp(&ra).then(a.cmp(&b))
         });
         idx.truncate(k);

@@ -15,7 +15,12 @@ use image::DynamicImage;
 use nalgebra::Vector2;
 
 /// (correct, scored) inliers of a verified pair between frames 0 and 1.
-fn score(seq: &SyntheticSequence, f1: &Features, f2: &Features, v: &VerifiedPair) -> (usize, usize) {
+fn score(
+    seq: &SyntheticSequence,
+    f1: &Features,
+    f2: &Features,
+    v: &VerifiedPair,
+) -> (usize, usize) {
     let (mut good, mut scored) = (0, 0);
     for &(a, b) in &v.inliers {
         let (ka, kb) = (&f1.keypoints[a as usize], &f2.keypoints[b as usize]);
@@ -51,7 +56,12 @@ fn seeded_matching_finds_as_many_correct_matches_as_brute_force() {
     let feats: Vec<Features> = seq
         .images
         .iter()
-        .map(|im| extract_features(&DynamicImage::ImageRgb8(im.clone()), &ExtractionOptions::default()))
+        .map(|im| {
+            extract_features(
+                &DynamicImage::ImageRgb8(im.clone()),
+                &ExtractionOptions::default(),
+            )
+        })
         .collect();
     let (f1, f2) = (&feats[0], &feats[1]);
     let n = f1.keypoints.len().min(f2.keypoints.len());

@@ -93,7 +93,10 @@ fn fused_mesh_meets_the_middlebury_bounds() {
         loops.iter().filter(|l| !l.outer).count(),
         edge_report(&coarse)
     );
-    assert!(loops.iter().all(|l| l.outer), "an interior hole is left open");
+    assert!(
+        loops.iter().all(|l| l.outer),
+        "an interior hole is left open"
+    );
     let (_, non_manifold, flipped) = edge_report(&coarse);
     assert_eq!((non_manifold, flipped), (0, 0));
 }
