@@ -9,7 +9,6 @@ use std::time::Instant;
 use handheld_features::harris::{detect_harris, HarrisOptions, HarrisZncc};
 use handheld_features::zncc::{match_zncc, zncc, zncc_patch, ZnccMatchOptions};
 use handheld_features::{FeatureDetector, GrayImage};
-use handheld_testkit::{render_sequence, PathOptions, SequenceOptions};
 use nalgebra::Vector2;
 
 /// A checkerboard of `cell`-pixel squares rotated by `angle` about `origin`, box-filtered over each
@@ -173,19 +172,7 @@ fn harris_zncc_descriptors_are_normalised_patches() {
 #[test]
 fn zncc_matches_on_a_small_baseline_pair_are_correct() {
     let t0 = Instant::now();
-    let opts = SequenceOptions {
-        seed: 5,
-        width: 640,
-        height: 480,
-        num_frames: 2,
-        samples_per_axis: 2,
-        path: PathOptions {
-            sweep: 3.0,
-            ..PathOptions::orbit(2)
-        },
-        ..SequenceOptions::default()
-    };
-    let seq = render_sequence(&opts).expect("valid options");
+    let seq = common::orbit_pair(3.0);
     let t_render = t0.elapsed().as_secs_f64();
     let imgs: Vec<GrayImage> = seq.images.iter().map(GrayImage::from_rgb8).collect();
     let t1 = Instant::now();

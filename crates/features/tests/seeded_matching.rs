@@ -10,7 +10,7 @@ use common::{back_project, project_visible};
 use handheld_features::extract::{extract_features, ExtractionOptions};
 use handheld_features::verify::{match_and_verify, PairVerificationOptions, VerifiedPair};
 use handheld_features::Features;
-use handheld_testkit::{render_sequence, PathOptions, SequenceOptions, SyntheticSequence};
+use handheld_testkit::SyntheticSequence;
 use image::DynamicImage;
 use nalgebra::Vector2;
 
@@ -40,19 +40,7 @@ fn score(
 
 #[test]
 fn seeded_matching_finds_as_many_correct_matches_as_brute_force() {
-    let opts = SequenceOptions {
-        seed: 5,
-        width: 640,
-        height: 480,
-        num_frames: 2,
-        samples_per_axis: 2,
-        path: PathOptions {
-            sweep: 10.0,
-            ..PathOptions::orbit(2)
-        },
-        ..SequenceOptions::default()
-    };
-    let seq = render_sequence(&opts).expect("valid options");
+    let seq = common::orbit_pair(10.0);
     let feats: Vec<Features> = seq
         .images
         .iter()

@@ -2,6 +2,17 @@ use super::*;
 use crate::topology::edge_report;
 use handheld_core::PointCloud;
 
+fn mesh(positions: Vec<[f32; 3]>, faces: Vec<[u32; 3]>) -> TriMesh {
+    TriMesh {
+        vertices: PointCloud {
+            positions,
+            ..Default::default()
+        },
+        uvs: Vec::new(),
+        faces,
+    }
+}
+
 /// An `n × n`-cell grid in the z = 0 plane (counter-clockwise seen from +z), minus the cells
 /// `skip` says to drop.
 fn grid(n: usize, skip: impl Fn(usize, usize) -> bool) -> TriMesh {
@@ -24,14 +35,7 @@ fn grid(n: usize, skip: impl Fn(usize, usize) -> bool) -> TriMesh {
             faces.push([id(i, j), id(i + 1, j + 1), id(i, j + 1)]);
         }
     }
-    TriMesh {
-        vertices: PointCloud {
-            positions,
-            ..Default::default()
-        },
-        uvs: Vec::new(),
-        faces,
-    }
+    mesh(positions, faces)
 }
 
 /// A closed UV sphere of radius 1 (outward, counter-clockwise), `rings × segs`.
@@ -58,14 +62,7 @@ fn sphere(rings: usize, segs: usize) -> TriMesh {
             faces.push([id(r, s), id(r + 1, s + 1), id(r, s + 1)]);
         }
     }
-    TriMesh {
-        vertices: PointCloud {
-            positions,
-            ..Default::default()
-        },
-        uvs: Vec::new(),
-        faces,
-    }
+    mesh(positions, faces)
 }
 
 #[test]

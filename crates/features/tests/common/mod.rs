@@ -3,7 +3,9 @@
 
 #![allow(dead_code)]
 
-use handheld_testkit::{pixel_ray, SyntheticSequence};
+use handheld_testkit::{
+    pixel_ray, render_sequence, PathOptions, SequenceOptions, SyntheticSequence,
+};
 use nalgebra::{Point3, Vector2};
 
 /// World point seen at pixel `(x, y)` of `frame` (exact ray cast), unless the pixel is within 3 px of a
@@ -40,4 +42,21 @@ pub fn project_visible(
     let (o, dir) = pixel_ray(cam, pose, px);
     let hit = seq.scene.intersect(&o, &dir)?;
     ((o + dir * hit.t - p).norm() < 1e-3 * (p - o).norm()).then_some(px)
+}
+
+/// Two 640×480 frames of the default scene (seed 5) on an orbit that sweeps `sweep` degrees.
+pub fn orbit_pair(sweep: f64) -> SyntheticSequence {
+    let opts = SequenceOptions {
+        seed: 5,
+        width: 640,
+        height: 480,
+        num_frames: 2,
+        samples_per_axis: 2,
+        path: PathOptions {
+            sweep,
+            ..PathOptions::orbit(2)
+        },
+        ..SequenceOptions::default()
+    };
+    render_sequence(&opts).expect("valid options")
 }
