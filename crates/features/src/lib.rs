@@ -15,6 +15,7 @@ pub mod gray;
 pub mod harris;
 pub mod keyframes;
 pub mod klt;
+mod klt_align;
 pub mod matching;
 pub mod sift;
 pub mod verify;
