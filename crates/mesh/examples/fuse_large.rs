@@ -7,13 +7,15 @@
 
 use std::time::Instant;
 
+#[path = "../tests/common/mod.rs"]
+mod common;
+
 use handheld_core::NoProgress;
 use handheld_mesh::eval::visible_surface_samples;
 use handheld_mesh::{
-    evaluate, fuse_depth_maps, texture_mesh, DepthView, EvalOptions, FusionOptions, ImageView,
-    TextureOptions, VoxelSize,
+    evaluate, fuse_depth_maps, texture_mesh, EvalOptions, FusionOptions, TextureOptions, VoxelSize,
 };
-use handheld_testkit::{render_sequence, SequenceOptions};
+use handheld_testkit::render_sequence;
 
 /// Peak resident memory in MiB (`VmHWM`), when the platform reports it.
 fn peak_mib() -> Option<f64> {
@@ -32,15 +34,7 @@ fn main() {
     let width: u32 = args.get(1).and_then(|a| a.parse().ok()).unwrap_or(3072);
     let frames: usize = args.get(2).and_then(|a| a.parse().ok()).unwrap_or(11);
     let voxel: f64 = args.get(3).and_then(|a| a.parse().ok()).unwrap_or(0.01);
-    let opts = SequenceOptions {
-        seed: 7,
-        width,
-        height: width * 2 / 3,
-        num_frames: frames,
-        samples_per_axis: 1,
-        image_noise_sigma: 0.0,
-        ..SequenceOptions::default()
-    };
+    let opts = common::sequence_options(frames, width, width * 2 / 3);
     let t = Instant::now();
     let seq = match render_sequence(&opts) {
         Ok(s) => s,
@@ -55,17 +49,7 @@ fn main() {
         t.elapsed().as_secs_f64(),
         peak_mib().unwrap_or(f64::NAN)
     );
-    let depth: Vec<DepthView> = (0..frames)
-        .filter_map(|i| {
-            let (camera, pose) = seq.frame(i)?;
-            Some(DepthView {
-                camera,
-                cam_from_world: *pose,
-                depth: &seq.depths[i],
-                confidence: None,
-            })
-        })
-        .collect();
+    let depth = common::depth_views(&seq);
     reset_peak();
     let base = peak_mib().unwrap_or(f64::NAN);
     let mut fopts = FusionOptions::default();
@@ -83,17 +67,7 @@ fn main() {
         t.elapsed().as_secs_f64(),
         peak_mib().unwrap_or(f64::NAN)
     );
-    let images: Vec<ImageView> = (0..frames)
-        .filter_map(|i| {
-            let (camera, pose) = seq.frame(i)?;
-            Some(ImageView {
-                camera,
-                cam_from_world: *pose,
-                image: &seq.images[i],
-                depth: Some(&seq.depths[i]),
-            })
-        })
-        .collect();
+    let images = common::image_views(&seq);
     match texture_mesh(&mesh, &images, &TextureOptions::default(), &NoProgress) {
         Ok((_, s)) => println!(
             "textured: {} charts, atlas {}x{} at {:.2} texels/pixel, {} untextured faces, {:.1}s; peak {:.0} MiB",

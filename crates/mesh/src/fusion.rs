@@ -15,10 +15,10 @@ use std::time::Instant;
 use handheld_core::{Progress, TriMesh};
 
 use crate::error::{in_range, MeshError, Result};
-use crate::holes::{fill_holes, remove_non_manifold, HoleFillOptions, HoleReport};
+use crate::holes::{boundary_loops, fill_holes, remove_non_manifold, HoleFillOptions, HoleReport};
 use crate::marching_cubes::{extract_mesh, ExtractOptions};
 use crate::simplify::{compact, simplify, SimplifyOptions};
-use crate::topology::remove_small_components;
+use crate::topology::{edge_report, face_components, remove_small_components};
 use crate::tsdf::{resolve_voxel_size, TsdfOptions, TsdfVolume, BLOCK_VOXELS};
 use crate::view::DepthView;
 
@@ -95,6 +95,15 @@ pub struct FusionSummary {
     /// Faces cut out around non-manifold edges after simplification, and the refill.
     pub non_manifold_faces_removed: usize,
     pub holes_after_simplify: HoleReport,
+    /// The final mesh's edges: open borders, non-manifold, inconsistently oriented
+    /// ([`crate::topology::edge_report`]); its connected pieces; and its boundary loops, split
+    /// into outer outlines (where the views stop) and holes left open ([`crate::holes`]).
+    pub border_edges: usize,
+    pub non_manifold_edges: usize,
+    pub flipped_edges: usize,
+    pub components: usize,
+    pub outer_boundaries: usize,
+    pub open_holes: usize,
     pub vertices_final: usize,
     pub integrate_seconds: f64,
     pub extract_seconds: f64,
@@ -205,5 +214,14 @@ pub fn fuse_depth_maps(
     summary.simplify_seconds = t2.elapsed().as_secs_f64();
     summary.faces_final = mesh.faces.len();
     summary.vertices_final = mesh.vertices.len();
+    (
+        summary.border_edges,
+        summary.non_manifold_edges,
+        summary.flipped_edges,
+    ) = edge_report(&mesh);
+    summary.components = face_components(&mesh).1;
+    let loops = boundary_loops(&mesh, hole_opts.closed_piece_ratio);
+    summary.open_holes = loops.iter().filter(|l| !l.outer).count();
+    summary.outer_boundaries = loops.len() - summary.open_holes;
     Ok((mesh, summary))
 }

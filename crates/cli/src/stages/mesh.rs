@@ -96,6 +96,26 @@ struct KeyView {
     image: RgbImage,
 }
 
+impl KeyView {
+    fn depth_view(&self) -> DepthView<'_> {
+        DepthView {
+            camera: &self.camera,
+            cam_from_world: self.cam_from_world,
+            depth: &self.depth,
+            confidence: self.confidence.as_ref(),
+        }
+    }
+
+    fn image_view(&self) -> ImageView<'_> {
+        ImageView {
+            camera: &self.camera,
+            cam_from_world: self.cam_from_world,
+            image: &self.image,
+            depth: Some(&self.depth),
+        }
+    }
+}
+
 #[derive(serde::Deserialize)]
 struct CameraEntry {
     image: String,
@@ -220,12 +240,7 @@ pub fn build(
         std::fs::create_dir_all(dir.join("views"))?;
         let mut faces = Vec::new();
         for v in &views {
-            let dv = DepthView {
-                camera: &v.camera,
-                cam_from_world: v.cam_from_world,
-                depth: &v.depth,
-                confidence: v.confidence.as_ref(),
-            };
+            let dv = v.depth_view();
             // A view whose depth map gives no triangle is skipped with a warning, not fatal.
             let (mesh, s) = match mesh_from_depth_map(&dv, Some(&v.image), &opts.single, bars) {
                 Ok(r) if !r.0.faces.is_empty() => r,
@@ -259,25 +274,10 @@ pub fn build(
             .iter()
             .enumerate()
             .filter(|(i, _)| Some(*i) != held)
-            .map(|(_, v)| v)
-            .map(|v| DepthView {
-                camera: &v.camera,
-                cam_from_world: v.cam_from_world,
-                depth: &v.depth,
-                confidence: v.confidence.as_ref(),
-            })
+            .map(|(_, v)| v.depth_view())
             .collect();
         let (mesh, fs) =
             fuse_depth_maps(&depth_views, &opts.fusion, bars).context("volumetric fusion")?;
-        // Watertight where observed: no non-manifold or flipped edge; borders only where the
-        // views stop (counted before texturing splits vertices along chart borders).
-        let (border, non_manifold, flipped) = handheld_mesh::topology::edge_report(&mesh);
-        let (_, components) = handheld_mesh::topology::face_components(&mesh);
-        let loops = handheld_mesh::holes::boundary_loops(
-            &mesh,
-            handheld_mesh::HoleFillOptions::default().closed_piece_ratio,
-        );
-        let open_holes = loops.iter().filter(|l| !l.outer).count();
         let hole_json = |h: &handheld_mesh::HoleReport| {
             json!({
                 "outer_loops": h.outer_loops,
@@ -292,13 +292,7 @@ pub fn build(
             .iter()
             .enumerate()
             .filter(|(i, _)| Some(*i) != held)
-            .map(|(_, v)| v)
-            .map(|v| ImageView {
-                camera: &v.camera,
-                cam_from_world: v.cam_from_world,
-                image: &v.image,
-                depth: Some(&v.depth),
-            })
+            .map(|(_, v)| v.image_view())
             .collect();
         let (textured, ts) =
             texture_mesh(&mesh, &image_views, &opts.texture, bars).context("texturing")?;
@@ -340,12 +334,14 @@ pub fn build(
             "integrate_seconds": fs.integrate_seconds,
             "extract_seconds": fs.extract_seconds,
             "simplify_seconds": fs.simplify_seconds,
-            "border_edges": border,
-            "non_manifold_edges": non_manifold,
-            "flipped_edges": flipped,
-            "components": components,
-            "outer_boundaries": loops.len() - open_holes,
-            "open_holes": open_holes,
+            // Watertight where observed: no non-manifold or flipped edge, no open hole; borders
+            // only where the views stop (counted before texturing splits chart seams).
+            "border_edges": fs.border_edges,
+            "non_manifold_edges": fs.non_manifold_edges,
+            "flipped_edges": fs.flipped_edges,
+            "components": fs.components,
+            "outer_boundaries": fs.outer_boundaries,
+            "open_holes": fs.open_holes,
             "hole_filling": hole_json(&fs.holes),
             "non_manifold_faces_removed": fs.non_manifold_faces_removed,
             "hole_filling_after_simplify": hole_json(&fs.holes_after_simplify),

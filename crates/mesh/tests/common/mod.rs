@@ -5,18 +5,23 @@
 use handheld_mesh::{DepthView, ImageView};
 use handheld_testkit::{render_sequence, SequenceOptions, SyntheticSequence};
 
-/// `n` frames of the default orbit at `width`×`height` (¾ aspect), exact depth, no image noise.
-pub fn sequence(n: usize, width: u32) -> SyntheticSequence {
-    let opts = SequenceOptions {
+/// Options of `n` frames of the default orbit (seed 7) at `width`×`height`, exact depth, no image
+/// noise.
+pub fn sequence_options(n: usize, width: u32, height: u32) -> SequenceOptions {
+    SequenceOptions {
         seed: 7,
         width,
-        height: width * 3 / 4,
+        height,
         num_frames: n,
         samples_per_axis: 1,
         image_noise_sigma: 0.0,
         ..SequenceOptions::default()
-    };
-    render_sequence(&opts).expect("valid sequence options")
+    }
+}
+
+/// `n` frames of the default orbit at `width`×`height` (¾ aspect).
+pub fn sequence(n: usize, width: u32) -> SyntheticSequence {
+    render_sequence(&sequence_options(n, width, width * 3 / 4)).expect("valid sequence options")
 }
 
 pub fn depth_views(seq: &SyntheticSequence) -> Vec<DepthView<'_>> {
