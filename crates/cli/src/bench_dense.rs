@@ -16,7 +16,7 @@ use anyhow::{Context, Result};
 use clap::Args;
 use handheld_core::{Camera, FloatMap, Rigid3};
 use handheld_dense::{
-    link_depth, match_pair, rectify_pair, DenseView, LinkOptions, LinkView, PairOptions,
+    link_depth, match_sequence_pairs, rectify_pair, DenseView, LinkOptions, LinkView, PairOptions,
     RectifyMethod, RectifyOptions, StereoMatcher, StereoOptions,
 };
 use handheld_testkit::path::PathOptions;
@@ -75,18 +75,9 @@ fn linking(width: u32) -> Result<serde_json::Value> {
         })
         .collect();
     let t = Instant::now();
-    let pairs = views
-        .windows(2)
-        .map(|w| match_pair(w[0], w[1], &points, &PairOptions::default()).map(Some))
-        .collect::<std::result::Result<Vec<_>, _>>()?;
+    let pairs = match_sequence_pairs(&views, &points, &PairOptions::default())?;
     let pair_s = t.elapsed().as_secs_f64() / pairs.len() as f64;
-    let lviews: Vec<LinkView> = frames
-        .iter()
-        .map(|(c, p)| LinkView {
-            camera: c,
-            cam_from_world: p,
-        })
-        .collect();
+    let lviews: Vec<LinkView> = views.iter().map(DenseView::link_view).collect();
     let reference = 7;
     let truth = &seq.depths[reference];
     let mut curve = Vec::new();

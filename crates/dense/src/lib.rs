@@ -60,7 +60,9 @@ pub use disparity::Disparity;
 pub use error::DenseError;
 pub use link::{link_depth, LinkOptions, LinkView, LinkedDepth};
 pub use options::{HoleFill, MatchingCost, SgmPaths, StereoMethod, StereoOptions};
-pub use pair::{match_pair, match_pair_with, DenseView, PairDisparity, PairOptions};
+pub use pair::{
+    match_pair, match_pair_with, match_sequence_pairs, DenseView, PairDisparity, PairOptions,
+};
 pub use rectify::{rectify_pair, Rectification, RectifyMethod, RectifyOptions};
 pub use stage::{
     dense_reconstruct, scale_camera, DenseInputView, DenseOptions, DenseSummary, DenseViewResult,

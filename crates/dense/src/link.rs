@@ -76,6 +76,16 @@ pub struct LinkView<'a> {
     pub cam_from_world: &'a Rigid3,
 }
 
+impl<'a> crate::pair::DenseView<'a> {
+    /// The camera and pose of this view, for [`link_depth`].
+    pub fn link_view(&self) -> LinkView<'a> {
+        LinkView {
+            camera: self.camera,
+            cam_from_world: self.cam_from_world,
+        }
+    }
+}
+
 /// Linked depth of a reference view: z-depth in its camera frame, the fused variance, and the
 /// visibility `V`. Pixels without a kept estimate hold `NaN` depth and variance and `V = 0`.
 #[derive(Clone, Debug, PartialEq)]

@@ -71,6 +71,20 @@ pub fn match_pair(
     match_pair_with(&mut matcher, left, right, points, opts)
 }
 
+/// Every consecutive pair `(i, i + 1)` of an ordered sequence, matched with one reused matcher:
+/// the pair disparities [`crate::link_depth`] chains through.
+pub fn match_sequence_pairs(
+    views: &[DenseView<'_>],
+    points: &[Point3<f64>],
+    opts: &PairOptions,
+) -> Result<Vec<Option<PairDisparity>>> {
+    let mut matcher = StereoMatcher::new(opts.stereo.clone())?;
+    views
+        .windows(2)
+        .map(|w| match_pair_with(&mut matcher, w[0], w[1], points, opts).map(Some))
+        .collect()
+}
+
 /// [`match_pair`] with a reusable matcher (its options are `opts.stereo` apart from the range).
 pub fn match_pair_with(
     matcher: &mut StereoMatcher,

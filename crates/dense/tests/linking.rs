@@ -3,7 +3,7 @@
 
 use handheld_core::FloatMap;
 use handheld_dense::{
-    link_depth, match_pair, DenseView, LinkOptions, LinkView, LinkedDepth, PairOptions,
+    link_depth, match_sequence_pairs, DenseView, LinkOptions, LinkView, LinkedDepth, PairOptions,
 };
 use handheld_testkit::render::{render_sequence, SequenceOptions, SyntheticSequence};
 use nalgebra::Point3;
@@ -55,17 +55,8 @@ fn linking_fills_the_reference_view_and_gets_better_with_more_views() {
             image: img,
         })
         .collect();
-    let pairs: Vec<_> = views
-        .windows(2)
-        .map(|w| Some(match_pair(w[0], w[1], &points, &PairOptions::default()).expect("pair")))
-        .collect();
-    let link_views: Vec<LinkView> = frames
-        .iter()
-        .map(|(c, p)| LinkView {
-            camera: c,
-            cam_from_world: p,
-        })
-        .collect();
+    let pairs = match_sequence_pairs(&views, &points, &PairOptions::default()).expect("pairs");
+    let link_views: Vec<LinkView> = views.iter().map(DenseView::link_view).collect();
     let reference = 7;
     let mut curve = Vec::new();
     for half in 1..=5 {
