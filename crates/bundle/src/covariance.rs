@@ -111,7 +111,7 @@ pub fn metric_uncertainty(
     }
     let dof = (2 * p.num_observations()) as f64 - (n + 3 * p.points.len()) as f64 + dropped as f64;
     let sum_sq: f64 = (0..p.num_observations())
-        .map(|o| p.residual(o))
+        .map(|o| p.weighted_residual(o))
         .map(|r| r[0] * r[0] + r[1] * r[1])
         .sum();
     let variance_factor = if dof > 0.0 { sum_sq / dof } else { 1.0 };

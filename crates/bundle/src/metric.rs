@@ -3,6 +3,7 @@
 //! (the paper's soft constraints, e.g. aspect ≈ 1, skew ≈ 0, principal point ≈ image centre).
 
 use std::collections::{BTreeMap, BTreeSet};
+use std::sync::Arc;
 
 use handheld_core::{CameraId, ImageId, MetricReconstruction, PointId};
 use nalgebra::{Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
@@ -111,6 +112,9 @@ pub struct MetricBundleConfig {
     pub constant_views: BTreeSet<ImageId>,
     /// Also hold the first view (smallest id) constant, fixing 6 of the 7 gauge freedoms. Default true.
     pub fix_first_view: bool,
+    /// Standard deviation (pixels) of each keypoint of a view, indexed like `View::observations`.
+    /// Views without an entry, and keypoints past its end, have σ = 1. Default none.
+    pub keypoint_sigma: BTreeMap<ImageId, Arc<[f64]>>,
 }
 
 impl Default for MetricBundleConfig {
@@ -121,6 +125,7 @@ impl Default for MetricBundleConfig {
             priors: BTreeMap::new(),
             constant_views: BTreeSet::new(),
             fix_first_view: true,
+            keypoint_sigma: BTreeMap::new(),
         }
     }
 }
@@ -196,6 +201,15 @@ pub(crate) fn metric_problem(
             p.obs_camera.push(vi as u32);
             p.obs_point.push(idx);
             p.obs_xy.push([obs.xy.x, obs.xy.y]);
+            if !config.keypoint_sigma.is_empty() {
+                let s = config
+                    .keypoint_sigma
+                    .get(&el.image_id)
+                    .and_then(|s| s.get(el.point2d_idx as usize))
+                    .copied()
+                    .unwrap_or(1.0);
+                p.obs_sigma.push(s);
+            }
         }
         p.points.push([pt.xyz.x, pt.xyz.y, pt.xyz.z, 1.0]);
         points.push(*pid);

@@ -47,6 +47,10 @@ pub struct Problem {
     pub obs_camera: Vec<u32>,
     pub obs_point: Vec<u32>,
     pub obs_xy: Vec<[f64; 2]>,
+    /// Standard deviation (pixels) of each observation's position; empty means 1 for all. Residuals
+    /// are divided by it before the robust loss, so the cost is the Mahalanobis distance of an
+    /// isotropic measurement model (eq. 21 with per-observation weights).
+    pub obs_sigma: Vec<f64>,
 }
 
 impl Problem {
@@ -64,6 +68,7 @@ impl Problem {
             obs_camera: Vec::new(),
             obs_point: Vec::new(),
             obs_xy: Vec::new(),
+            obs_sigma: Vec::new(),
         }
     }
 
@@ -82,6 +87,21 @@ impl Problem {
             return bad(
                 "array lengths disagree (cameras/camera_constant or observation arrays)".into(),
             );
+        }
+        if !self.obs_sigma.is_empty() && self.obs_sigma.len() != no {
+            return bad(format!(
+                "{} observation sigmas for {no} observations",
+                self.obs_sigma.len()
+            ));
+        }
+        if let Some(o) = self
+            .obs_sigma
+            .iter()
+            .position(|s| !(s.is_finite() && *s > 0.0))
+        {
+            return bad(format!(
+                "observation {o} has a non-positive or non-finite sigma"
+            ));
         }
         if self.model == CameraModel::Metric {
             let ng = self.groups.len();
@@ -144,13 +164,28 @@ impl Problem {
         }
     }
 
-    /// The cost `½ Σ ρ(‖r‖²) + ½ Σ ((x − mean)/sigma)²` over observations and priors on free intrinsics.
+    /// `1 / σ` of observation `o` (1 without [`Problem::obs_sigma`]).
+    #[inline]
+    pub fn obs_weight(&self, o: usize) -> f64 {
+        self.obs_sigma.get(o).map_or(1.0, |s| 1.0 / s)
+    }
+
+    /// Residual of observation `o` divided by its σ (pixels when σ is 1).
+    #[inline]
+    pub fn weighted_residual(&self, o: usize) -> [f64; 2] {
+        let r = self.residual(o);
+        let w = self.obs_weight(o);
+        [r[0] * w, r[1] * w]
+    }
+
+    /// The cost `½ Σ ρ(‖r/σ‖²) + ½ Σ ((x − mean)/sigma)²` over observations and priors on free
+    /// intrinsics.
     pub fn cost(&self, loss: &RobustLoss) -> f64 {
         let data: f64 = (0..self.num_observations())
             .into_par_iter()
             .with_min_len(1024)
             .map(|o| {
-                let r = self.residual(o);
+                let r = self.weighted_residual(o);
                 loss.evaluate(r[0] * r[0] + r[1] * r[1])[0]
             })
             .collect::<Vec<f64>>()

@@ -85,6 +85,17 @@ pub(crate) fn linearize(p: &Problem, st: &Structure, loss: &RobustLoss) -> Linea
                     r
                 }
             };
+            // Per-observation σ (eq. 21's weights): scale the residual and both Jacobians by 1/σ.
+            let wt = p.obs_weight(o);
+            let r = if wt != 1.0 {
+                for row in full.iter_mut().chain(jp_out.iter_mut()) {
+                    row[0] *= wt;
+                    row[1] *= wt;
+                }
+                [r[0] * wt, r[1] * wt]
+            } else {
+                r
+            };
             for (k, m) in st.cam_colmap[c].iter().enumerate() {
                 if *m != u8::MAX {
                     jc_out[*m as usize] = full[k];

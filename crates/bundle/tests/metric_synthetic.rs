@@ -216,3 +216,45 @@ fn uncertainty_predicts_the_actual_point_error() {
     );
     assert!(u.dropped_directions >= 1);
 }
+
+#[test]
+fn per_observation_sigma_discounts_the_noisy_observations() {
+    // A third of the observations get 1.5 px of extra (deterministic, zero-mean) error; the rest
+    // keep σ = 0.1 px. Told their σ, the adjustment must come back to the clean level.
+    let (mut rec, gt) = scene(0.1, 0.0);
+    let mut sigma = std::collections::BTreeMap::new();
+    for (vi, (id, v)) in rec.views.iter_mut().enumerate() {
+        let mut s = vec![1.0; v.observations.len()];
+        for (k, o) in v.observations.iter_mut().enumerate() {
+            if (vi + k) % 3 == 0 {
+                let a = (vi * 131 + k * 17) as f64 * 0.618;
+                o.xy += nalgebra::Vector2::new(a.cos(), a.sin()) * 1.5;
+                s[k] = 15.0;
+            }
+        }
+        sigma.insert(*id, std::sync::Arc::<[f64]>::from(s));
+    }
+    perturb(&mut rec, 1.04);
+    let opts = BundleOptions {
+        loss: RobustLoss::None,
+        function_tolerance: 1e-12,
+        ..Default::default()
+    };
+    let mut plain = rec.clone();
+    bundle_adjust_metric(&mut plain, &config(), &opts).expect("runs");
+    let mut weighted = rec.clone();
+    let cfg = MetricBundleConfig {
+        keypoint_sigma: sigma,
+        ..config()
+    };
+    bundle_adjust_metric(&mut weighted, &cfg, &opts).expect("runs");
+    let (rp, fp, _) = errors(&plain, &gt);
+    let (rw, fw, _) = errors(&weighted, &gt);
+    println!(
+        "unweighted: {rp:.4}° {:.3} %; weighted: {rw:.4}° {:.3} %",
+        100.0 * fp,
+        100.0 * fw
+    );
+    assert!(rw < 0.02 && fw < 2e-3, "weighted: {rw}° {fw}");
+    assert!(rw < 0.5 * rp, "weighting did not help: {rw}° against {rp}°");
+}

@@ -322,6 +322,8 @@ pub fn run(a: &DemoArgs, g: &GlobalArgs, bars: &Bars) -> Result<()> {
         distortion: crate::args::DistortionArg::K1,
         aspect: crate::args::AspectArg::Auto,
         fixed_principal_point: false,
+        refine_keypoints: false,
+        scale_weights: false,
         principal_point_prior: 0.005,
         dense: crate::args::DenseArgs::default(),
         mesh: crate::args::MeshArgs::default(),

@@ -17,6 +17,7 @@ pub mod keyframes;
 pub mod klt;
 mod klt_align;
 pub mod matching;
+pub mod refine;
 pub mod sift;
 pub mod verify;
 pub mod video;

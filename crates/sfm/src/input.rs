@@ -15,6 +15,9 @@ pub struct SfmImage {
     pub height: u32,
     /// Keypoint positions in pixels (top-left pixel centre at (0, 0)); matches index into this list.
     pub keypoints: Vec<Vector2<f64>>,
+    /// Detection scale of each keypoint (the SIFT σ, pixels), same length as `keypoints`; empty when
+    /// unknown. Metric BA weights observations by it (a coarser keypoint is located less precisely).
+    pub keypoint_scales: Vec<f32>,
     /// Images with the same key share one intrinsics group (camera body + zoom from EXIF; one key for
     /// a whole video).
     pub camera_key: String,
@@ -83,6 +86,25 @@ impl SfmInput {
                     im.descriptors.len(),
                     im.keypoints.len(),
                     im.descriptor_dim
+                ));
+            }
+            if !im.keypoint_scales.is_empty() && im.keypoint_scales.len() != im.keypoints.len() {
+                return Err(format!(
+                    "image {} ({}) has {} keypoint scales for {} keypoints",
+                    im.id,
+                    im.name,
+                    im.keypoint_scales.len(),
+                    im.keypoints.len()
+                ));
+            }
+            if im
+                .keypoint_scales
+                .iter()
+                .any(|s| !(s.is_finite() && *s > 0.0))
+            {
+                return Err(format!(
+                    "image {} ({}) has a non-positive or non-finite keypoint scale",
+                    im.id, im.name
                 ));
             }
             if !im.track_ids.is_empty() && im.track_ids.len() != im.keypoints.len() {

@@ -442,6 +442,7 @@ fn adjust_metric(
         let config = MetricBundleConfig {
             refine: mask,
             priors: priors.clone(),
+            keypoint_sigma: ctx.keypoint_sigma.clone(),
             ..Default::default()
         };
         let bopts = BundleOptions {

@@ -272,6 +272,7 @@ mod tests {
             width: 640,
             height: 480,
             keypoints: kps,
+            keypoint_scales: Vec::new(),
             camera_key: "c".into(),
             focal_prior_px: None,
             frame: None,

@@ -11,7 +11,9 @@
 //! - Projective bundle adjustment (§3.3, eq. 21) after the model grows by a fixed factor and at the end,
 //!   each followed by removal of observations that no longer reproject within the threshold.
 
+use handheld_core::ImageId;
 use std::collections::BTreeMap;
+use std::sync::Arc;
 
 use handheld_geometry::{reprojection_distance, resection_iterative, triangulate_iterative};
 use handheld_robust::{
@@ -46,6 +48,41 @@ pub(crate) struct Context<'a> {
     pub kn: Vec<Matrix3<f64>>,
     /// Pixels → normalised units (`1 / (w + h)`).
     pub scale: Vec<f64>,
+    /// Localisation σ (pixels) of every keypoint, per image id, for metric BA; empty when the
+    /// observations are not weighted (see [`keypoint_sigmas`]).
+    pub keypoint_sigma: BTreeMap<ImageId, Arc<[f64]>>,
+}
+
+/// σ = √(s / median s), clamped to [0.5, 4], of every keypoint with a detection scale `s`
+/// (`SfmOptions::scale_weighted_observations`). The median is over all keypoints of all images,
+/// so the median keypoint keeps σ = 1 px and thresholds stay in pixels.
+fn keypoint_sigmas(input: &SfmInput, opts: &SfmOptions) -> BTreeMap<ImageId, Arc<[f64]>> {
+    if !opts.scale_weighted_observations {
+        return BTreeMap::new();
+    }
+    let mut all: Vec<f32> = input
+        .images
+        .iter()
+        .flat_map(|im| im.keypoint_scales.iter().copied())
+        .collect();
+    if all.is_empty() {
+        return BTreeMap::new();
+    }
+    let mid = all.len() / 2;
+    let median = f64::from(*all.select_nth_unstable_by(mid, f32::total_cmp).1);
+    input
+        .images
+        .iter()
+        .filter(|im| !im.keypoint_scales.is_empty())
+        .map(|im| {
+            let s: Arc<[f64]> = im
+                .keypoint_scales
+                .iter()
+                .map(|&s| (f64::from(s) / median).sqrt().clamp(0.5, 4.0))
+                .collect();
+            (im.id, s)
+        })
+        .collect()
 }
 
 impl<'a> Context<'a> {
@@ -76,6 +113,7 @@ impl<'a> Context<'a> {
             kps,
             kn,
             scale,
+            keypoint_sigma: keypoint_sigmas(input, opts),
         }
     }
 

@@ -24,6 +24,7 @@ fn input_from(set: &MultiViewOptions) -> (SfmInput, MetricReconstruction) {
                 width: set.width,
                 height: set.height,
                 keypoints: v.observations.iter().map(|o| o.xy).collect(),
+                keypoint_scales: Vec::new(),
                 camera_key: "cam".into(),
                 focal_prior_px: None,
                 frame: None,

@@ -7,7 +7,12 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use anyhow::{Context, Result};
-use handheld_core::{ImageId, MetricReconstruction, PointCloud};
+use handheld_core::{ImageId, MetricReconstruction, PointCloud, Progress};
+use handheld_features::refine::{
+    refine_track_keypoints, KeypointFrame, KeypointRefinementOptions, PairMatches,
+    RefinementSummary,
+};
+use handheld_features::GrayImage;
 use handheld_io::database::Database;
 use handheld_io::features_file::read_features;
 use handheld_io::images::{load_image, ImageIngestOptions};
@@ -23,7 +28,16 @@ use crate::pipeline::{run_stage, Stage, StageOutput, StageReport};
 use crate::stages::features::feature_file_name;
 use crate::ui::Bars;
 
-pub fn options(a: &InputArgs) -> Result<SfmOptions> {
+/// Options of the sparse stage: keypoint refinement (photos), then SfM.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct SparseStageOptions {
+    pub sfm: SfmOptions,
+    /// Multi-view keypoint refinement before SfM; `None` keeps the detected positions. Video (KLT
+    /// tracks, already registered to their first appearance) never uses it.
+    pub refine_keypoints: Option<KeypointRefinementOptions>,
+}
+
+pub fn options(a: &InputArgs) -> Result<SparseStageOptions> {
     let distortion = match a.distortion {
         crate::args::DistortionArg::None => handheld_sfm::Distortion::None,
         crate::args::DistortionArg::K1 => handheld_sfm::Distortion::K1,
@@ -33,6 +47,7 @@ pub fn options(a: &InputArgs) -> Result<SfmOptions> {
         seed: a.seed,
         distortion,
         refine_principal_point: !a.fixed_principal_point,
+        scale_weighted_observations: a.scale_weights,
         principal_point_prior: a.principal_point_prior,
         estimate_aspect: match a.aspect {
             crate::args::AspectArg::Auto => None,
@@ -42,7 +57,75 @@ pub fn options(a: &InputArgs) -> Result<SfmOptions> {
         ..Default::default()
     };
     o.validate().map_err(anyhow::Error::msg)?;
-    Ok(o)
+    Ok(SparseStageOptions {
+        sfm: o,
+        refine_keypoints: a.refine_keypoints.then(KeypointRefinementOptions::default),
+    })
+}
+
+/// Registers the keypoints of every track to the track's reference (photos only; see
+/// [`handheld_features::refine`]) and replaces the input's keypoints by the refined positions.
+fn refine_input(
+    ws: &Workspace,
+    input: &mut SfmInput,
+    opts: &KeypointRefinementOptions,
+    bars: &Bars,
+) -> Result<RefinementSummary> {
+    opts.validate()
+        .map_err(|e| anyhow::anyhow!("keypoint refinement: {e}"))?;
+    let ingest = super::load_ingest(ws)?;
+    let fdir = ws.root.join(Stage::Features.dir_name());
+    let frames: Vec<Vec<KeypointFrame>> = (0..input.images.len())
+        .into_par_iter()
+        .map(|k| {
+            let f = read_features(&fdir.join(feature_file_name(k)))
+                .context("reading features (rerun the features stage with --force)")?;
+            Ok(f.keypoints
+                .iter()
+                .map(|p| KeypointFrame {
+                    x: p[0],
+                    y: p[1],
+                    scale: p[2],
+                    orientation: p[3],
+                })
+                .collect())
+        })
+        .collect::<Result<_>>()?;
+    let pairs: Vec<PairMatches> = input
+        .pairs
+        .iter()
+        .map(|p| PairMatches {
+            a: p.a,
+            b: p.b,
+            matches: &p.matches,
+        })
+        .collect();
+    let load_opts = ImageIngestOptions {
+        min_dimension: 1,
+        ..Default::default()
+    };
+    let load = |k: usize| -> Result<GrayImage> {
+        let path = &ingest
+            .images
+            .get(k)
+            .ok_or_else(|| anyhow::anyhow!("image {k} is not in the ingest list"))?
+            .info
+            .path;
+        let img = load_image(path, &load_opts)?;
+        Ok(GrayImage::from_dynamic(&img.image))
+    };
+    bars.start("refine keypoints", 2 * input.images.len() as u64);
+    let (refined, summary) = refine_track_keypoints(&frames, &pairs, &load, opts, &|| bars.inc(1))?;
+    bars.finish();
+    for (im, pts) in input.images.iter_mut().zip(refined) {
+        if pts.len() == im.keypoints.len() {
+            im.keypoints = pts
+                .iter()
+                .map(|p| Vector2::new(f64::from(p[0]), f64::from(p[1])))
+                .collect();
+        }
+    }
+    Ok(summary)
 }
 
 /// Builds the SfM input from the features and matches stages.
@@ -77,6 +160,7 @@ pub fn load_input(ws: &Workspace) -> Result<SfmInput> {
                     .iter()
                     .map(|p| Vector2::new(p[0] as f64, p[1] as f64))
                     .collect(),
+                keypoint_scales: f.keypoints.iter().map(|p| p[2]).collect(),
                 camera_key: format!(
                     "{}|{}x{}",
                     img.info.exif.camera_key(),
@@ -207,15 +291,36 @@ fn write_model(dir: &Path, rec: &MetricReconstruction, summary: &serde_json::Val
     Ok(())
 }
 
-pub fn run(ws: &Workspace, opts: &SfmOptions, force: bool, bars: &Bars) -> Result<StageReport> {
+pub fn run(
+    ws: &Workspace,
+    stage_opts: &SparseStageOptions,
+    force: bool,
+    bars: &Bars,
+) -> Result<StageReport> {
+    let opts = &stage_opts.sfm;
     run_stage(
         ws,
         Stage::Sparse,
         Fingerprint::new(),
-        serde_json::to_value(opts)?,
+        serde_json::to_value(stage_opts)?,
         force,
         |dir| {
-            let input = load_input(ws)?;
+            let mut input = load_input(ws)?;
+            let refinement = match &stage_opts.refine_keypoints {
+                Some(r) if !input.video => {
+                    let t0 = std::time::Instant::now();
+                    let s = refine_input(ws, &mut input, r, bars)?;
+                    tracing::info!(
+                        "keypoint refinement: {} of {} keypoints moved (median {:.2} px) in {:.1} s",
+                        s.moved,
+                        s.attempted,
+                        s.median_shift_px,
+                        t0.elapsed().as_secs_f64()
+                    );
+                    Some((s, t0.elapsed().as_secs_f64()))
+                }
+                _ => None,
+            };
             let mut result = reconstruct(&input, opts, bars).context("structure from motion")?;
             for m in result.models.iter_mut() {
                 colorize(ws, &mut m.reconstruction)?;
@@ -242,6 +347,10 @@ pub fn run(ws: &Workspace, opts: &SfmOptions, force: bool, bars: &Bars) -> Resul
                 .collect();
             for (k, m) in result.models.iter().enumerate() {
                 let mut s = serde_json::to_value(&m.summary)?;
+                if let Some((r, secs)) = &refinement {
+                    s["keypoint_refinement"] = serde_json::to_value(r)?;
+                    s["keypoint_refinement"]["seconds"] = serde_json::json!(secs);
+                }
                 if k == 0 {
                     s["unregistered"] = serde_json::Value::Array(unregistered.clone());
                     s["other_models"] = serde_json::Value::Array(models_json[1..].to_vec());
