@@ -17,6 +17,7 @@ mod predict;
 pub mod projective;
 mod projective_ba;
 mod register;
+mod register_pair;
 pub mod selfcal;
 mod tracks;
 mod uncertainty;

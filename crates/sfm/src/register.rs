@@ -50,18 +50,19 @@ pub(crate) fn register_calibrated(
         }
         let Some((image, matches)) = best else { break };
         tried[image] = true;
-        if matches.len() < ctx.opts.min_resection_inliers {
-            failures.insert(
-                image,
+        let result = if matches.len() < ctx.opts.min_resection_inliers {
+            // No (or too few) shared points: place the view from a registered partner's depths.
+            crate::register_pair::register_from_partner(ctx, rec, image).map_err(|e| {
                 format!(
-                    "{} 2D–3D correspondences with the metric model, need {}",
+                    "{} 2D–3D correspondences with the metric model, need {}; {e}",
                     matches.len(),
                     ctx.opts.min_resection_inliers
-                ),
-            );
-            continue;
-        }
-        match register_one(ctx, rec, image, &matches) {
+                )
+            })
+        } else {
+            register_one(ctx, rec, image, &matches)
+        };
+        match result {
             Ok(()) => {
                 triangulate_new(ctx, rec, image);
                 added.push(image);
@@ -101,7 +102,7 @@ fn matches_2d3d(ctx: &Context, rec: &MetricReconstruction, image: usize) -> Vec<
 
 /// The intrinsics group of an image: the one its camera key maps to, else the first group of the
 /// same size.
-fn camera_of(
+pub(crate) fn camera_of(
     ctx: &Context,
     rec: &MetricReconstruction,
     image: usize,
@@ -141,13 +142,68 @@ pub(crate) fn register_one(
             world: rec.points[&pid].xyz.coords,
         })
         .collect();
-    let thr = ctx.opts.metric_max_error_px / cam.intrinsics.f;
+    let (pose, inliers) = resect(
+        ctx,
+        image,
+        &samples,
+        ctx.opts.metric_max_error_px / cam.intrinsics.f,
+    )?;
+    let mut observations: Vec<Observation> = im
+        .keypoints
+        .iter()
+        .map(|&xy| Observation { xy, point_id: None })
+        .collect();
+    for &s in &inliers {
+        let (k, pid) = matches[s];
+        observations[k].point_id = Some(pid);
+        if let Some(p) = rec.points.get_mut(&pid) {
+            p.track.elements.push(TrackElement {
+                image_id: im.id,
+                point2d_idx: k as u32,
+            });
+        }
+    }
+    insert_view(ctx, rec, image, cam_id, &pose, observations);
+    Ok(())
+}
+
+/// Adds `image` to the model with pose `pose` (camera from world) and its observations.
+pub(crate) fn insert_view(
+    ctx: &Context,
+    rec: &mut MetricReconstruction,
+    image: usize,
+    cam_id: handheld_core::CameraId,
+    pose: &handheld_geometry::Pose,
+    observations: Vec<Observation>,
+) {
+    let im = &ctx.input.images[image];
+    rec.views.insert(
+        im.id,
+        View {
+            id: im.id,
+            name: im.name.clone(),
+            camera_id: cam_id,
+            cam_from_world: Rigid3::from_parts(Translation3::from(pose.translation), pose.rotation),
+            observations,
+            frame: im.frame,
+        },
+    );
+}
+
+/// Calibrated resection (P3P in the shared RANSAC, then the inliers within `thr`, normalized units)
+/// of `image` from 2D–3D samples.
+pub(crate) fn resect(
+    ctx: &Context,
+    image: usize,
+    samples: &[CalibratedMatch],
+    thr: f64,
+) -> Result<(handheld_geometry::Pose, Vec<usize>), String> {
     let ropts = ctx.resection_ransac(image, thr);
     let rep = ransac(
         &P3pEstimator,
         &Msac,
         &mut UniformSampler::new(ropts.seed),
-        &samples,
+        samples,
         &ropts,
     )
     .map_err(|e| e.to_string())?;
@@ -168,37 +224,11 @@ pub(crate) fn register_one(
             ctx.opts.min_resection_inliers
         ));
     }
-    let mut observations: Vec<Observation> = im
-        .keypoints
-        .iter()
-        .map(|&xy| Observation { xy, point_id: None })
-        .collect();
-    for &s in &inliers {
-        let (k, pid) = matches[s];
-        observations[k].point_id = Some(pid);
-        if let Some(p) = rec.points.get_mut(&pid) {
-            p.track.elements.push(TrackElement {
-                image_id: im.id,
-                point2d_idx: k as u32,
-            });
-        }
-    }
-    rec.views.insert(
-        im.id,
-        View {
-            id: im.id,
-            name: im.name.clone(),
-            camera_id: cam_id,
-            cam_from_world: Rigid3::from_parts(Translation3::from(pose.translation), pose.rotation),
-            observations,
-            frame: im.frame,
-        },
-    );
-    Ok(())
+    Ok((pose, inliers))
 }
 
 /// `[R | t]` of a view as a 3×4 matrix (normalized camera).
-fn normalized_camera(v: &View) -> Matrix3x4<f64> {
+pub(crate) fn normalized_camera(v: &View) -> Matrix3x4<f64> {
     v.cam_from_world
         .to_homogeneous()
         .fixed_view::<3, 4>(0, 0)
@@ -207,7 +237,7 @@ fn normalized_camera(v: &View) -> Matrix3x4<f64> {
 
 /// New points between `image` and every registered partner, for keypoints matched to observations
 /// that have no point yet.
-fn triangulate_new(ctx: &Context, rec: &mut MetricReconstruction, image: usize) {
+pub(crate) fn triangulate_new(ctx: &Context, rec: &mut MetricReconstruction, image: usize) {
     let im = &ctx.input.images[image];
     let Some(v) = rec.views.get(&im.id) else {
         return;
