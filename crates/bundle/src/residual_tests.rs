@@ -67,13 +67,13 @@ fn metric_jacobian_matches_num_dual() {
         0.0, 0.0, 0.0, cam[9], cam[10], cam[11], INTR[0], INTR[1], INTR[2], INTR[3], INTR[4],
         INTR[5], INTR[6], X[0], X[1], X[2],
     ];
-    for k in 0..16 {
+    for (k, column) in analytic.iter().enumerate() {
         let params: [D; 16] =
             std::array::from_fn(|i| D::new(base[i], if i == k { 1.0 } else { 0.0 }));
         let out = metric_dual(&params, &cam);
         assert!((out[0].re - r[0]).abs() < 1e-9 && (out[1].re - r[1]).abs() < 1e-9);
         for a in 0..2 {
-            let (want, got) = (out[a].eps, analytic[k][a]);
+            let (want, got) = (out[a].eps, column[a]);
             assert!(
                 (want - got).abs() <= 1e-9 * (1.0 + want.abs()),
                 "param {k} row {a}: dual {want} analytic {got}"

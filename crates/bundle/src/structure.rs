@@ -107,8 +107,8 @@ impl Structure {
         for c in 0..nc {
             let mut cols = 0;
             if !p.camera_constant[c] {
-                for k in 0..pose_cols {
-                    cam_colmap[c][k] = k as u8;
+                for (k, m) in cam_colmap[c].iter_mut().enumerate().take(pose_cols) {
+                    *m = k as u8;
                 }
                 cam_pose_at[c] = Some(offset);
                 cols = pose_cols;
@@ -135,9 +135,9 @@ impl Structure {
         for g in 0..ng {
             if group_users[g] > 1 && nfree(g) > 0 {
                 let mut cols = 0;
-                for k in 0..NUM_INTRINSICS {
-                    if p.group_free[g][k] {
-                        group_param_at[g][k] = Some(offset + cols);
+                for (at, &free) in group_param_at[g].iter_mut().zip(&p.group_free[g]) {
+                    if free {
+                        *at = Some(offset + cols);
                         cols += 1;
                     }
                 }
@@ -196,7 +196,7 @@ impl Structure {
             scratch.dedup();
             let base = inc_idx.len();
             inc_idx.extend_from_slice(&scratch);
-            inc_point.extend(std::iter::repeat(pt as u32).take(scratch.len()));
+            inc_point.extend(std::iter::repeat_n(pt as u32, scratch.len()));
             inc_ptr[pt + 1] = inc_idx.len();
             for &o in point_obs.row(pt) {
                 let c = p.obs_camera[o as usize] as usize;

@@ -88,7 +88,7 @@ pub(crate) fn initial_cameras(
     let proj = Matrix3::identity() - e * e.transpose();
     let pr = proj * r;
     let s = (pr.transpose() * (proj * m)).trace() / pr.norm_squared();
-    if !(s.abs() > 1e-12) {
+    if s.abs() <= 1e-12 || s.is_nan() {
         return None;
     }
     let a = (s * r - m).transpose() * e;

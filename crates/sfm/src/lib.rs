@@ -293,7 +293,7 @@ pub fn reconstruct(
         }
         return Err(SfmError::NoModel(last_err));
     }
-    models.sort_by(|a, b| b.summary.registered.cmp(&a.summary.registered));
+    models.sort_by_key(|m| std::cmp::Reverse(m.summary.registered));
     let registered: std::collections::BTreeSet<_> = models
         .iter()
         .flat_map(|m| m.reconstruction.views.keys().copied())

@@ -155,7 +155,9 @@ fn build_metric(
         .try_inverse()
         .ok_or("the upgrade transformation is singular")?;
     // Eq. 27: P_M = P T⁻¹, M_M = T M; then P_M = K_N⁻¹ K [R | t] per view.
-    let mut poses: BTreeMap<usize, (Matrix3<f64>, Matrix3<f64>, Vector3<f64>)> = BTreeMap::new();
+    // Per image: the estimated K_N-normalised calibration, R and t.
+    type KRt = (Matrix3<f64>, Matrix3<f64>, Vector3<f64>);
+    let mut poses: BTreeMap<usize, KRt> = BTreeMap::new();
     for &(img, p) in cams {
         let pm = p * t_inv;
         let (kn_est, r, tt) = decompose_camera(&pm).ok_or_else(|| {

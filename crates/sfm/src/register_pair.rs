@@ -124,12 +124,15 @@ pub(crate) fn register_from_partner(
     Err(last)
 }
 
+/// A plane `nᵀX = d` with unit normal `n`.
+type Plane = (Vector3<f64>, f64);
+
 /// The observed points of one registered view, in its camera frame, with their pixels and plane
 /// labels.
 struct PartnerDepth {
     pixels: Vec<Vector2<f64>>,
     label: Vec<Option<usize>>,
-    planes: Vec<(Vector3<f64>, f64)>,
+    planes: Vec<Plane>,
     world_from_cam: handheld_core::Rigid3,
 }
 
@@ -199,10 +202,7 @@ impl PartnerDepth {
 /// Sequential RANSAC: the plane `nᵀX = d` (unit `n`) with the most points within
 /// [`PLANE_TOLERANCE`] of their depth, refitted to them by least squares, then the same among the
 /// rest, up to [`MAX_PLANES`] planes of at least [`MIN_PLANE_POINTS`]. Returns each point's plane.
-fn segment_planes(
-    pts: &[Vector3<f64>],
-    seed: u64,
-) -> (Vec<Option<usize>>, Vec<(Vector3<f64>, f64)>) {
+fn segment_planes(pts: &[Vector3<f64>], seed: u64) -> (Vec<Option<usize>>, Vec<Plane>) {
     use rand::{Rng, SeedableRng};
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
     let mut label = vec![None; pts.len()];
