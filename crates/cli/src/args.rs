@@ -189,6 +189,11 @@ pub struct InputArgs {
     /// Sparse: weight metric BA observations by their keypoint's detection scale (σ ∝ √scale).
     #[arg(long)]
     pub scale_weights: bool,
+    /// Sparse: a known calibration `FX,FY,CX,CY` in pixels, COLMAP's convention (the top-left
+    /// pixel's centre at 0.5, 0.5, as in a COLMAP `cameras.txt`). It pins the focal lengths and the
+    /// principal point of every camera in metric BA; without it the cameras are self-calibrated.
+    #[arg(long, value_name = "FX,FY,CX,CY")]
+    pub intrinsics: Option<String>,
     /// Sparse: standard deviation of the principal point's prior at the image centre, as a fraction
     /// of width + height (eq. 25's u ≈ v ≈ 0 in K_N units).
     #[arg(long, default_value_t = 0.005)]

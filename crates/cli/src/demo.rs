@@ -324,6 +324,7 @@ pub fn run(a: &DemoArgs, g: &GlobalArgs, bars: &Bars) -> Result<()> {
         fixed_principal_point: false,
         refine_keypoints: false,
         scale_weights: false,
+        intrinsics: None,
         principal_point_prior: 0.005,
         dense: crate::args::DenseArgs::default(),
         mesh: crate::args::MeshArgs::default(),

@@ -31,7 +31,7 @@ use serde::Serialize;
 
 pub use input::{SfmImage, SfmInput, SfmPair};
 pub use metric::{MetricBaRecord, SelfCalibrationReport};
-pub use options::{Distortion, SfmOptions};
+pub use options::{Distortion, KnownIntrinsics, SfmOptions};
 pub use projective_ba::ProjectiveBaRecord;
 pub use uncertainty::UncertaintyReport;
 

@@ -432,6 +432,34 @@ fn adjust_metric(
             ));
         }
     }
+    // A known calibration pins f, the aspect ratio and the principal point of every group.
+    let full = match o.known_intrinsics {
+        Some(k) => {
+            for cam in rec.cameras.values() {
+                let e = priors.entry(cam.id).or_default();
+                e.retain(|(p, _)| {
+                    !matches!(
+                        p,
+                        IntrinsicParam::F
+                            | IntrinsicParam::Aspect
+                            | IntrinsicParam::Ppx
+                            | IntrinsicParam::Ppy
+                    )
+                });
+                let pin = |mean: f64, sigma: f64| GaussianPrior { mean, sigma };
+                e.push((IntrinsicParam::F, pin(k.fx, 1e-6 * k.fx)));
+                e.push((IntrinsicParam::Aspect, pin(k.fy / k.fx, 1e-9)));
+                e.push((IntrinsicParam::Ppx, pin(k.cx, 1e-3)));
+                e.push((IntrinsicParam::Ppy, pin(k.cy, 1e-3)));
+            }
+            IntrinsicsMask {
+                aspect: true,
+                principal_point: true,
+                ..full
+            }
+        }
+        None => full,
+    };
     let steps: [(&str, IntrinsicsMask, f64, usize); 3] = [
         ("f+k1", base, o.metric_max_error_px, 50),
         ("all intrinsics", full, o.final_max_error_px, 100),

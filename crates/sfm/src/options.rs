@@ -13,6 +13,17 @@ pub enum Distortion {
     K1K2,
 }
 
+/// A calibration the user already knows, in pixels (Handheld convention: the top-left pixel's centre
+/// at (0, 0)). It pins every intrinsics group by tight priors in metric BA; self-calibration still
+/// initialises the metric frame.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct KnownIntrinsics {
+    pub fx: f64,
+    pub fy: f64,
+    pub cx: f64,
+    pub cy: f64,
+}
+
 /// Options of [`crate::reconstruct`].
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct SfmOptions {
@@ -52,6 +63,8 @@ pub struct SfmOptions {
     /// accurate (fountain-P11 AUC@1 93.8 → 92.1, herzjesu-P8 88.4 → 89.9), so it is off. Default
     /// false.
     pub scale_weighted_observations: bool,
+    /// Known intrinsics (`None`: uncalibrated, the default). Default None.
+    pub known_intrinsics: Option<KnownIntrinsics>,
     /// Radial distortion model. Default k1.
     pub distortion: Distortion,
     /// Estimate a constant aspect ratio; `None` = automatic (true for video, §3.4). Default None.
@@ -82,6 +95,7 @@ impl Default for SfmOptions {
             refine_principal_point: true,
             principal_point_prior: 0.005,
             scale_weighted_observations: false,
+            known_intrinsics: None,
             distortion: Distortion::K1,
             estimate_aspect: None,
             max_models: 5,
@@ -136,6 +150,15 @@ impl SfmOptions {
                 "min_track_length must be at least 2, got {}",
                 self.min_track_length
             ));
+        }
+        if let Some(k) = self.known_intrinsics {
+            if !(k.fx.is_finite() && k.fx > 0.0 && k.fy.is_finite() && k.fy > 0.0)
+                || !(k.cx.is_finite() && k.cy.is_finite())
+            {
+                return Err(format!(
+                    "known_intrinsics need positive focal lengths and a finite principal point, got {k:?}"
+                ));
+            }
         }
         self.self_calibration.validate().map_err(|e| e.to_string())
     }

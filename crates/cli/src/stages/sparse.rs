@@ -19,7 +19,7 @@ use handheld_io::images::{load_image, ImageIngestOptions};
 use handheld_io::ingest::InputKind;
 use handheld_io::workspace::{Fingerprint, Workspace};
 use handheld_robust::TwoViewConfiguration;
-use handheld_sfm::{reconstruct, SfmImage, SfmInput, SfmOptions, SfmPair};
+use handheld_sfm::{reconstruct, KnownIntrinsics, SfmImage, SfmInput, SfmOptions, SfmPair};
 use nalgebra::Vector2;
 use rayon::prelude::*;
 
@@ -48,6 +48,7 @@ pub fn options(a: &InputArgs) -> Result<SparseStageOptions> {
         distortion,
         refine_principal_point: !a.fixed_principal_point,
         scale_weighted_observations: a.scale_weights,
+        known_intrinsics: a.intrinsics.as_deref().map(parse_intrinsics).transpose()?,
         principal_point_prior: a.principal_point_prior,
         estimate_aspect: match a.aspect {
             crate::args::AspectArg::Auto => None,
@@ -60,6 +61,27 @@ pub fn options(a: &InputArgs) -> Result<SparseStageOptions> {
     Ok(SparseStageOptions {
         sfm: o,
         refine_keypoints: a.refine_keypoints.then(KeypointRefinementOptions::default),
+    })
+}
+
+/// `--intrinsics FX,FY,CX,CY` (COLMAP convention) → Handheld's pixel convention.
+fn parse_intrinsics(s: &str) -> Result<KnownIntrinsics> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|t| t.trim().parse::<f64>())
+        .collect::<std::result::Result<_, _>>()
+        .map_err(|e| anyhow::anyhow!("--intrinsics {s:?}: {e} (expected FX,FY,CX,CY in pixels)"))?;
+    let [fx, fy, cx, cy] = v[..] else {
+        anyhow::bail!(
+            "--intrinsics {s:?}: expected 4 numbers FX,FY,CX,CY in pixels, got {}",
+            v.len()
+        );
+    };
+    Ok(KnownIntrinsics {
+        fx,
+        fy,
+        cx: cx - handheld_core::PIXEL_CENTER_OFFSET_COLMAP,
+        cy: cy - handheld_core::PIXEL_CENTER_OFFSET_COLMAP,
     })
 }
 
