@@ -152,9 +152,9 @@ impl SfmOptions {
             ));
         }
         if let Some(k) = self.known_intrinsics {
-            if !(k.fx.is_finite() && k.fx > 0.0 && k.fy.is_finite() && k.fy > 0.0)
-                || !(k.cx.is_finite() && k.cy.is_finite())
-            {
+            let positive = |v: f64| v.is_finite() && v > 0.0;
+            let finite = k.cx.is_finite() && k.cy.is_finite();
+            if !(positive(k.fx) && positive(k.fy) && finite) {
                 return Err(format!(
                     "known_intrinsics need positive focal lengths and a finite principal point, got {k:?}"
                 ));
