@@ -110,22 +110,26 @@ fn max_relative_rotation_error_deg(est: &MetricReconstruction, gt: &MetricRecons
     worst
 }
 
+/// Ten views of a 1.5 m ball from 6 m, 1024×768, radial distortion, 1 px noise, 5 % outliers.
+fn ball_scene(seed: u64) -> MultiViewOptions {
+    MultiViewOptions {
+        num_views: 10,
+        num_points: 1500,
+        noise_px: 1.0,
+        outlier_fraction: 0.05,
+        radial_distortion: true,
+        shared_intrinsics: true,
+        min_track_len: 2,
+        seed,
+        width: 1024,
+        height: 768,
+    }
+}
+
 #[test]
 fn uncalibrated_sfm_recovers_cameras_and_focal() {
     for seed in [1u64, 2] {
-        let opts = MultiViewOptions {
-            num_views: 10,
-            num_points: 1500,
-            noise_px: 1.0,
-            outlier_fraction: 0.05,
-            radial_distortion: true,
-            shared_intrinsics: true,
-            min_track_len: 2,
-            seed,
-            width: 1024,
-            height: 768,
-        };
-        let (input, gt) = input_from(&opts);
+        let (input, gt) = input_from(&ball_scene(seed));
         // The scene (a 1.5 m ball seen from 6 m) does not determine the principal point: refining it
         // trades 0.3–0.4° of rotation against it even when started from the truth (see
         // `ba_from_truth_reference`), so it stays at the centre here (truth within ±4 px).
@@ -281,19 +285,7 @@ fn ba_from_truth_reference() {
 fn known_intrinsics_pin_the_calibration() {
     // The scene of `uncalibrated_sfm_recovers_cameras_and_focal`, whose principal point it cannot
     // determine: given the true calibration, the cameras come out several times more accurate.
-    let opts = MultiViewOptions {
-        num_views: 10,
-        num_points: 1500,
-        noise_px: 1.0,
-        outlier_fraction: 0.05,
-        radial_distortion: true,
-        shared_intrinsics: true,
-        min_track_len: 2,
-        seed: 1,
-        width: 1024,
-        height: 768,
-    };
-    let (input, gt) = input_from(&opts);
+    let (input, gt) = input_from(&ball_scene(1));
     let k = gt.cameras.values().next().unwrap().intrinsics;
     let sfm = SfmOptions {
         distortion: Distortion::K1K2,
