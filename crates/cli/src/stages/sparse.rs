@@ -390,6 +390,20 @@ pub fn run(
                 tracing::warn!("the images form {} separate models; the largest is in sparse/, the others in sparse/models/", result.models.len());
             }
             let best = &result.models[0].summary;
+            // Under critical motion (§3.4) the focal length comes from the priors and the focal
+            // hypotheses, not from the data: say so, since a wrong one gives a consistent-looking
+            // but distorted model (dinoSparseRing).
+            if let (Some(why), None) = (&best.self_calibration.degenerate, &opts.known_intrinsics) {
+                let f: Vec<String> = best
+                    .groups
+                    .iter()
+                    .map(|g| format!("{:.0} px", g.f))
+                    .collect();
+                tracing::warn!(
+                    "self-calibration was degenerate ({why}); the focal length ({}) was chosen among the priors' hypotheses and may be wrong: check it, or give the calibration with --intrinsics",
+                    f.join(", ")
+                );
+            }
             Ok(StageOutput {
                 outputs,
                 summary: serde_json::json!({
