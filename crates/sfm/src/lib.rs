@@ -12,6 +12,7 @@ mod hypotheses;
 mod init;
 pub mod input;
 pub mod metric;
+pub mod metric_ba;
 pub mod options;
 mod predict;
 pub mod projective;
@@ -30,7 +31,8 @@ use handheld_core::{MetricReconstruction, Progress};
 use serde::Serialize;
 
 pub use input::{SfmImage, SfmInput, SfmPair};
-pub use metric::{MetricBaRecord, SelfCalibrationReport};
+pub use metric::SelfCalibrationReport;
+pub use metric_ba::MetricBaRecord;
 pub use options::{Distortion, KnownIntrinsics, SfmOptions};
 pub use projective_ba::ProjectiveBaRecord;
 pub use uncertainty::UncertaintyReport;
@@ -187,7 +189,7 @@ pub fn reconstruct(
         } else {
             let scores: Vec<f64> = candidates
                 .iter()
-                .map(|(r, _)| metric::quick_score(&ctx, r, estimate_aspect))
+                .map(|(r, _)| metric_ba::quick_score(&ctx, r, estimate_aspect))
                 .collect();
             tracing::debug!(?scores, "metric frame candidates");
             let best = (0..candidates.len())
@@ -195,7 +197,7 @@ pub fn reconstruct(
                 .unwrap_or(0);
             candidates.swap_remove(best)
         };
-        let mut metric_ba = match metric::refine_metric(&ctx, &mut rec, estimate_aspect) {
+        let mut metric_ba = match metric_ba::refine_metric(&ctx, &mut rec, estimate_aspect) {
             Ok(r) => r,
             Err(e) => {
                 last_err = e;
@@ -211,7 +213,7 @@ pub fn reconstruct(
                 allowed[i] = false;
                 failures.remove(&i);
             }
-            match metric::refine_metric(&ctx, &mut rec, estimate_aspect) {
+            match metric_ba::refine_metric(&ctx, &mut rec, estimate_aspect) {
                 Ok(r) => metric_ba.extend(r),
                 Err(e) => {
                     last_err = e;
@@ -228,7 +230,7 @@ pub fn reconstruct(
         let extended = predict::extend_tracks(&ctx, &mut rec);
         if extended > 0 {
             tracing::debug!(extended, "observations added by predicted projection");
-            match metric::final_adjustment(&ctx, &mut rec, estimate_aspect) {
+            match metric_ba::final_adjustment(&ctx, &mut rec, estimate_aspect) {
                 Ok(r) => metric_ba.extend(r),
                 Err(e) => {
                     last_err = e;
@@ -245,7 +247,7 @@ pub fn reconstruct(
         let frames = video::register_frames(&ctx, &mut rec, &mut failures);
         if !frames.is_empty() {
             tracing::info!("registered {} in-between video frames", frames.len());
-            match metric::refine_metric(&ctx, &mut rec, estimate_aspect) {
+            match metric_ba::refine_metric(&ctx, &mut rec, estimate_aspect) {
                 Ok(r) => metric_ba.extend(r),
                 Err(e) => {
                     last_err = e;

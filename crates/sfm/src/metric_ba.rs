@@ -1,0 +1,321 @@
+//! Metric bundle adjustment (§3.4, eq. 21) of the upgraded model: the schedule of adjustments
+//! (focal and k1 first, then every intrinsic the options allow, then a final pass), each followed by
+//! outlier removal; the soft priors (principal point near the centre, EXIF focal lengths, a known
+//! calibration); and the cheap score that compares candidate metric frames. Split from
+//! [`crate::metric`], which builds the metric model from the projective one.
+
+use std::collections::BTreeMap;
+
+use handheld_bundle::{
+    bundle_adjust_metric, BundleOptions, GaussianPrior, IntrinsicParam, IntrinsicsMask,
+    MetricBundleConfig, RobustLoss,
+};
+use handheld_core::{CameraId, ImageId, MetricReconstruction, PointId};
+use serde::Serialize;
+
+use crate::options::Distortion;
+use crate::projective::Context;
+
+/// One metric bundle adjustment, for the summary.
+#[derive(Clone, Debug, Serialize)]
+pub struct MetricBaRecord {
+    pub step: String,
+    pub iterations: usize,
+    pub initial_rms_px: f64,
+    pub final_rms_px: f64,
+    pub seconds: f64,
+    /// Observations removed by the filtering that followed.
+    pub observations_removed: usize,
+    pub points_removed: usize,
+}
+
+/// Removes observations whose reprojection error exceeds `max_px` (or that lie behind their
+/// camera) and points left with fewer than `min_track` views. Returns (observations, points) removed.
+pub(crate) fn filter_metric(
+    rec: &mut MetricReconstruction,
+    max_px: f64,
+    min_track: usize,
+) -> (usize, usize) {
+    let mut bad_obs = Vec::new();
+    for (pid, pt) in &rec.points {
+        for el in &pt.track.elements {
+            let ok = rec.views.get(&el.image_id).and_then(|v| {
+                let cam = rec.cameras.get(&v.camera_id)?;
+                let px = cam.project(&v.cam_from_world, &pt.xyz)?;
+                Some((px - v.observations[el.point2d_idx as usize].xy).norm() <= max_px)
+            });
+            if ok != Some(true) {
+                bad_obs.push((*pid, *el));
+            }
+        }
+    }
+    let n_obs = bad_obs.len();
+    for (pid, el) in bad_obs {
+        if let Some(pt) = rec.points.get_mut(&pid) {
+            pt.track.elements.retain(|e| e != &el);
+        }
+        if let Some(v) = rec.views.get_mut(&el.image_id) {
+            v.observations[el.point2d_idx as usize].point_id = None;
+        }
+    }
+    let short: Vec<PointId> = rec
+        .points
+        .iter()
+        .filter(|(_, p)| p.track.len() < min_track)
+        .map(|(id, _)| *id)
+        .collect();
+    for id in &short {
+        if let Some(p) = rec.points.remove(id) {
+            for el in p.track.elements {
+                if let Some(v) = rec.views.get_mut(&el.image_id) {
+                    v.observations[el.point2d_idx as usize].point_id = None;
+                }
+            }
+        }
+    }
+    (n_obs, short.len())
+}
+
+/// The metric bundle adjustment schedule: (1) poses, points, f, k1 (and the aspect ratio for
+/// video) with the principal point at the image centre; filter; (2) everything the options allow
+/// (principal point, k2); filter at the final threshold; (3) a last adjustment of the survivors.
+pub(crate) fn refine_metric(
+    ctx: &Context,
+    rec: &mut MetricReconstruction,
+    estimate_aspect: bool,
+) -> Result<Vec<MetricBaRecord>, String> {
+    adjust_metric(ctx, rec, estimate_aspect, false)
+}
+
+/// Only the last step of [`refine_metric`]: for a model that was adjusted and then extended (new
+/// observations of existing points).
+pub(crate) fn final_adjustment(
+    ctx: &Context,
+    rec: &mut MetricReconstruction,
+    estimate_aspect: bool,
+) -> Result<Vec<MetricBaRecord>, String> {
+    adjust_metric(ctx, rec, estimate_aspect, true)
+}
+
+fn adjust_metric(
+    ctx: &Context,
+    rec: &mut MetricReconstruction,
+    estimate_aspect: bool,
+    only_final: bool,
+) -> Result<Vec<MetricBaRecord>, String> {
+    let o = ctx.opts;
+    let mut records = Vec::new();
+    let distortion = o.distortion != Distortion::None && !long_lens(rec);
+    let base = IntrinsicsMask {
+        f: true,
+        aspect: estimate_aspect,
+        skew: false,
+        principal_point: false,
+        k1: distortion,
+        k2: false,
+    };
+    let full = IntrinsicsMask {
+        principal_point: o.refine_principal_point,
+        k2: distortion && o.distortion == Distortion::K1K2,
+        ..base
+    };
+    let mut priors = focal_priors(ctx, rec);
+    // A soft prior keeps the principal point near the image centre (σ = principal_point_prior ·
+    // (w + h), eq. 25's u ≈ v ≈ 0 in K_N units): free where the views determine it (wide-angle,
+    // deep scenes), held where it would trade off against rotation (narrow field, shallow scenes).
+    if o.refine_principal_point {
+        for cam in rec.cameras.values() {
+            let s = o.principal_point_prior * (cam.width + cam.height) as f64;
+            let e = priors.entry(cam.id).or_default();
+            e.push((
+                IntrinsicParam::Ppx,
+                GaussianPrior {
+                    mean: (cam.width as f64 - 1.0) / 2.0,
+                    sigma: s,
+                },
+            ));
+            e.push((
+                IntrinsicParam::Ppy,
+                GaussianPrior {
+                    mean: (cam.height as f64 - 1.0) / 2.0,
+                    sigma: s,
+                },
+            ));
+        }
+    }
+    // A known calibration pins f, the aspect ratio and the principal point of every group.
+    let full = match o.known_intrinsics {
+        Some(k) => {
+            for cam in rec.cameras.values() {
+                let e = priors.entry(cam.id).or_default();
+                e.retain(|(p, _)| {
+                    !matches!(
+                        p,
+                        IntrinsicParam::F
+                            | IntrinsicParam::Aspect
+                            | IntrinsicParam::Ppx
+                            | IntrinsicParam::Ppy
+                    )
+                });
+                let pin = |mean: f64, sigma: f64| GaussianPrior { mean, sigma };
+                e.push((IntrinsicParam::F, pin(k.fx, 1e-6 * k.fx)));
+                e.push((IntrinsicParam::Aspect, pin(k.fy / k.fx, 1e-9)));
+                e.push((IntrinsicParam::Ppx, pin(k.cx, 1e-3)));
+                e.push((IntrinsicParam::Ppy, pin(k.cy, 1e-3)));
+            }
+            IntrinsicsMask {
+                aspect: true,
+                principal_point: true,
+                ..full
+            }
+        }
+        None => full,
+    };
+    let steps: [(&str, IntrinsicsMask, f64, usize); 3] = [
+        ("f+k1", base, o.metric_max_error_px, 50),
+        ("all intrinsics", full, o.final_max_error_px, 100),
+        ("final", full, o.final_max_error_px, 100),
+    ];
+    for (name, mask, thr, iters) in steps {
+        if only_final && name != "final" {
+            continue;
+        }
+        let config = MetricBundleConfig {
+            refine: mask,
+            priors: priors.clone(),
+            keypoint_sigma: ctx.keypoint_sigma.clone(),
+            ..Default::default()
+        };
+        let bopts = BundleOptions {
+            max_iterations: iters,
+            loss: RobustLoss::Huber(o.loss_scale_px),
+            // Tight tolerances only for the last adjustment; the earlier ones feed a filter.
+            function_tolerance: if name == "final" { 1e-7 } else { 1e-5 },
+            parameter_tolerance: if name == "final" { 1e-10 } else { 1e-8 },
+            ..Default::default()
+        };
+        let s = bundle_adjust_metric(rec, &config, &bopts)
+            .map_err(|e| format!("metric bundle adjustment ({name}): {e}"))?;
+        let (ro, rp) = filter_metric(rec, thr, o.min_track_length);
+        records.push(MetricBaRecord {
+            step: name.to_string(),
+            iterations: s.iterations,
+            initial_rms_px: s.initial_rms_px,
+            final_rms_px: s.final_rms_px,
+            seconds: s.total_seconds,
+            observations_removed: ro,
+            points_removed: rp,
+        });
+    }
+    Ok(records)
+}
+
+/// Normalized radius `r = ½ diagonal / f` below which radial distortion is not estimated.
+///
+/// Eq. 3's displacement `k₁ r²` is unobservable at small `r`: it trades off against the focal length
+/// and the principal point (on templeSparseRing, `r ≈ 0.26`, a spurious `k₁ ≈ −0.25` costs half the
+/// rotation accuracy), and long lenses hardly distort. 0.3 is a diagonal field of view of ~33°, a
+/// 70 mm-equivalent lens.
+const MIN_DISTORTION_RADIUS: f64 = 0.3;
+
+/// True when every intrinsics group has a narrow field of view (see [`MIN_DISTORTION_RADIUS`]).
+fn long_lens(rec: &MetricReconstruction) -> bool {
+    !rec.cameras.is_empty()
+        && rec.cameras.values().all(|c| {
+            let half_diag = 0.5 * f64::from(c.width).hypot(f64::from(c.height));
+            half_diag / c.intrinsics.f.abs().max(1e-9) < MIN_DISTORTION_RADIUS
+        })
+}
+
+/// A cheap comparison of candidate metric frames (different upgrades `T`): a short adjustment of
+/// poses, points and focal lengths, then the number of observations within the metric threshold,
+/// discounted by their RMS. Higher is better; the candidate is left unchanged.
+pub(crate) fn quick_score(ctx: &Context, rec: &MetricReconstruction, estimate_aspect: bool) -> f64 {
+    let mut r = rec.clone();
+    let config = MetricBundleConfig {
+        refine: IntrinsicsMask {
+            f: true,
+            aspect: estimate_aspect,
+            skew: false,
+            principal_point: false,
+            k1: false,
+            k2: false,
+        },
+        ..Default::default()
+    };
+    let bopts = BundleOptions {
+        max_iterations: 25,
+        loss: RobustLoss::Huber(ctx.opts.loss_scale_px),
+        function_tolerance: 1e-5,
+        ..Default::default()
+    };
+    if bundle_adjust_metric(&mut r, &config, &bopts).is_err() {
+        return f64::NEG_INFINITY;
+    }
+    let thr = ctx.opts.metric_max_error_px;
+    let (mut n, mut sq) = (0usize, 0.0);
+    for pt in r.points.values() {
+        for el in &pt.track.elements {
+            let Some(v) = r.views.get(&el.image_id) else {
+                continue;
+            };
+            let Some(cam) = r.cameras.get(&v.camera_id) else {
+                continue;
+            };
+            let Some(px) = cam.project(&v.cam_from_world, &pt.xyz) else {
+                continue;
+            };
+            let e = (px - v.observations[el.point2d_idx as usize].xy).norm();
+            if e <= thr {
+                n += 1;
+                sq += e * e;
+            }
+        }
+    }
+    if n == 0 {
+        return f64::NEG_INFINITY;
+    }
+    n as f64 / (1.0 + (sq / n as f64).sqrt())
+}
+
+/// EXIF focal lengths are only priors (σ = 10 %), per group, when every member agrees.
+fn focal_priors(
+    ctx: &Context,
+    rec: &MetricReconstruction,
+) -> BTreeMap<CameraId, Vec<(IntrinsicParam, GaussianPrior)>> {
+    let mut out = BTreeMap::new();
+    let by_id: BTreeMap<ImageId, usize> = ctx
+        .input
+        .images
+        .iter()
+        .enumerate()
+        .map(|(k, im)| (im.id, k))
+        .collect();
+    for cam in rec.cameras.values() {
+        let priors: Vec<f64> = rec
+            .views
+            .values()
+            .filter(|v| v.camera_id == cam.id)
+            .filter_map(|v| {
+                by_id
+                    .get(&v.id)
+                    .and_then(|&k| ctx.input.images[k].focal_prior_px)
+            })
+            .collect();
+        if let Some(&f) = priors.first() {
+            if priors.iter().all(|p| (p - f).abs() < 1e-6 * f) {
+                out.insert(
+                    cam.id,
+                    vec![(
+                        IntrinsicParam::F,
+                        GaussianPrior {
+                            mean: f,
+                            sigma: 0.1 * f,
+                        },
+                    )],
+                );
+            }
+        }
+    }
+    out
+}
