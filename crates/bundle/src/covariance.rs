@@ -9,11 +9,12 @@
 
 use std::collections::BTreeMap;
 
-use handheld_core::{ImageId, MetricReconstruction, PointId};
+use handheld_core::{CameraId, ImageId, MetricReconstruction, PointId};
 use nalgebra::{DMatrix, Matrix3, SymmetricEigen};
 
 use crate::metric::{metric_problem, MetricBundleConfig};
 use crate::options::{BundleError, BundleOptions};
+use crate::residual::NUM_INTRINSICS;
 use crate::schur::{assemble, invert_points, linearize, ReducedMatrix};
 use crate::structure::Structure;
 
@@ -47,6 +48,9 @@ pub struct MetricUncertainty {
     pub points: BTreeMap<PointId, PointUncertainty>,
     /// Camera centres of the views whose pose is free.
     pub centers: BTreeMap<ImageId, PointUncertainty>,
+    /// Standard deviation of every refined intrinsic of each group, in the order of
+    /// [`crate::IntrinsicParam`] (`None` where the parameter is held constant).
+    pub intrinsics: BTreeMap<CameraId, [Option<f64>; NUM_INTRINSICS]>,
     /// `σ̂²` in pixels² that scales every covariance.
     pub variance_factor: f64,
     /// Eigenvalues of the scaled `S` dropped as gauge freedoms.
@@ -169,9 +173,20 @@ pub fn metric_uncertainty(
             PointUncertainty::new(Matrix3::from_fn(|a, b| c[(a, b)]) * variance_factor),
         );
     }
+    let intrinsics = index
+        .cameras
+        .iter()
+        .enumerate()
+        .map(|(g, id)| {
+            let sd = st.group_param_at[g]
+                .map(|at| at.map(|k| (cov[(k, k)] * variance_factor).max(0.0).sqrt()));
+            (*id, sd)
+        })
+        .collect();
     Ok(MetricUncertainty {
         points,
         centers,
+        intrinsics,
         variance_factor,
         dropped_directions: dropped,
     })

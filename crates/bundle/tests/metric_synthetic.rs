@@ -258,3 +258,39 @@ fn per_observation_sigma_discounts_the_noisy_observations() {
     assert!(rw < 0.02 && fw < 2e-3, "weighted: {rw}° {fw}");
     assert!(rw < 0.5 * rp, "weighting did not help: {rw}° against {rp}°");
 }
+
+#[test]
+fn intrinsics_sigma_matches_the_focal_error_over_noise_draws() {
+    // Eight scenes with σ = 0.5 px of noise: the focal error divided by its predicted standard
+    // deviation should have an RMS near 1 (χ² with 8 degrees of freedom: 0.4–1.7 at 99 %).
+    let opts = BundleOptions {
+        num_threads: 2,
+        function_tolerance: 1e-12,
+        ..Default::default()
+    };
+    let mut z2 = Vec::new();
+    for seed in 1..=8 {
+        let set = multi_view_set(&MultiViewOptions {
+            num_views: 12,
+            num_points: 600,
+            noise_px: 0.5,
+            radial_distortion: true,
+            shared_intrinsics: true,
+            seed,
+            ..Default::default()
+        })
+        .expect("valid options");
+        let (mut rec, gt) = (set.reconstruction.clone(), set.ground_truth());
+        perturb(&mut rec, 1.01);
+        bundle_adjust_metric(&mut rec, &config(), &opts).expect("runs");
+        let u = metric_uncertainty(&rec, &config(), &opts).expect("small problem");
+        let (id, sd) = u.intrinsics.iter().next().expect("one group");
+        let sigma_f = sd[IntrinsicParam::F.index()].expect("f is refined");
+        assert!(sd[IntrinsicParam::Ppx.index()].is_none(), "pp is held");
+        let err = rec.cameras[id].intrinsics.f - gt.cameras[id].intrinsics.f;
+        println!("seed {seed}: focal error {err:+.4} px, predicted σ {sigma_f:.4} px");
+        z2.push((err / sigma_f).powi(2));
+    }
+    let rms_z = (z2.iter().sum::<f64>() / z2.len() as f64).sqrt();
+    assert!(rms_z > 0.3 && rms_z < 2.0, "RMS of error/σ = {rms_z}");
+}

@@ -2,7 +2,9 @@
 //! summarised as the median and 90th percentile of each point's largest standard deviation, absolute
 //! and relative to its distance from the nearest observing camera.
 
-use handheld_bundle::{metric_uncertainty, BundleOptions, IntrinsicsMask, MetricBundleConfig};
+use handheld_bundle::{
+    metric_uncertainty, BundleOptions, IntrinsicParam, IntrinsicsMask, MetricBundleConfig,
+};
 use handheld_core::MetricReconstruction;
 use serde::Serialize;
 
@@ -20,6 +22,18 @@ pub struct UncertaintyReport {
     /// The same relative to the point's distance from the nearest camera centre observing it.
     pub median_relative_sigma: f64,
     pub variance_factor: f64,
+    /// Standard deviation (pixels; k1 unitless) of each refined intrinsic of each group, from the
+    /// data alone (no priors): how well the views determine the calibration.
+    pub intrinsics_sigma: Vec<IntrinsicsSigma>,
+}
+
+/// [`UncertaintyReport::intrinsics_sigma`] of one intrinsics group.
+#[derive(Clone, Debug, Serialize)]
+pub struct IntrinsicsSigma {
+    pub camera_id: u32,
+    pub f: Option<f64>,
+    pub principal_point: Option<[f64; 2]>,
+    pub k1: Option<f64>,
 }
 
 pub(crate) fn uncertainty(
@@ -71,5 +85,17 @@ pub(crate) fn uncertainty(
         },
         median_relative_sigma: median(&mut rel),
         variance_factor: u.variance_factor,
+        intrinsics_sigma: u
+            .intrinsics
+            .iter()
+            .map(|(id, sd)| IntrinsicsSigma {
+                camera_id: id.0,
+                f: sd[IntrinsicParam::F.index()],
+                principal_point: sd[IntrinsicParam::Ppx.index()]
+                    .zip(sd[IntrinsicParam::Ppy.index()])
+                    .map(|(x, y)| [x, y]),
+                k1: sd[IntrinsicParam::K1.index()],
+            })
+            .collect(),
     })
 }
