@@ -89,3 +89,14 @@ pub(crate) fn focal_hypotheses(model: &ProjectiveModel, max: usize) -> Vec<Focal
     out.truncate(max);
     out
 }
+
+/// The upgrade for a known focal length (`focal` in `K_N` units), the principal point taken at the
+/// image centre and the pixels square: eq. 26 with `K` given, so it does not depend on the motion
+/// being general (§3.4's known-calibration case).
+pub(crate) fn known_focal_upgrade(model: &ProjectiveModel, focal: f64) -> Option<FocalUpgrade> {
+    let cams: Vec<Matrix3x4<f64>> = cameras_in_order(model).into_iter().map(|c| c.1).collect();
+    if cams.len() < 2 || !(focal.is_finite() && focal > 0.0) {
+        return None;
+    }
+    evaluate(&cams, focal.ln())
+}

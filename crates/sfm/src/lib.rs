@@ -183,6 +183,16 @@ pub fn reconstruct(
                 }
             }
         }
+        // A known calibration gives the upgrade itself (eq. 26 with K given), whatever the motion;
+        // the self-calibrated candidates stay only if it is inconsistent with the cameras.
+        if let Some(k) = ctx.opts.known_intrinsics {
+            let focal = 0.5 * (k.fx + k.fy) * ctx.scale.first().copied().unwrap_or(f64::NAN);
+            if let Some(h) = hypotheses::known_focal_upgrade(&model, focal).filter(|h| !h.clamped) {
+                if let Ok(r) = metric::from_transform(&ctx, &model, &h.t, estimate_aspect) {
+                    candidates = vec![(r, false)];
+                }
+            }
+        }
         // One candidate: adjust it. Several: keep the one a short adjustment explains best.
         let (mut rec, is_prior) = if candidates.len() == 1 {
             candidates.pop().expect("one candidate")

@@ -27,8 +27,12 @@ use crate::register::{camera_of, insert_view, resect};
 
 /// Nearest observed points that vote for a keypoint's plane; a majority must agree.
 const NEIGHBOURS: usize = 20;
-/// Plane inliers lie within this fraction of their depth.
+/// Plane inliers lie within this fraction of their depth,
 const PLANE_TOLERANCE: f64 = 0.01;
+/// and within this fraction of the points' extent (median distance from their centroid): far
+/// from a long lens, a whole curved object is thinner than 1 % of its depth and would pass as a
+/// plane (dinoSparseRing).
+const EXTENT_TOLERANCE: f64 = 0.02;
 /// Planes found per partner, and the fewest points a plane must hold.
 const MAX_PLANES: usize = 6;
 const MIN_PLANE_POINTS: usize = 30;
@@ -207,8 +211,17 @@ fn segment_planes(pts: &[Vector3<f64>], seed: u64) -> (Vec<Option<usize>>, Vec<P
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
     let mut label = vec![None; pts.len()];
     let mut planes = Vec::new();
-    let near =
-        |n: &Vector3<f64>, d: f64, p: &Vector3<f64>| (n.dot(p) - d).abs() <= PLANE_TOLERANCE * p.z;
+    let centroid = pts.iter().fold(Vector3::zeros(), |s, p| s + p) / pts.len().max(1) as f64;
+    let mut spread: Vec<f64> = pts.iter().map(|p| (p - centroid).norm()).collect();
+    let mid = spread.len() / 2;
+    let extent = if spread.is_empty() {
+        0.0
+    } else {
+        *spread.select_nth_unstable_by(mid, f64::total_cmp).1
+    };
+    let near = |n: &Vector3<f64>, d: f64, p: &Vector3<f64>| {
+        (n.dot(p) - d).abs() <= (PLANE_TOLERANCE * p.z).min(EXTENT_TOLERANCE * extent)
+    };
     for _ in 0..MAX_PLANES {
         let rest: Vec<usize> = (0..pts.len()).filter(|&i| label[i].is_none()).collect();
         if rest.len() < MIN_PLANE_POINTS {
@@ -279,6 +292,23 @@ mod tests {
             }
         }
         pts
+    }
+
+    #[test]
+    fn a_small_curved_object_far_away_is_not_a_plane() {
+        // A ball of radius 0.05 at depth 1 (a long lens around a small object): thinner than 1 %
+        // of its depth near its silhouette, but curved at the scale of its extent.
+        let mut pts = Vec::new();
+        for i in 0..20 {
+            for j in 0..10 {
+                let (a, b) = (i as f64 * 0.314, 0.2 + j as f64 * 0.12);
+                let dir = Vector3::new(b.sin() * a.cos(), b.sin() * a.sin(), -b.cos());
+                pts.push(Vector3::new(0.0, 0.0, 1.0) + 0.05 * dir);
+            }
+        }
+        let (label, planes) = segment_planes(&pts, 5);
+        let labelled = label.iter().filter(|l| l.is_some()).count();
+        assert!(labelled < pts.len() / 2, "{} planes label {labelled} points", planes.len());
     }
 
     #[test]
