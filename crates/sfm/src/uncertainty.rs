@@ -27,6 +27,18 @@ pub struct UncertaintyReport {
     pub intrinsics_sigma: Vec<IntrinsicsSigma>,
 }
 
+impl UncertaintyReport {
+    /// Standard deviation of group `camera_id`'s focal length divided by `focal`, when known.
+    pub fn relative_focal_sigma(&self, camera_id: u32, focal: f64) -> Option<f64> {
+        self.intrinsics_sigma
+            .iter()
+            .find(|s| s.camera_id == camera_id)
+            .and_then(|s| s.f)
+            .map(|sf| sf / focal)
+            .filter(|r| r.is_finite())
+    }
+}
+
 /// [`UncertaintyReport::intrinsics_sigma`] of one intrinsics group.
 #[derive(Clone, Debug, Serialize)]
 pub struct IntrinsicsSigma {
