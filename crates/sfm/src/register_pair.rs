@@ -308,7 +308,11 @@ mod tests {
         }
         let (label, planes) = segment_planes(&pts, 5);
         let labelled = label.iter().filter(|l| l.is_some()).count();
-        assert!(labelled < pts.len() / 2, "{} planes label {labelled} points", planes.len());
+        assert!(
+            labelled < pts.len() / 2,
+            "{} planes label {labelled} points",
+            planes.len()
+        );
     }
 
     #[test]

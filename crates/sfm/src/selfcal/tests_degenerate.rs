@@ -201,3 +201,49 @@ fn decompose_camera_round_trip() {
     nan[(0, 0)] = f64::NAN;
     assert!(decompose_camera(&nan).is_none());
 }
+
+#[test]
+fn a_known_focal_upgrades_circular_motion_with_a_long_lens() {
+    // dinoSparseRing's geometry: 16 views on a circle about one axis (a critical motion, Sturm
+    // 1997) through a long lens (normalized focal 3). With the focal given, eq. 26 has no free
+    // direction left: the upgraded cameras have that focal and the ring's 22.5° steps.
+    let f_px = 3.0 * f64::from(W + H);
+    let mut rng = ChaCha8Rng::seed_from_u64(21);
+    let (r, c): (Vec<_>, Vec<_>) = (0..16)
+        .map(|i| {
+            let q = Rotation3::from_axis_angle(&Vector3::y_axis(), (22.5 * i as f64).to_radians())
+                .into_inner();
+            (q.transpose(), q * Vector3::new(0.0, 0.0, -5.0))
+        })
+        .unzip();
+    let k = pixel_k(f_px, 0.0, 0.0);
+    let (cams, truth) = projective_cameras(&mut rng, vec![k; 16], r, c, 1e-6);
+    let sc = self_calibrate(&cams, &SelfCalibrationOptions::default()).unwrap();
+    eprintln!("circular motion: degenerate {:?}", sc.degenerate);
+    assert!(sc.degenerate.is_some(), "circular motion is critical");
+    let up = upgrade_for_focal(&cams, 3.0, 3).unwrap();
+    assert!(!up.clamped, "{up:?}");
+    let kn = normalization_matrix(W, H);
+    let metric: Vec<_> = cams
+        .iter()
+        .map(|p| decompose_camera(&(kn * p * up.t_inv)).unwrap())
+        .collect();
+    for (i, (k_est, r_est, _)) in metric.iter().enumerate() {
+        let f_est = 0.5 * (k_est[(0, 0)] + k_est[(1, 1)]);
+        assert!(
+            (f_est / f_px - 1.0).abs() < 1e-3,
+            "view {i}: f {f_est} against {f_px}"
+        );
+        if i > 0 {
+            let step =
+                Rotation3::from_matrix_unchecked(r_est * metric[i - 1].1.transpose()).angle();
+            let truth_step =
+                Rotation3::from_matrix_unchecked(truth.r[i] * truth.r[i - 1].transpose()).angle();
+            assert!(
+                (step - truth_step).abs().to_degrees() < 0.01,
+                "view {i}: step {}°",
+                step.to_degrees()
+            );
+        }
+    }
+}
