@@ -537,6 +537,9 @@ pub(crate) fn jacobian_step_norm2(
             }
             e[0] * e[0] + e[1] * e[1]
         })
+        // Summed in order, as in `linearize` (same seed, same output).
+        .collect::<Vec<f64>>()
+        .iter()
         .sum();
     data + lin
         .prior_h

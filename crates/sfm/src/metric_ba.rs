@@ -119,6 +119,15 @@ fn adjust_metric(
         k2: distortion && o.distortion == Distortion::K1K2,
         ..base
     };
+    // A known calibration is the starting point too: the upgrade assumed a centred principal point.
+    if let (Some(k), false) = (o.known_intrinsics, only_final) {
+        for cam in rec.cameras.values_mut() {
+            let i = &mut cam.intrinsics;
+            i.f = k.fx;
+            i.aspect = k.fy / k.fx;
+            i.pp = nalgebra::Vector2::new(k.cx, k.cy);
+        }
+    }
     let mut priors = focal_priors(ctx, rec);
     // A soft prior keeps the principal point near the image centre (σ = principal_point_prior ·
     // (w + h), eq. 25's u ≈ v ≈ 0 in K_N units): free where the views determine it (wide-angle,
