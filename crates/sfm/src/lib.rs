@@ -164,11 +164,20 @@ pub fn reconstruct(
         timings.insert("self_calibration".to_string(), t1.elapsed().as_secs_f64());
         let t2 = Instant::now();
         let mut report = up.report;
+        // A known calibration gives the upgrade itself (eq. 26 with K given), whatever the motion;
+        // the self-calibrated candidates are built only without one, or if it is inconsistent with
+        // the cameras.
+        let known = ctx.opts.known_intrinsics.and_then(|k| {
+            let focal = 0.5 * (k.fx + k.fy) * ctx.scale.first().copied().unwrap_or(f64::NAN);
+            let h = hypotheses::known_focal_upgrade(&model, focal).filter(|h| !h.clamped)?;
+            metric::from_transform(&ctx, &model, &h.t, estimate_aspect).ok()
+        });
         // When the linear self-calibration is doubtful (critical motion, or an Ω* that is not
         // semi-definite), the frame from the priors alone is adjusted too and the better-explaining
         // model kept: the paper's "fall back on the priors" without trusting either blindly.
-        let mut candidates = vec![(up.rec, false)];
-        if report.degenerate.is_some() {
+        let from_known = known.is_some();
+        let mut candidates = vec![(known.unwrap_or(up.rec), false)];
+        if report.degenerate.is_some() && !from_known {
             if !report.used_prior_fallback {
                 if let Ok(r) = metric::prior_frame(&ctx, &model, estimate_aspect) {
                     candidates.push((r, true));
@@ -180,16 +189,6 @@ pub fn reconstruct(
                 tracing::debug!(focal = h.focal, residual = h.residual, "focal hypothesis");
                 if let Ok(r) = metric::from_transform(&ctx, &model, &h.t, estimate_aspect) {
                     candidates.push((r, true));
-                }
-            }
-        }
-        // A known calibration gives the upgrade itself (eq. 26 with K given), whatever the motion;
-        // the self-calibrated candidates stay only if it is inconsistent with the cameras.
-        if let Some(k) = ctx.opts.known_intrinsics {
-            let focal = 0.5 * (k.fx + k.fy) * ctx.scale.first().copied().unwrap_or(f64::NAN);
-            if let Some(h) = hypotheses::known_focal_upgrade(&model, focal).filter(|h| !h.clamped) {
-                if let Ok(r) = metric::from_transform(&ctx, &model, &h.t, estimate_aspect) {
-                    candidates = vec![(r, false)];
                 }
             }
         }
