@@ -12,8 +12,7 @@ use handheld_testkit::path::PathOptions;
 use handheld_testkit::render::{render_sequence, SequenceOptions, SyntheticSequence};
 use serde_json::json;
 
-use crate::args::{DemoArgs, GlobalArgs, InputArgs, PathKind};
-use crate::pipeline;
+use crate::args::{DemoArgs, GlobalArgs, PathKind};
 use crate::ui::{print_result, Bars};
 
 fn sequence_options(a: &DemoArgs) -> SequenceOptions {
@@ -249,7 +248,7 @@ pub fn run(a: &DemoArgs, g: &GlobalArgs, bars: &Bars) -> Result<()> {
     std::fs::create_dir_all(&a.output)
         .with_context(|| format!("{}: cannot create the demo folder", a.output.display()))?;
     let stamp_path = a.output.join("ground_truth").join("demo.json");
-    let stamp = json!({ "version": handheld_io::workspace::HANDHELD_VERSION, "frames": a.frames, "width": a.width,
+    let stamp = json!({ "version": handheld_pipeline::HANDHELD_VERSION, "frames": a.frames, "width": a.width,
         "height": a.height, "seed": a.seed, "path": format!("{:?}", a.path), "aspect": a.aspect_ratio });
     let fresh = !a.force
         && std::fs::read_to_string(&stamp_path)
@@ -299,37 +298,10 @@ pub fn run(a: &DemoArgs, g: &GlobalArgs, bars: &Bars) -> Result<()> {
     } else {
         (a.output.join("images"), a.output.join("workspace"))
     };
-    let input = InputArgs {
-        input: input_path,
-        output: workspace.clone(),
-        tracking: crate::args::TrackingMode::Auto,
-        klt_features: 1000,
-        stride: 1,
-        start: 0.0,
-        end: None,
-        max_frames: None,
-        skip_bad_images: false,
-        force: a.force,
-        max_features: 8192,
-        max_image_size: None,
-        pairs: crate::args::PairMode::Auto,
-        window: 8,
-        ratio: 0.8,
-        no_guided: false,
-        seed_features: 2048,
-        no_close_views: false,
-        seed: a.seed,
-        distortion: crate::args::DistortionArg::K1,
-        aspect: crate::args::AspectArg::Auto,
-        fixed_principal_point: false,
-        refine_keypoints: false,
-        scale_weights: false,
-        intrinsics: None,
-        principal_point_prior: 0.005,
-        dense: crate::args::DenseArgs::default(),
-        mesh: crate::args::MeshArgs::default(),
-    };
-    let reports = pipeline::run(&input, pipeline::Stage::LAST, bars)?;
+    let mut options = handheld_pipeline::PipelineOptions::default();
+    options.sparse.sfm.seed = a.seed;
+    let reports =
+        handheld_pipeline::reconstruct(&input_path, &workspace, &options, None, a.force, bars)?;
     let matching = matching_accuracy(&a.output, &workspace, a.video)
         .unwrap_or_else(|e| json!({ "error": format!("{e:#}") }));
     let sparse = sparse_accuracy(&a.output, &workspace, a.video)
@@ -359,7 +331,7 @@ pub fn run(a: &DemoArgs, g: &GlobalArgs, bars: &Bars) -> Result<()> {
         a.height,
         a.output.display(),
         render_s,
-        reports.iter().map(|r| format!("{} ({}, {:.2} s)", r.stage.dir_name(), r.status, r.seconds)).collect::<Vec<_>>().join(", "),
+        reports.iter().map(|r| format!("{} ({}, {:.2} s)", r.stage, r.status, r.seconds)).collect::<Vec<_>>().join(", "),
         matching,
         sparse,
         dense,

@@ -7,8 +7,6 @@ mod bench_dense;
 mod bench_matching;
 mod demo;
 mod demo_dense;
-mod pipeline;
-mod stages;
 mod stereo;
 mod ui;
 
@@ -17,6 +15,7 @@ use std::process::ExitCode;
 use clap::Parser;
 
 use args::{BenchCommand, Cli, Command, GlobalArgs};
+use handheld_pipeline::{files, StageReport};
 
 fn main() -> ExitCode {
     let cli = match Cli::try_parse() {
@@ -61,11 +60,10 @@ fn run(cmd: &Command, g: &GlobalArgs) -> anyhow::Result<()> {
     let bars = ui::Bars::new(g);
     match cmd {
         Command::Demo(a) => demo::run(a, g, &bars),
-        Command::Reconstruct(a) => {
-            let reports = pipeline::run(&a.input, a.until, &bars)?;
-            report_stages(g, &a.input.output, &reports);
-            Ok(())
-        }
+        Command::Reconstruct(a) => run_until(g, &a.input, a.until.as_deref(), &bars),
+        Command::Ingest(a) => run_until(g, &a.input, Some(files::stage::INGEST), &bars),
+        Command::Features(a) => run_until(g, &a.input, Some(files::stage::FEATURES), &bars),
+        Command::Match(a) => run_until(g, &a.input, Some(files::stage::MATCHES), &bars),
         Command::Bench(b) => match &b.which {
             BenchCommand::Bundle(a) => bench_bundle::run(a, g, &bars),
             BenchCommand::Matching(a) => bench_matching::run(a, g, &bars),
@@ -74,55 +72,63 @@ fn run(cmd: &Command, g: &GlobalArgs) -> anyhow::Result<()> {
         },
         Command::Stereo(a) => stereo::run(a, g),
         Command::Mesh(a) => {
-            let summary = stages::mesh::run_standalone(a, &bars)?;
+            let summary = handheld_pipeline::stages::mesh::mesh_dense_folder(
+                &a.depth_maps,
+                &a.images,
+                &a.mesh.options(),
+                &a.output,
+                &bars,
+            )?;
+            let value = serde_json::to_value(&summary)?;
             let human = format!(
-                "mesh: {} → {}\n  {}",
+                "mesh: {} → {}\n  {value}",
                 a.depth_maps.display(),
                 a.output.display(),
-                summary
             );
-            ui::print_result(g, &summary, &human);
+            ui::print_result(g, &value, &human);
             Ok(())
         }
         Command::Dense(a) => {
-            let summary = stages::dense::run_on_model(a, &bars)?;
+            let summary = handheld_pipeline::stages::dense::densify_model(
+                &a.model,
+                &a.images,
+                &a.dense.options()?,
+                &a.output,
+                &bars,
+            )?;
+            let value = serde_json::to_value(&summary)?;
             let human = format!(
-                "dense: {} → {}\n  {}",
+                "dense: {} → {}\n  {value}",
                 a.model.display(),
                 a.output.display(),
-                summary
             );
-            ui::print_result(g, &summary, &human);
+            ui::print_result(g, &value, &human);
             Ok(())
         }
-        Command::Ingest(a) => run_until(g, a, pipeline::Stage::Ingest, &bars),
-        Command::Features(a) => run_until(g, a, pipeline::Stage::Features, &bars),
-        Command::Match(a) => run_until(g, a, pipeline::Stage::Matches, &bars),
     }
 }
 
-/// Runs the pipeline up to one stage (the per-stage subcommands).
+/// Runs what stage `until` needs (the whole graph with `None`) and prints one line per stage.
 fn run_until(
     g: &GlobalArgs,
-    a: &args::IngestArgs,
-    stage: pipeline::Stage,
+    a: &args::InputArgs,
+    until: Option<&str>,
     bars: &ui::Bars,
 ) -> anyhow::Result<()> {
-    let reports = pipeline::run(&a.input, stage, bars)?;
-    report_stages(g, &a.input.output, &reports);
+    let options = a.options()?;
+    let reports =
+        handheld_pipeline::reconstruct(&a.input, &a.output, &options, until, a.force, bars)?;
+    report_stages(g, &a.output, &reports);
     Ok(())
 }
 
-fn report_stages(g: &GlobalArgs, workspace: &std::path::Path, reports: &[pipeline::StageReport]) {
+fn report_stages(g: &GlobalArgs, workspace: &std::path::Path, reports: &[StageReport]) {
     let value = serde_json::json!({ "workspace": workspace, "stages": reports });
     let mut human = format!("workspace: {}", workspace.display());
     for r in reports {
         human.push_str(&format!(
             "\n  {:<10} {:<11} {:>7.2} s  {}",
-            r.stage.dir_name(),
-            r.status,
-            r.seconds,
-            r.summary
+            r.stage, r.status, r.seconds, r.summary
         ));
     }
     ui::print_result(g, &value, &human);

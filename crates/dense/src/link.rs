@@ -18,7 +18,7 @@ use crate::error::{DenseError, Result};
 use crate::pair::PairDisparity;
 
 /// Options of [`link_depth`].
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct LinkOptions {
     /// Matching uncertainty of one link, pixels (1σ).
     pub sigma_px: f64,

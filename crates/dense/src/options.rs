@@ -6,7 +6,8 @@
 use crate::error::{DenseError, Result};
 
 /// Which optimiser turns the matching cost into a disparity map.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
 pub enum StereoMethod {
     /// Semi-Global Matching (Hirschmüller, PAMI 2008) over 8 or 4 paths.
     Sgm,
@@ -16,7 +17,8 @@ pub enum StereoMethod {
 }
 
 /// The pixel-wise (or window) matching cost that fills the cost volume.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
 pub enum MatchingCost {
     /// Hamming distance of census transforms (Zabih & Woodfill 1994) over a `width`×`height`
     /// window (both odd, at most 64 pixels in all); cost unit = one differing bit.
@@ -27,7 +29,8 @@ pub enum MatchingCost {
 }
 
 /// How the pixels rejected by the checks are filled (they stay marked invalid).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
 pub enum HoleFill {
     /// Leave them `NaN`.
     None,
@@ -39,7 +42,8 @@ pub enum HoleFill {
 }
 
 /// Number of SGM aggregation directions.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
 pub enum SgmPaths {
     /// Horizontal and vertical only (faster, more streaking).
     Four,
@@ -59,7 +63,7 @@ impl SgmPaths {
 
 /// Options of [`crate::match_rectified`]. Disparity convention: the left pixel `(x, y)` matches
 /// the right pixel `(x − d, y)`; `min_disparity..=max_disparity` is searched (both inclusive).
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct StereoOptions {
     /// Optimiser. Default [`StereoMethod::Sgm`].
     pub method: StereoMethod,

@@ -21,7 +21,7 @@ pub struct DenseView<'a> {
 }
 
 /// Options of [`match_pair`].
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct PairOptions {
     pub rectify: RectifyOptions,
     /// Matcher settings; its disparity range is replaced by the one from the sparse points.

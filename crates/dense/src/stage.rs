@@ -26,7 +26,7 @@ pub struct DenseInputView {
 }
 
 /// Options of [`dense_reconstruct`].
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct DenseOptions {
     pub pair: PairOptions,
     pub link: LinkOptions,
@@ -73,7 +73,7 @@ pub struct DenseViewResult {
 }
 
 /// What happened to the whole sequence.
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
 pub struct DenseSummary {
     pub views: usize,
     pub pairs_matched: usize,

@@ -27,7 +27,7 @@ use crate::klt_align::{affine_register, build_pyramid, Level};
 use crate::zncc::sample_patch;
 
 /// Options of [`refine_track_keypoints`].
-#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct KeypointRefinementOptions {
     /// Half-size of the registration window on the chosen pyramid level: `(2r+1)²` samples.
     /// Default 7.

@@ -25,7 +25,7 @@ use crate::detector::{Descriptors, Features};
 use crate::matching::{match_descriptors, Match, MatchOptions};
 
 /// Options of [`verify_pairs`].
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct PairVerificationOptions {
     pub matching: MatchOptions,
     pub two_view: TwoViewOptions,

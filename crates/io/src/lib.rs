@@ -4,7 +4,7 @@
 //! Split by concept: [`error`] (one error enum naming the path), [`atomic`] (write-then-rename),
 //! [`images`] (photo folders, EXIF), [`video`] (ffmpeg subprocess), [`colmap`] (sparse model text and
 //! binary), [`ply`] (point clouds and meshes), [`pfm`] (float maps),
-//! [`ingest`] (the ingest stage), [`workspace`] (stage folders, manifests, resumption).
+//! [`ingest`] (the ingest stage).
 
 pub mod atomic;
 pub mod bal;
@@ -20,6 +20,5 @@ pub mod obj;
 pub mod pfm;
 pub mod ply;
 pub mod video;
-pub mod workspace;
 
 pub use error::{IoError, Result};

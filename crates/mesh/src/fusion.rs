@@ -23,7 +23,7 @@ use crate::tsdf::{resolve_voxel_size, TsdfOptions, TsdfVolume, BLOCK_VOXELS};
 use crate::view::DepthView;
 
 /// Options of [`fuse_depth_maps`].
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct FusionOptions {
     pub tsdf: TsdfOptions,
     /// Surface extraction; `min_observations` is clamped to the number of views.
@@ -70,7 +70,7 @@ impl Default for FusionOptions {
 }
 
 /// What [`fuse_depth_maps`] did.
-#[derive(Clone, Debug, Default, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct FusionSummary {
     pub views: usize,
     /// Voxel edge length used (world units).

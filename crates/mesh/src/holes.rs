@@ -30,7 +30,7 @@ use nalgebra::{Vector2, Vector3};
 use crate::topology::{edge_key, face_components};
 
 /// Options of [`fill_holes`].
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct HoleFillOptions {
     /// Holes whose boundary is longer than this (world units) stay open; 0 fills none.
     pub max_perimeter: f64,
@@ -65,7 +65,7 @@ pub struct BoundaryLoop {
 }
 
 /// What [`fill_holes`] found and did.
-#[derive(Clone, Debug, Default, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct HoleReport {
     /// Outer boundaries (one per open piece) and holes found.
     pub outer_loops: usize,

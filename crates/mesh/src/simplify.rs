@@ -13,7 +13,7 @@ use handheld_core::{PointCloud, TriMesh};
 use crate::error::{in_range, MeshError, Result};
 
 /// Options of [`simplify`].
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct SimplifyOptions {
     /// Stop when at most this many triangles remain. Default 500 000.
     pub target_faces: usize,

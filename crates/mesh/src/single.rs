@@ -23,7 +23,7 @@ use crate::error::{in_range, MeshError, Result};
 use crate::view::{sample_rgb, DepthView, Projector};
 
 /// Options of [`mesh_from_depth_map`].
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct SingleMeshOptions {
     /// Grid spacing in pixels (the triangles' leg length). Default 4.
     pub step: usize,

@@ -27,7 +27,7 @@ use crate::topology::face_neighbours;
 use crate::view::{ImageView, Projector};
 
 /// Options of [`texture_mesh`].
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct TextureOptions {
     /// Largest atlas side in texels; charts are scaled down uniformly to fit. Default 8192.
     pub max_atlas_size: u32,
@@ -102,7 +102,7 @@ pub struct TexturedMesh {
 }
 
 /// What [`texture_mesh`] did.
-#[derive(Clone, Debug, Default, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct TextureSummary {
     pub faces: usize,
     /// Faces no view sees (mapped to a grey patch).

@@ -38,7 +38,8 @@ pub const BLOCK_VOXELS: usize = BLOCK * BLOCK * BLOCK;
 pub const BLOCK_BYTES: usize = BLOCK_VOXELS * 9 + 12;
 
 /// How the voxel edge length is chosen.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
 pub enum VoxelSize {
     /// A fixed edge length in world (sparse model) units.
     Absolute(f64),
@@ -48,7 +49,7 @@ pub enum VoxelSize {
 }
 
 /// Options of [`TsdfVolume`] and of the fusion stage.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct TsdfOptions {
     /// Voxel edge length. Default `PixelFootprint(3.0)`.
     pub voxel_size: VoxelSize,

@@ -13,7 +13,7 @@ pub enum RansacError {
 }
 
 /// Options of [`crate::run`].
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct RansacOptions {
     /// Inlier threshold on [`crate::Estimator::residual`], in its units (pixels for the two-view
     /// estimators). Default 1.0, the 1-pixel criterion of the paper's Fig. 1; with noise `σ`, about

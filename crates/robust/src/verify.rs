@@ -23,7 +23,7 @@ use crate::sampler::UniformSampler;
 use crate::two_view::{FundamentalEstimator, HomographyEstimator, Match2d2d};
 
 /// Options of [`estimate_two_view_geometry`].
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct TwoViewOptions {
     /// Inlier threshold on the Sampson distance for F, pixels. Default 1.5.
     pub f_threshold_px: f64,

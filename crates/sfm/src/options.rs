@@ -25,7 +25,7 @@ pub struct KnownIntrinsics {
 }
 
 /// Options of [`crate::reconstruct`].
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, serde::Deserialize)]
 pub struct SfmOptions {
     /// Inlier threshold of the projective stage in pixels (resection, triangulation, filtering). It
     /// absorbs the not-yet-modelled radial distortion. Default 4.

@@ -19,7 +19,8 @@ use planar::PlanarRect;
 use polar::PolarRect;
 
 /// Which rectification to use.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
 pub enum RectifyMethod {
     /// Planar when both epipoles are farther than [`RectifyOptions::planar_epipole_distance`]
     /// image diagonals from the image centres (and the planar images stay small enough), polar
@@ -33,7 +34,7 @@ pub enum RectifyMethod {
 }
 
 /// Options of [`rectify_pair`].
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct RectifyOptions {
     pub method: RectifyMethod,
     /// In diagonals; planar rectification is used in `Auto` mode beyond this epipole distance.

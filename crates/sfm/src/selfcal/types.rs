@@ -49,7 +49,7 @@ pub fn normalization_matrix(width: u32, height: u32) -> Matrix3<f64> {
 
 /// Options of [`self_calibrate`]. The defaults are the a-priori standard deviations of the paper
 /// (eq. 25) and the weights of eq. 26.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, serde::Deserialize)]
 pub struct SelfCalibrationOptions {
     /// Maximum number of linear solves (eq. 26). The first uses `ν = 1` for every camera, each
     /// further one `ν = |P₃ Ω* P₃ᵀ|` of the previous estimate; the loop stops early once the `ν`

@@ -1,8 +1,8 @@
-//! The workspace: one folder per stage, each finished stage marked by a `manifest.json` written last
+//! Resumption: one folder per stage, each finished stage marked by a `manifest.json` written last
 //! (atomically). A stage is up to date when its manifest records the same input hash (its inputs'
-//! fingerprints, its options and the upstream manifests) and the same Handheld version, and all its
-//! listed outputs exist. Re-running a stage first deletes its manifest, so an interrupted run can never
-//! look finished.
+//! fingerprints, its serialised options and the hashes of the stages it reads), the same Handheld
+//! version and the same workspace format, and all its listed outputs exist. Re-running a stage first
+//! deletes its manifest, so an interrupted run can never look finished.
 
 use std::fs;
 use std::path::{Path, PathBuf};
@@ -11,17 +11,29 @@ use std::time::{SystemTime, UNIX_EPOCH};
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
-use crate::atomic::write_bytes_atomic;
-use crate::error::{IoError, Result};
+use handheld_io::atomic::write_bytes_atomic;
+use handheld_io::{IoError, Result};
 
 /// The version recorded in every manifest.
 pub const HANDHELD_VERSION: &str = env!("CARGO_PKG_VERSION");
+
+/// The workspace format recorded in every manifest. Format 1 (no field in the manifest) was written
+/// by the CLI's own stage runner, whose fingerprints were built from strings; format 2 fingerprints
+/// the serialised options. A stage written in another format is redone, with a message saying so.
+pub const WORKSPACE_FORMAT: u32 = 2;
+
+fn format_1() -> u32 {
+    1
+}
 
 /// What a finished stage leaves behind.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct StageManifest {
     pub stage: String,
     pub handheld_version: String,
+    /// [`WORKSPACE_FORMAT`] of the run that wrote it.
+    #[serde(default = "format_1")]
+    pub workspace_format: u32,
     /// Hex SHA-256 of the stage's inputs and options (see [`Fingerprint`]).
     pub input_hash: String,
     pub options: serde_json::Value,
@@ -31,8 +43,11 @@ pub struct StageManifest {
     pub seconds: f64,
     /// Output files, relative to the stage folder.
     pub outputs: Vec<String>,
-    /// Stage-specific figures (counts, errors) for reports.
+    /// The stage's typed summary, serialised (counts, errors) for reports.
     pub summary: serde_json::Value,
+    /// Warnings the stage gave, in words a user understands, with what to do.
+    #[serde(default)]
+    pub warnings: Vec<String>,
 }
 
 /// Accumulates what a stage's result depends on.
@@ -130,7 +145,8 @@ impl Workspace {
         serde_json::from_str(&text).ok()
     }
 
-    /// True when `stage` finished with this input hash and this Handheld version, and its outputs exist.
+    /// True when `stage` finished with this input hash, this Handheld version and this workspace
+    /// format, and its outputs exist.
     pub fn is_up_to_date(&self, stage: &str, input_hash: &str) -> bool {
         let Some(m) = self.manifest(stage) else {
             return false;
@@ -138,6 +154,7 @@ impl Workspace {
         let dir = self.root.join(stage);
         m.input_hash == input_hash
             && m.handheld_version == HANDHELD_VERSION
+            && m.workspace_format == WORKSPACE_FORMAT
             && m.outputs.iter().all(|o| dir.join(o).exists())
     }
 
@@ -195,12 +212,14 @@ mod tests {
         StageManifest {
             stage: "ingest".into(),
             handheld_version: HANDHELD_VERSION.into(),
+            workspace_format: WORKSPACE_FORMAT,
             input_hash: hash.into(),
             options: serde_json::json!({}),
             started_unix_s: 0.0,
             seconds: 1.5,
             outputs: vec!["images.json".into()],
             summary: serde_json::json!({}),
+            warnings: Vec::new(),
         }
     }
 
@@ -223,6 +242,22 @@ mod tests {
         assert!(!ws.is_up_to_date("ingest", &h), "missing output");
         ws.begin("ingest").unwrap();
         assert!(ws.manifest("ingest").is_none());
+    }
+
+    #[test]
+    fn a_manifest_of_the_first_format_is_not_up_to_date() {
+        let dir = tempfile::tempdir().unwrap();
+        let ws = Workspace::open(&dir.path().join("ws")).unwrap();
+        let stage = ws.begin("ingest").unwrap();
+        fs::write(stage.join("images.json"), "[]").unwrap();
+        // As the CLI's runner wrote it: no `workspace_format`, no `warnings`.
+        let old = r#"{"stage":"ingest","handheld_version":"VERSION","input_hash":"h","options":{},
+            "started_unix_s":0.0,"seconds":1.0,"outputs":["images.json"],"summary":{}}"#
+            .replace("VERSION", HANDHELD_VERSION);
+        fs::write(stage.join("manifest.json"), old).unwrap();
+        let m = ws.manifest("ingest").expect("old manifests still parse");
+        assert_eq!(m.workspace_format, 1);
+        assert!(!ws.is_up_to_date("ingest", "h"));
     }
 
     #[test]

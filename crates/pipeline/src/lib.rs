@@ -1,0 +1,45 @@
+//! The pipeline as a library (COLMAP's `controllers` layer): the workspace and every file in it
+//! ([`files`]), the stage graph and its resumption ([`stage`], [`manifest`]), the standard stages
+//! ([`stages`]) with their typed options and summaries, and the policies between them ([`policy`]).
+//!
+//! ```no_run
+//! use handheld_pipeline::{Pipeline, PipelineOptions, Workspace};
+//! # fn main() -> Result<(), handheld_pipeline::PipelineError> {
+//! let options = PipelineOptions::default();
+//! let pipeline = Pipeline::standard("photos/".as_ref(), &options)?;
+//! let ws = Workspace::open("ws".as_ref())?;
+//! let reports = pipeline.run(&ws, Some("sparse"), false, &handheld_core::NoProgress)?;
+//! # Ok(()) }
+//! ```
+
+pub mod error;
+pub mod files;
+pub mod manifest;
+pub mod options;
+pub mod policy;
+pub mod preview;
+pub mod stage;
+pub mod stages;
+
+pub use error::{Context, PipelineError, Result};
+pub use manifest::{Fingerprint, StageManifest, Workspace, HANDHELD_VERSION, WORKSPACE_FORMAT};
+pub use options::PipelineOptions;
+pub use stage::{AnyStage, Pipeline, Produced, Stage, StageContext, StageReport, StageStatus};
+
+/// Runs the standard graph on `input` (a photo folder or a video) into the workspace `ws`, up to
+/// `until` (everything with `None`).
+pub fn reconstruct(
+    input: &std::path::Path,
+    ws: &std::path::Path,
+    options: &PipelineOptions,
+    until: Option<&str>,
+    force: bool,
+    progress: &dyn handheld_core::Progress,
+) -> Result<Vec<StageReport>> {
+    let pipeline = Pipeline::standard(input, options)?;
+    if let Some(t) = until {
+        pipeline.plan(t)?;
+    }
+    let ws = Workspace::open(ws)?;
+    pipeline.run(&ws, until, force, progress)
+}

@@ -1,0 +1,36 @@
+//! The options of the whole standard graph: one typed, serialisable struct per stage. Every default
+//! is written once, in the stage's (or its library's) `Default`; front ends read them from here.
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::Result;
+use crate::stages::dense::DenseStageOptions;
+use crate::stages::features::FeaturesStageOptions;
+use crate::stages::ingest::IngestStageOptions;
+use crate::stages::matches::MatchesStageOptions;
+use crate::stages::mesh::MeshStageOptions;
+use crate::stages::sparse::SparseStageOptions;
+
+/// Options of every stage of the standard graph.
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+#[serde(default)]
+pub struct PipelineOptions {
+    pub ingest: IngestStageOptions,
+    pub features: FeaturesStageOptions,
+    pub matches: MatchesStageOptions,
+    pub sparse: SparseStageOptions,
+    pub dense: DenseStageOptions,
+    pub mesh: MeshStageOptions,
+}
+
+impl PipelineOptions {
+    /// Checks every stage's options; the error names the first option out of range.
+    pub fn validate(&self) -> Result<()> {
+        crate::stages::ingest::validate(&self.ingest)?;
+        self.features.validate()?;
+        self.matches.validate()?;
+        self.sparse.validate()?;
+        self.dense.validate()?;
+        self.mesh.validate()
+    }
+}

@@ -1,0 +1,128 @@
+//! The decisions between the stages: which pairs to match, how images are numbered, which images
+//! share intrinsics, how descriptors are stored for SfM, and when a result deserves a warning.
+
+use handheld_core::ImageId;
+use handheld_io::images::ImageInfo;
+use handheld_io::ingest::InputKind;
+use handheld_sfm::ModelSummary;
+use serde::{Deserialize, Serialize};
+
+/// Largest photo set matched exhaustively under [`PairMode::Auto`].
+pub const EXHAUSTIVE_MAX_PHOTOS: usize = 40;
+
+/// Which image pairs the matches stage matches.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PairMode {
+    /// Exhaustive up to [`EXHAUSTIVE_MAX_PHOTOS`] photos; a sequential window for video and longer
+    /// photo sets.
+    Auto,
+    /// Every pair.
+    Exhaustive,
+    /// Each image with its window of successors.
+    Sequential,
+}
+
+impl PairMode {
+    /// Whether `n` images of this kind are matched in a sequential window.
+    pub fn sequential(self, kind: InputKind, n: usize) -> bool {
+        match (self, kind) {
+            (PairMode::Exhaustive, _) => false,
+            (PairMode::Sequential, _) | (PairMode::Auto, InputKind::Video) => true,
+            (PairMode::Auto, InputKind::Photos) => n > EXHAUSTIVE_MAX_PHOTOS,
+        }
+    }
+}
+
+/// The id of the image at `index` in ingest order (COLMAP ids start at 1).
+pub fn image_id(index: usize) -> ImageId {
+    ImageId(index as u32 + 1)
+}
+
+/// The ingest index of an image id (inverse of [`image_id`]).
+pub fn image_index(id: ImageId) -> usize {
+    (id.0 as usize).saturating_sub(1)
+}
+
+/// A key telling apart physical cameras, zoom settings and image sizes: images with the same key
+/// share one intrinsics group.
+pub fn camera_key(info: &ImageInfo) -> String {
+    format!("{}|{}x{}", info.exif.camera_key(), info.width, info.height)
+}
+
+/// RootSIFT descriptors (unit L2 norm, components ≤ 0.5 in practice) quantised to bytes, as SfM
+/// stores them for its descriptor checks.
+pub fn quantize_descriptor(values: &[f32]) -> Vec<u8> {
+    values
+        .iter()
+        .map(|v| (512.0 * v).round().clamp(0.0, 255.0) as u8)
+        .collect()
+}
+
+/// The focal guess of a camera without EXIF: 1.2 × the longer side (a normal lens).
+pub fn focal_guess_px(width: u32, height: u32) -> f64 {
+    1.2 * f64::from(width.max(height))
+}
+
+/// Relative standard deviation of the focal length below which a degenerate self-calibration only
+/// earns a note: the bundle adjustment pins the focal length.
+pub const FOCAL_WELL_DETERMINED: f64 = 0.01;
+
+/// How sure the run is of a focal length chosen under critical motion (§3.4).
+#[derive(Debug, Clone, PartialEq)]
+pub enum FocalVerdict {
+    /// Self-calibration was not degenerate, or the calibration was given.
+    Calibrated,
+    /// Degenerate, but the final adjustment determines the focal length well: a note.
+    WellDetermined(String),
+    /// Degenerate and uncertain: a warning with what to do.
+    Doubtful(String),
+}
+
+/// Under critical motion (§3.4) the focal length comes from the priors and the focal hypotheses,
+/// not from the data: a wrong one gives a consistent-looking but distorted model (dinoSparseRing,
+/// where the BA leaves f uncertain by 4.5 %). A focal that the final adjustment determines to
+/// [`FOCAL_WELL_DETERMINED`] or better is only noted.
+pub fn focal_verdict(best: &ModelSummary, calibration_given: bool) -> FocalVerdict {
+    let Some(why) = &best.self_calibration.degenerate else {
+        return FocalVerdict::Calibrated;
+    };
+    if calibration_given {
+        return FocalVerdict::Calibrated;
+    }
+    let rel: Vec<Option<f64>> = best
+        .groups
+        .iter()
+        .map(|g| {
+            best.uncertainty
+                .as_ref()
+                .and_then(|u| u.relative_focal_sigma(g.camera_id, g.f))
+        })
+        .collect();
+    let f: Vec<String> = best
+        .groups
+        .iter()
+        .zip(&rel)
+        .map(|(g, r)| match r {
+            Some(r) => format!("{:.0} px ± {:.2} %", g.f, 100.0 * r),
+            None => format!("{:.0} px", g.f),
+        })
+        .collect();
+    if rel
+        .iter()
+        .all(|r| r.is_some_and(|r| r <= FOCAL_WELL_DETERMINED))
+    {
+        FocalVerdict::WellDetermined(format!(
+            "self-calibration was degenerate ({why}); the focal length ({}) was chosen among the priors' hypotheses, and the bundle adjustment determines it well",
+            f.join(", ")
+        ))
+    } else {
+        FocalVerdict::Doubtful(format!(
+            "self-calibration was degenerate ({why}); the focal length ({}) was chosen among the priors' hypotheses and may be wrong: check it, or give the calibration with --intrinsics",
+            f.join(", ")
+        ))
+    }
+}
+
+/// The features-per-image count below which an image is called out as hard to match.
+pub const FEW_FEATURES: usize = 50;

@@ -1,0 +1,386 @@
+//! The dense stage (§4): reads the sparse model and the images, calls
+//! `handheld_dense::dense_reconstruct` and writes `dense/`:
+//! - `depth/<image>.pfm`: z-depth in the camera frame of the sparse model, model units, `NaN`
+//!   where nothing was kept (full-resolution maps unless `max_size` downscaled the view;
+//!   `cameras.json` holds the camera each map belongs to);
+//! - `variance/<image>.pfm`: the Kalman-fused depth variance (model units²);
+//! - `confidence/<image>.pfm`: `1 / (1 + σ/(0.005·z))`, 0.5 where the 1σ error is 0.5% of depth;
+//! - `visibility/<image>.pfm`: V, the number of views linked (reference included);
+//! - `preview/<image>.depth.png` and `preview/<image>.visibility.png`;
+//! - `fused.ply`, the coloured point cloud; `summary.json`.
+//!
+//! Video workspaces use their key-frames only.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Path, PathBuf};
+
+use handheld_core::{FloatMap, ImageId, MetricReconstruction, Progress};
+use handheld_dense::{
+    dense_reconstruct, scale_camera, DenseInputView, DenseOptions, StereoMethod, StereoOptions,
+};
+use handheld_io::images::{load_image, ImageIngestOptions};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Context, PipelineError, Result};
+use crate::files::{stage, write_json, FUSED_PLY, PREVIEW_DIR, SUMMARY_JSON};
+use crate::manifest::Workspace;
+use crate::policy::image_id;
+use crate::preview::write_preview;
+use crate::stage::{Produced, Stage, StageContext};
+
+/// Options of the dense stage.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(default)]
+pub struct DenseStageOptions {
+    /// Images are downscaled so their longer side is at most this (0: full resolution).
+    pub max_size: u32,
+    pub dense: DenseOptions,
+}
+
+impl Default for DenseStageOptions {
+    fn default() -> Self {
+        Self {
+            max_size: 1600,
+            dense: DenseOptions::default(),
+        }
+    }
+}
+
+impl DenseStageOptions {
+    /// N, the views linked per reference view: the reference and (N−1)/2 on each side (§4.3).
+    pub fn link_views(&self) -> usize {
+        2 * self.dense.link.max_links + 1
+    }
+
+    /// Sets N (odd, at least 3).
+    pub fn set_link_views(&mut self, n: usize) -> Result<()> {
+        if n < 3 || n % 2 == 0 {
+            return Err(PipelineError::option(
+                "--link-views",
+                format!("must be odd and at least 3, got {n}"),
+            ));
+        }
+        self.dense.link.max_links = (n - 1) / 2;
+        Ok(())
+    }
+
+    /// The stereo method of every rectified pair (§4.2), with the pair defaults of the dense stage
+    /// (SGM path count, no hole filling) kept.
+    pub fn stereo_method(&self) -> StereoMethod {
+        self.dense.pair.stereo.method
+    }
+
+    pub fn set_stereo_method(&mut self, method: StereoMethod) {
+        let base = DenseOptions::default().pair.stereo;
+        self.dense.pair.stereo = StereoOptions {
+            sgm_paths: base.sgm_paths,
+            hole_fill: base.hole_fill,
+            ..StereoOptions::for_method(method)
+        };
+    }
+
+    pub fn validate(&self) -> Result<()> {
+        let n = self.link_views();
+        let link = &self.dense.link;
+        if link.max_links < 1 {
+            return Err(PipelineError::option(
+                "--link-views",
+                format!("must be odd and at least 3, got {n}"),
+            ));
+        }
+        for (option, v) in [
+            ("--min-visibility", link.min_visibility),
+            ("--preferred-visibility", link.preferred_visibility),
+        ] {
+            if v < 1 || v > n {
+                return Err(PipelineError::option(
+                    option,
+                    format!("must be between 1 and --link-views ({n}), got {v}"),
+                ));
+            }
+        }
+        self.dense
+            .validate()
+            .map_err(|e| PipelineError::invalid(stage::DENSE, e))
+    }
+}
+
+/// A pair that could not be rectified or matched.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct FailedPair {
+    pub pair: [String; 2],
+    pub reason: String,
+}
+
+/// One view's depth map.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct ViewFill {
+    pub image: String,
+    pub width: u32,
+    pub height: u32,
+    pub fill: f64,
+    pub seconds: f64,
+}
+
+/// What the dense stage computed (`dense/summary.json` adds `per_view`).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct DenseStageSummary {
+    pub views: usize,
+    pub pairs_matched: usize,
+    pub polar_pairs: usize,
+    pub pairs_failed: Vec<FailedPair>,
+    pub fused_points: usize,
+    pub seconds_pairs: f64,
+    pub seconds_linking: f64,
+    pub seconds_per_view: f64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub per_view: Option<Vec<ViewFill>>,
+}
+
+/// The dense stage.
+pub struct Dense {
+    pub options: DenseStageOptions,
+}
+
+impl Stage for Dense {
+    type Options = DenseStageOptions;
+    type Summary = DenseStageSummary;
+
+    fn name(&self) -> &'static str {
+        stage::DENSE
+    }
+
+    fn reads(&self) -> &'static [&'static str] {
+        &[stage::INGEST, stage::FEATURES, stage::SPARSE]
+    }
+
+    fn about(&self) -> &'static str {
+        "rectification, stereo and multi-view linking (§4); writes depth maps and fused.ply"
+    }
+
+    fn options(&self) -> &DenseStageOptions {
+        &self.options
+    }
+
+    fn run(&self, ctx: &StageContext, dir: &Path) -> Result<Produced<DenseStageSummary>> {
+        let rec = ctx.ws.read_sparse_model()?;
+        let ids = key_views(ctx.ws, &rec)?;
+        let paths = ctx.ws.image_paths()?;
+        densify(&rec, &paths, &ids, &self.options, dir, ctx.progress)
+    }
+}
+
+/// The views to densify, in sequence order: every registered view, or the key-frames of a video.
+fn key_views(ws: &Workspace, rec: &MetricReconstruction) -> Result<Vec<ImageId>> {
+    let ids: Vec<ImageId> = rec.views.keys().copied().collect();
+    if let Some(tracks) = ws.read_tracks()? {
+        let keys: BTreeSet<ImageId> = tracks.keyframes.iter().map(|k| image_id(k.0)).collect();
+        let kept: Vec<ImageId> = ids.iter().copied().filter(|i| keys.contains(i)).collect();
+        if kept.len() >= 2 {
+            return Ok(kept);
+        }
+    }
+    Ok(ids)
+}
+
+fn load_views(
+    paths: &BTreeMap<String, PathBuf>,
+    rec: &MetricReconstruction,
+    ids: &[ImageId],
+    max_size: u32,
+) -> Result<Vec<DenseInputView>> {
+    let opts = ImageIngestOptions {
+        min_dimension: 1,
+        ..Default::default()
+    };
+    ids.par_iter()
+        .map(|id| {
+            let view = &rec.views[id];
+            let path = paths.get(&view.name).ok_or_else(|| PipelineError::Input {
+                path: view.name.clone().into(),
+                reason: "no such image among the inputs".into(),
+            })?;
+            let camera = rec.cameras.get(&view.camera_id).ok_or_else(|| {
+                PipelineError::workspace(
+                    &view.name,
+                    "camera missing from the sparse model; rerun the sparse stage",
+                )
+            })?;
+            let img = load_image(path, &opts)?.image.to_rgb8();
+            if (img.width(), img.height()) != (camera.width, camera.height) {
+                return Err(PipelineError::Input {
+                    path: path.clone(),
+                    reason: format!(
+                        "image is {}x{} but the sparse model says {}x{} (rerun with --force)",
+                        img.width(),
+                        img.height(),
+                        camera.width,
+                        camera.height
+                    ),
+                });
+            }
+            let longer = img.width().max(img.height());
+            let (img, camera) = if max_size > 0 && longer > max_size {
+                let s = max_size as f64 / longer as f64;
+                let w = (img.width() as f64 * s).round() as u32;
+                let h = (img.height() as f64 * s).round() as u32;
+                let small =
+                    image::imageops::resize(&img, w, h, image::imageops::FilterType::Triangle);
+                let c = scale_camera(
+                    camera,
+                    w as f64 / img.width() as f64,
+                    h as f64 / img.height() as f64,
+                );
+                (small, c)
+            } else {
+                (img, camera.clone())
+            };
+            Ok(DenseInputView {
+                name: view.name.clone(),
+                camera,
+                cam_from_world: view.cam_from_world,
+                image: FloatMap::from_u8(
+                    img.width() as usize,
+                    img.height() as usize,
+                    3,
+                    img.as_raw(),
+                ),
+            })
+        })
+        .collect()
+}
+
+#[derive(Serialize)]
+struct CameraEntry<'a> {
+    image: &'a str,
+    camera: &'a handheld_core::Camera,
+    cam_from_world: &'a handheld_core::Rigid3,
+}
+
+/// Densifies the views `ids` of `rec` (images found through `paths`, by view name) into `dir`.
+pub fn densify(
+    rec: &MetricReconstruction,
+    paths: &BTreeMap<String, PathBuf>,
+    ids: &[ImageId],
+    opts: &DenseStageOptions,
+    dir: &Path,
+    progress: &dyn Progress,
+) -> Result<Produced<DenseStageSummary>> {
+    let views = load_views(paths, rec, ids, opts.max_size)?;
+    let points: Vec<_> = rec.points.values().map(|p| p.xyz).collect();
+    for sub in ["depth", "variance", "confidence", "visibility", PREVIEW_DIR] {
+        std::fs::create_dir_all(dir.join(sub))
+            .map_err(|e| handheld_io::IoError::io(dir.join(sub), e))?;
+    }
+    let mut per_view = Vec::new();
+    let mut outputs = Vec::new();
+    let (cloud, summary) = dense_reconstruct(&views, &points, &opts.dense, progress, |v, r| {
+        let name = &v.name;
+        let l = &r.linked;
+        let conf = FloatMap {
+            data: l
+                .depth
+                .data
+                .iter()
+                .zip(&l.variance.data)
+                .map(|(z, var)| {
+                    if z.is_finite() {
+                        1.0 / (1.0 + var.sqrt() / (0.005 * z))
+                    } else {
+                        0.0
+                    }
+                })
+                .collect(),
+            ..l.depth.clone()
+        };
+        let write = || -> Result<()> {
+            for (sub, map) in [
+                ("depth", &l.depth),
+                ("variance", &l.variance),
+                ("confidence", &conf),
+                ("visibility", &l.visibility),
+            ] {
+                handheld_io::pfm::write_pfm(&dir.join(sub).join(format!("{name}.pfm")), map)?;
+            }
+            let pdir = dir.join(PREVIEW_DIR);
+            write_preview(&l.depth, &pdir.join(format!("{name}.depth.png")))?;
+            write_preview(&l.visibility, &pdir.join(format!("{name}.visibility.png")))?;
+            Ok(())
+        };
+        write().map_err(|e| handheld_dense::DenseError::Linking {
+            reason: format!("{name}: cannot write the maps: {e}"),
+        })?;
+        for sub in ["depth", "variance", "confidence", "visibility"] {
+            outputs.push(format!("{sub}/{name}.pfm"));
+        }
+        tracing::info!(
+            "dense: {name}: {:.1} % filled in {:.2} s",
+            l.fill() * 100.0,
+            r.seconds
+        );
+        per_view.push(ViewFill {
+            image: name.clone(),
+            width: v.camera.width,
+            height: v.camera.height,
+            fill: l.fill(),
+            seconds: r.seconds,
+        });
+        Ok(())
+    })
+    .context("dense matching")?;
+    handheld_io::ply::write_point_cloud(&dir.join(FUSED_PLY), &cloud, Default::default())?;
+    let cameras: Vec<CameraEntry> = views
+        .iter()
+        .map(|v| CameraEntry {
+            image: &v.name,
+            camera: &v.camera,
+            cam_from_world: &v.cam_from_world,
+        })
+        .collect();
+    write_json(&dir.join("cameras.json"), &cameras)?;
+    let mut s = DenseStageSummary {
+        views: summary.views,
+        pairs_matched: summary.pairs_matched,
+        polar_pairs: summary.polar_pairs,
+        pairs_failed: summary
+            .pairs_failed
+            .iter()
+            .map(|(p, why)| FailedPair {
+                pair: [views[*p].name.clone(), views[*p + 1].name.clone()],
+                reason: why.clone(),
+            })
+            .collect(),
+        fused_points: summary.fused_points,
+        seconds_pairs: summary.seconds_pairs,
+        seconds_linking: summary.seconds_linking,
+        seconds_per_view: (summary.seconds_pairs + summary.seconds_linking)
+            / summary.views.max(1) as f64,
+        per_view: Some(per_view),
+    };
+    write_json(&dir.join(SUMMARY_JSON), &s)?;
+    outputs.extend([FUSED_PLY.into(), "cameras.json".into(), SUMMARY_JSON.into()]);
+    s.per_view = None;
+    Ok(Produced::new(outputs, s))
+}
+
+/// The dense stage on any COLMAP model (text or binary) and the folder of its images, into `out`
+/// (the layout of `WS/dense`).
+pub fn densify_model(
+    model: &Path,
+    images: &Path,
+    opts: &DenseStageOptions,
+    out: &Path,
+    progress: &dyn Progress,
+) -> Result<DenseStageSummary> {
+    opts.validate()?;
+    let rec = handheld_io::colmap::read_reconstruction(model)?;
+    let paths: BTreeMap<String, PathBuf> = rec
+        .views
+        .values()
+        .map(|v| (v.name.clone(), images.join(&v.name)))
+        .collect();
+    let ids: Vec<ImageId> = rec.views.keys().copied().collect();
+    std::fs::create_dir_all(out).map_err(|e| handheld_io::IoError::io(out, e))?;
+    Ok(densify(&rec, &paths, &ids, opts, out, progress)?.summary)
+}

@@ -1,0 +1,219 @@
+//! The features stage: RootSIFT on every ingested image, in parallel, one `features/<index>.feat`
+//! file per image (full-precision keypoints and descriptors); for video, KLT tracks and key-frames
+//! instead (see [`super::tracks`]).
+
+use std::path::Path;
+use std::time::Instant;
+
+use handheld_features::extract::{extract_features, ExtractionOptions};
+use handheld_features::video::VideoTrackingOptions;
+use handheld_io::features_file::{write_features, FeatureFile};
+use handheld_io::images::{load_image, ImageIngestOptions};
+use handheld_io::ingest::InputKind;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Context, PipelineError, Result};
+use crate::files::{feature_file_name, stage};
+use crate::policy::FEW_FEATURES;
+use crate::stage::{Produced, Stage, StageContext};
+
+/// How correspondences are found.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TrackingMode {
+    /// KLT for a video file, SIFT for photos.
+    Auto,
+    /// KLT tracks and key-frames (also for a folder of consecutive frames).
+    Klt,
+    /// SIFT features and descriptor matching.
+    Sift,
+}
+
+/// Options of the features stage.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(default)]
+pub struct FeaturesStageOptions {
+    pub extraction: ExtractionOptions,
+    pub tracking: TrackingMode,
+    /// Live KLT tracks kept per frame (video).
+    pub klt_features: usize,
+}
+
+impl Default for FeaturesStageOptions {
+    fn default() -> Self {
+        Self {
+            extraction: ExtractionOptions::default(),
+            tracking: TrackingMode::Auto,
+            klt_features: 1000,
+        }
+    }
+}
+
+impl FeaturesStageOptions {
+    /// Whether this input is tracked with KLT rather than matched with SIFT.
+    pub fn uses_klt(&self, kind: InputKind) -> bool {
+        match self.tracking {
+            TrackingMode::Auto => kind == InputKind::Video,
+            TrackingMode::Klt => true,
+            TrackingMode::Sift => false,
+        }
+    }
+
+    /// The tracker's options.
+    pub fn video_tracking(&self) -> VideoTrackingOptions {
+        let mut v = VideoTrackingOptions::default();
+        v.klt.target_features = self.klt_features;
+        v
+    }
+
+    pub fn validate(&self) -> Result<()> {
+        self.extraction
+            .validate()
+            .map_err(|e| PipelineError::invalid(stage::FEATURES, e))?;
+        self.video_tracking()
+            .validate()
+            .map_err(|e| PipelineError::option("--klt-features", e.to_string()))
+    }
+}
+
+/// What the features stage found (SIFT) or tracked (KLT).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum FeaturesSummary {
+    Sift {
+        images: usize,
+        features_per_image_median: usize,
+        features_min: usize,
+        extraction_seconds_median: Option<f64>,
+    },
+    Klt {
+        images: usize,
+        tracking: String,
+        tracks_per_frame_median: Option<usize>,
+        keyframes: usize,
+        keyframe_frames: Vec<usize>,
+    },
+}
+
+/// The features stage.
+pub struct Features {
+    pub options: FeaturesStageOptions,
+}
+
+impl Stage for Features {
+    type Options = FeaturesStageOptions;
+    type Summary = FeaturesSummary;
+
+    fn name(&self) -> &'static str {
+        stage::FEATURES
+    }
+
+    fn reads(&self) -> &'static [&'static str] {
+        &[stage::INGEST]
+    }
+
+    fn about(&self) -> &'static str {
+        "detect and describe features (RootSIFT), or track a video (KLT, GRIC key-frames)"
+    }
+
+    fn options(&self) -> &FeaturesStageOptions {
+        &self.options
+    }
+
+    fn run(&self, ctx: &StageContext, dir: &Path) -> Result<Produced<FeaturesSummary>> {
+        let ingest = ctx.ws.read_ingest()?;
+        if self.options.uses_klt(ingest.kind) {
+            return super::tracks::run_tracking(
+                &ingest,
+                dir,
+                &self.options.video_tracking(),
+                ctx.progress,
+            );
+        }
+        let opts = &self.options.extraction;
+        let bars = ctx.progress;
+        bars.start("features", ingest.images.len() as u64);
+        let load_opts = ImageIngestOptions {
+            min_dimension: 1,
+            ..Default::default()
+        };
+        let results: Vec<Result<(usize, f64)>> = ingest
+            .images
+            .par_iter()
+            .enumerate()
+            .map(|(k, img)| {
+                let loaded = load_image(&img.info.path, &load_opts)?;
+                let t0 = Instant::now();
+                let f = extract_features(&loaded.image, opts);
+                let secs = t0.elapsed().as_secs_f64();
+                let file = to_file(f);
+                write_features(&dir.join(feature_file_name(k)), &file)
+                    .with_context(|| format!("features of {}", img.info.name))?;
+                bars.inc(1);
+                Ok((file.keypoints.len(), secs))
+            })
+            .collect();
+        bars.finish();
+        let results: Vec<(usize, f64)> = results.into_iter().collect::<Result<_>>()?;
+        let counts: Vec<usize> = results.iter().map(|r| r.0).collect();
+        let mut secs: Vec<f64> = results.iter().map(|r| r.1).collect();
+        secs.sort_by(|a, b| a.total_cmp(b));
+        let min = counts.iter().min().copied().unwrap_or(0);
+        let mut warnings = Vec::new();
+        if min < FEW_FEATURES {
+            warnings.push(format!("an image has only {min} features: textureless, blurred or tiny images match poorly"));
+        }
+        Ok(Produced {
+            outputs: (0..counts.len()).map(feature_file_name).collect(),
+            summary: FeaturesSummary::Sift {
+                images: counts.len(),
+                features_per_image_median: median(&counts),
+                features_min: min,
+                extraction_seconds_median: secs.get(secs.len() / 2).copied(),
+            },
+            warnings,
+        })
+    }
+}
+
+/// The on-disk form of one image's features.
+pub fn to_file(f: handheld_features::Features) -> FeatureFile {
+    FeatureFile {
+        keypoints: f
+            .keypoints
+            .iter()
+            .map(|k| [k.x, k.y, k.scale, k.orientation, k.response])
+            .collect(),
+        dim: f.descriptors.dim,
+        descriptors: f.descriptors.data,
+    }
+}
+
+/// The in-memory form of one image's features.
+pub fn from_file(f: FeatureFile) -> handheld_features::Features {
+    use handheld_features::{Descriptors, Keypoint};
+    handheld_features::Features {
+        keypoints: f
+            .keypoints
+            .iter()
+            .map(|k| Keypoint {
+                x: k[0],
+                y: k[1],
+                scale: k[2],
+                orientation: k[3],
+                response: k[4],
+            })
+            .collect(),
+        descriptors: Descriptors {
+            dim: f.dim,
+            data: f.descriptors,
+        },
+    }
+}
+
+fn median(v: &[usize]) -> usize {
+    let mut s = v.to_vec();
+    s.sort_unstable();
+    s.get(s.len() / 2).copied().unwrap_or(0)
+}

@@ -1,0 +1,265 @@
+//! The matches stage: choose the pairs ([`PairMode`]: exhaustive for small sets, a sequential
+//! window for video and long sequences, plus §3.2's close views), match and verify them (Table 1),
+//! and write everything into COLMAP's `matches/database.db` plus `pairs.json`. Video workspaces
+//! verify key-frame pairs from their shared KLT tracks (§3.1).
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use handheld_features::close_views::{propose_close_views, CloseViewOptions};
+use handheld_features::matching::{exhaustive_pairs, sequential_pairs};
+use handheld_features::verify::{verify_pairs, PairVerificationOptions, VerifiedPair};
+use handheld_features::video::{keyframe_pairs, VideoTrackingOptions};
+use handheld_features::Features;
+use handheld_io::database::{Database, StoredTwoViewGeometry, TwoViewConfig};
+use handheld_io::ingest::IngestResult;
+use handheld_robust::TwoViewConfiguration;
+use serde::{Deserialize, Serialize};
+
+use crate::error::{PipelineError, Result};
+use crate::files::{stage, write_json, DATABASE, PAIRS_JSON};
+use crate::policy::{camera_key, focal_guess_px, PairMode};
+use crate::stage::{Produced, Stage, StageContext};
+use crate::stages::features::from_file;
+
+/// Options of the matches stage.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(default)]
+pub struct MatchesStageOptions {
+    pub pairs: PairMode,
+    /// Neighbours on each side for sequential matching.
+    pub window: usize,
+    /// With sequential matching, also propose and verify close views outside the window (§3.2).
+    pub close_views: bool,
+    /// Putative matching, guided matching and two-view verification (Table 1).
+    pub verification: PairVerificationOptions,
+}
+
+impl Default for MatchesStageOptions {
+    fn default() -> Self {
+        Self {
+            pairs: PairMode::Auto,
+            window: 8,
+            close_views: true,
+            verification: PairVerificationOptions::default(),
+        }
+    }
+}
+
+/// The fewest seed features that still give a usable first estimate of F.
+pub const MIN_SEED_FEATURES: usize = 64;
+
+impl MatchesStageOptions {
+    pub fn validate(&self) -> Result<()> {
+        let ratio = self.verification.matching.ratio;
+        if !(ratio > 0.0 && ratio <= 1.0) {
+            return Err(PipelineError::option(
+                "--ratio",
+                format!("must be in (0, 1], got {ratio}"),
+            ));
+        }
+        if let Some(s) = self.verification.seed_features {
+            if s < MIN_SEED_FEATURES {
+                return Err(PipelineError::option(
+                    "--seed-features",
+                    format!("must be 0 (brute force over all) or at least {MIN_SEED_FEATURES}, got {s}"),
+                ));
+            }
+        }
+        if self.window == 0 {
+            return Err(PipelineError::option("--window", "must be at least 1"));
+        }
+        self.verification
+            .validate()
+            .map_err(|e| PipelineError::invalid(stage::MATCHES, e))
+    }
+}
+
+/// What the matches stage verified.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct MatchesSummary {
+    pub pairs: usize,
+    pub close_view_pairs_proposed: usize,
+    pub close_view_pairs_verified: usize,
+    pub verified_general: usize,
+    pub verified_planar_or_rotation: usize,
+    pub inliers_per_verified_pair_median: Option<usize>,
+}
+
+/// The matches stage.
+pub struct Matches {
+    pub options: MatchesStageOptions,
+}
+
+impl Stage for Matches {
+    type Options = MatchesStageOptions;
+    type Summary = MatchesSummary;
+
+    fn name(&self) -> &'static str {
+        stage::MATCHES
+    }
+
+    fn reads(&self) -> &'static [&'static str] {
+        &[stage::INGEST, stage::FEATURES]
+    }
+
+    fn about(&self) -> &'static str {
+        "match image pairs and verify them (Table 1); writes COLMAP's database.db"
+    }
+
+    fn options(&self) -> &MatchesStageOptions {
+        &self.options
+    }
+
+    fn run(&self, ctx: &StageContext, dir: &Path) -> Result<Produced<MatchesSummary>> {
+        let opts = &self.options;
+        let ws = ctx.ws;
+        let ingest = ws.read_ingest()?;
+        let n = ingest.images.len();
+        let features: Vec<Features> = (0..n)
+            .map(|k| ws.read_features(k).map(from_file))
+            .collect::<Result<_>>()?;
+        if let Some(tracks) = ws.read_tracks()? {
+            // Video: key-frame pairs from the KLT tracks (§3.1).
+            let verified = keyframe_pairs(
+                &tracks,
+                &VideoTrackingOptions::default(),
+                &opts.verification,
+                ctx.progress,
+            );
+            return finish(dir, &ingest, &features, &verified, verified.len(), 0, opts);
+        }
+        let sequential = opts.pairs.sequential(ingest.kind, n);
+        let mut pairs = if sequential {
+            sequential_pairs(n, opts.window)
+        } else {
+            exhaustive_pairs(n)
+        };
+        let mut proposed = 0;
+        if sequential && opts.close_views {
+            let extra = propose_close_views(&features, opts.window, &CloseViewOptions::default());
+            proposed = extra.len();
+            pairs.extend(extra);
+        }
+        let verified = verify_pairs(&features, &pairs, &opts.verification, ctx.progress);
+        finish(dir, &ingest, &features, &verified, pairs.len(), proposed, opts)
+    }
+}
+
+/// Writes the database and `pairs.json`, and summarises the verified pairs.
+fn finish(
+    dir: &Path,
+    ingest: &IngestResult,
+    features: &[Features],
+    verified: &[VerifiedPair],
+    num_pairs: usize,
+    proposed: usize,
+    opts: &MatchesStageOptions,
+) -> Result<Produced<MatchesSummary>> {
+    write_database(&dir.join(DATABASE), ingest, features, verified)?;
+    let summaries: Vec<_> = verified.iter().map(VerifiedPair::summary).collect();
+    write_json(&dir.join(PAIRS_JSON), &summaries)?;
+    let mut inl: Vec<usize> = summaries
+        .iter()
+        .filter(|s| s.configuration != TwoViewConfiguration::TooFewInliers)
+        .map(|s| s.inliers)
+        .collect();
+    inl.sort_unstable();
+    let close_verified = verified
+        .iter()
+        .filter(|v| {
+            proposed > 0
+                && v.j > v.i + opts.window
+                && v.geometry.configuration == TwoViewConfiguration::General
+        })
+        .count();
+    Ok(Produced::new(
+        vec![DATABASE.into(), PAIRS_JSON.into()],
+        MatchesSummary {
+            pairs: num_pairs,
+            close_view_pairs_proposed: proposed,
+            close_view_pairs_verified: close_verified,
+            verified_general: summaries
+                .iter()
+                .filter(|s| s.configuration == TwoViewConfiguration::General)
+                .count(),
+            verified_planar_or_rotation: summaries
+                .iter()
+                .filter(|s| {
+                    matches!(
+                        s.configuration,
+                        TwoViewConfiguration::Planar | TwoViewConfiguration::PureRotation
+                    )
+                })
+                .count(),
+            inliers_per_verified_pair_median: inl.get(inl.len() / 2).copied(),
+        },
+    ))
+}
+
+/// COLMAP's two-view configuration code.
+fn colmap_config(c: TwoViewConfiguration) -> i64 {
+    (match c {
+        TwoViewConfiguration::General => TwoViewConfig::Uncalibrated,
+        TwoViewConfiguration::Planar => TwoViewConfig::PlanarOrPanoramic,
+        TwoViewConfiguration::PureRotation => TwoViewConfig::Panoramic,
+        TwoViewConfiguration::TooFewInliers => TwoViewConfig::Degenerate,
+    }) as i64
+}
+
+fn write_database(
+    path: &Path,
+    ingest: &IngestResult,
+    features: &[Features],
+    verified: &[VerifiedPair],
+) -> Result<()> {
+    let db = Database::create(path)?;
+    // One SIMPLE_RADIAL camera per physical camera / zoom (EXIF), with a focal guess or EXIF prior.
+    let mut cams: HashMap<String, u32> = HashMap::new();
+    let mut ids = Vec::with_capacity(ingest.images.len());
+    for img in &ingest.images {
+        let key = camera_key(&img.info);
+        let cam = match cams.get(&key) {
+            Some(&c) => c,
+            None => {
+                let (w, h) = (f64::from(img.info.width), f64::from(img.info.height));
+                let f = img
+                    .info
+                    .focal_prior_px
+                    .unwrap_or_else(|| focal_guess_px(img.info.width, img.info.height));
+                let c = db.add_camera(
+                    2,
+                    img.info.width,
+                    img.info.height,
+                    &[f, w / 2.0, h / 2.0, 0.0],
+                    img.info.focal_prior_px.is_some(),
+                )?;
+                cams.insert(key, c);
+                c
+            }
+        };
+        ids.push(db.add_image(&img.info.name, cam)?);
+    }
+    for (k, f) in features.iter().enumerate() {
+        let kps: Vec<[f32; 4]> = f
+            .keypoints
+            .iter()
+            .map(|p| [p.x, p.y, p.scale, p.orientation])
+            .collect();
+        db.write_keypoints(ids[k], &kps)?;
+        db.write_descriptors(ids[k], f.descriptors.dim, &f.descriptors.data)?;
+    }
+    for v in verified {
+        let putative: Vec<(u32, u32)> = v.putative.iter().map(|m| (m.i, m.j)).collect();
+        db.write_matches(ids[v.i], ids[v.j], &putative)?;
+        let g = StoredTwoViewGeometry {
+            config: colmap_config(v.geometry.configuration),
+            inliers: v.inliers.clone(),
+            f: v.geometry.f,
+            h: v.geometry.h,
+        };
+        db.write_two_view_geometry(ids[v.i], ids[v.j], &g)?;
+    }
+    db.finish()?;
+    Ok(())
+}

@@ -1,0 +1,52 @@
+//! The standard stages, one file each, and the standard graph:
+//!
+//! ```text
+//! ingest ─▶ features ─▶ matches ─▶ sparse ─▶ dense ─▶ mesh
+//!    └─────────┴───────────┴─────────┴─────────┴───────┘  (every stage also reads ingest's image list)
+//! ```
+//!
+//! `dense` reads `sparse` (and `features` for a video's key-frames); `mesh` reads `dense` only
+//! (plus the image list), so a stage that needs the sparse model never waits for a mesh.
+
+pub mod dense;
+pub mod features;
+pub mod ingest;
+pub mod matches;
+pub mod mesh;
+pub mod sparse;
+pub mod tracks;
+
+use std::path::Path;
+
+use crate::error::Result;
+use crate::options::PipelineOptions;
+use crate::stage::Pipeline;
+
+impl Pipeline {
+    /// The standard graph on one input (a photo folder or a video file). The options are checked
+    /// first; the error names the first option out of range.
+    pub fn standard(input: &Path, o: &PipelineOptions) -> Result<Self> {
+        o.validate()?;
+        let mut p = Pipeline::new();
+        p.register(ingest::Ingest {
+            input: input.to_path_buf(),
+            options: o.ingest.clone(),
+        })?
+        .register(features::Features {
+            options: o.features.clone(),
+        })?
+        .register(matches::Matches {
+            options: o.matches.clone(),
+        })?
+        .register(sparse::Sparse {
+            options: o.sparse.clone(),
+        })?
+        .register(dense::Dense {
+            options: o.dense.clone(),
+        })?
+        .register(mesh::Mesh {
+            options: o.mesh.clone(),
+        })?;
+        Ok(p)
+    }
+}

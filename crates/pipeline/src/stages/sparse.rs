@@ -1,0 +1,398 @@
+//! The sparse stage (§3, Table 2 and §3.4): reads the features and verified pairs, runs
+//! uncalibrated structure and motion (`handheld_sfm::reconstruct`), colours the points from the
+//! images, and writes `sparse/`: the largest model as a COLMAP text + binary model, `points.ply`
+//! and `summary.json`; further models (a broken sequence) under `sparse/models/<k>/`.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use handheld_core::{ImageId, MetricReconstruction, PointCloud, Progress};
+use handheld_features::refine::{
+    refine_track_keypoints, KeypointFrame, KeypointRefinementOptions, PairMatches,
+    RefinementSummary,
+};
+use handheld_features::GrayImage;
+use handheld_io::database::Database;
+use handheld_io::images::{load_image, ImageIngestOptions};
+use handheld_io::ingest::InputKind;
+use handheld_robust::TwoViewConfiguration;
+use handheld_sfm::{reconstruct, ModelSummary, SfmImage, SfmInput, SfmOptions, SfmPair};
+use nalgebra::Vector2;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Context, PipelineError, Result};
+use crate::files::{stage, write_json, COLMAP_MODEL_FILES, MODELS_DIR, POINTS_PLY, SUMMARY_JSON};
+use crate::manifest::Workspace;
+use crate::policy::{camera_key, focal_verdict, image_id, quantize_descriptor, FocalVerdict};
+use crate::stage::{Produced, Stage, StageContext};
+
+/// Options of the sparse stage: keypoint refinement (photos), then SfM.
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+#[serde(default)]
+pub struct SparseStageOptions {
+    pub sfm: SfmOptions,
+    /// Multi-view keypoint refinement before SfM; `None` keeps the detected positions. Video (KLT
+    /// tracks, already registered to their first appearance) never uses it.
+    pub refine_keypoints: Option<KeypointRefinementOptions>,
+}
+
+impl SparseStageOptions {
+    pub fn validate(&self) -> Result<()> {
+        self.sfm
+            .validate()
+            .map_err(|e| PipelineError::invalid(stage::SPARSE, e))?;
+        if let Some(r) = &self.refine_keypoints {
+            r.validate()
+                .map_err(|e| PipelineError::invalid("keypoint refinement", e))?;
+        }
+        Ok(())
+    }
+}
+
+/// An image left out of the model, with the reason.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Unregistered {
+    pub image: String,
+    pub reason: String,
+}
+
+/// What the sparse stage built (the largest model; `sparse/summary.json` has everything).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct SparseSummary {
+    pub models: usize,
+    pub registered: usize,
+    pub total_images: usize,
+    pub points: usize,
+    pub mean_reprojection_error_px: f64,
+    pub focal_px: Vec<f64>,
+    pub self_calibration_degenerate: Option<String>,
+    pub unregistered: Vec<Unregistered>,
+}
+
+/// `sparse/summary.json` (and `sparse/models/<k>/summary.json`): a model's full summary.
+#[derive(Clone, Debug, Serialize)]
+pub struct SparseModelReport<'a> {
+    #[serde(flatten)]
+    pub model: &'a ModelSummary,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub keypoint_refinement: Option<RefinementReport>,
+    /// The largest model only: the images left out, and the other models' summaries.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub unregistered: Option<&'a [Unregistered]>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub other_models: Option<Vec<&'a ModelSummary>>,
+}
+
+/// What keypoint refinement did, and in how long.
+#[derive(Clone, Debug, Serialize)]
+pub struct RefinementReport {
+    #[serde(flatten)]
+    pub summary: RefinementSummary,
+    pub seconds: f64,
+}
+
+/// The sparse stage.
+pub struct Sparse {
+    pub options: SparseStageOptions,
+}
+
+impl Stage for Sparse {
+    type Options = SparseStageOptions;
+    type Summary = SparseSummary;
+
+    fn name(&self) -> &'static str {
+        stage::SPARSE
+    }
+
+    fn reads(&self) -> &'static [&'static str] {
+        &[stage::INGEST, stage::FEATURES, stage::MATCHES]
+    }
+
+    fn about(&self) -> &'static str {
+        "uncalibrated structure and motion with self-calibration (§3); writes the COLMAP model"
+    }
+
+    fn options(&self) -> &SparseStageOptions {
+        &self.options
+    }
+
+    fn run(&self, ctx: &StageContext, dir: &Path) -> Result<Produced<SparseSummary>> {
+        let ws = ctx.ws;
+        let opts = &self.options.sfm;
+        let mut input = load_input(ws)?;
+        let refinement = match &self.options.refine_keypoints {
+            Some(r) if !input.video => {
+                let t0 = std::time::Instant::now();
+                let s = refine_input(ws, &mut input, r, ctx.progress)?;
+                let seconds = t0.elapsed().as_secs_f64();
+                tracing::info!(
+                    "keypoint refinement: {} of {} keypoints moved (median {:.2} px) in {seconds:.1} s",
+                    s.moved,
+                    s.attempted,
+                    s.median_shift_px,
+                );
+                Some(RefinementReport { summary: s, seconds })
+            }
+            _ => None,
+        };
+        let mut result = reconstruct(&input, opts, ctx.progress).context("structure from motion")?;
+        for m in result.models.iter_mut() {
+            colorize(ws, &mut m.reconstruction)?;
+        }
+        let unregistered: Vec<Unregistered> = result
+            .unregistered
+            .iter()
+            .map(|(n, why)| Unregistered {
+                image: n.clone(),
+                reason: why.clone(),
+            })
+            .collect();
+        let mut outputs: Vec<String> = COLMAP_MODEL_FILES.iter().map(|f| f.to_string()).collect();
+        outputs.extend([POINTS_PLY.into(), SUMMARY_JSON.into()]);
+        for (k, m) in result.models.iter().enumerate() {
+            let report = SparseModelReport {
+                model: &m.summary,
+                keypoint_refinement: refinement.clone(),
+                unregistered: (k == 0).then_some(unregistered.as_slice()),
+                other_models: (k == 0)
+                    .then(|| result.models[1..].iter().map(|m| &m.summary).collect()),
+            };
+            if k == 0 {
+                write_model(dir, &m.reconstruction, &report)?;
+            } else {
+                let sub = dir.join(MODELS_DIR).join(k.to_string());
+                write_model(&sub, &m.reconstruction, &report)?;
+                outputs.push(format!("{MODELS_DIR}/{k}"));
+            }
+        }
+        let mut warnings: Vec<String> = unregistered
+            .iter()
+            .map(|u| format!("{}: not registered ({})", u.image, u.reason))
+            .collect();
+        if result.models.len() > 1 {
+            warnings.push(format!("the images form {} separate models; the largest is in sparse/, the others in sparse/models/", result.models.len()));
+        }
+        let best = &result.models[0].summary;
+        match focal_verdict(best, opts.known_intrinsics.is_some()) {
+            FocalVerdict::Calibrated => {}
+            FocalVerdict::WellDetermined(note) => tracing::info!("{note}"),
+            FocalVerdict::Doubtful(w) => warnings.push(w),
+        }
+        Ok(Produced {
+            outputs,
+            summary: SparseSummary {
+                models: result.models.len(),
+                registered: best.registered,
+                total_images: best.total_images,
+                points: best.points,
+                mean_reprojection_error_px: best.mean_reprojection_error_px,
+                focal_px: best.groups.iter().map(|g| g.f).collect(),
+                self_calibration_degenerate: best.self_calibration.degenerate.clone(),
+                unregistered,
+            },
+            warnings,
+        })
+    }
+}
+
+/// Builds the SfM input from the features and matches stages.
+pub fn load_input(ws: &Workspace) -> Result<SfmInput> {
+    let ingest = ws.read_ingest()?;
+    let tracks = ws.read_tracks()?;
+    if let Some(t) = &tracks {
+        if t.num_frames() != ingest.images.len() {
+            return Err(PipelineError::workspace(
+                ws.path(stage::FEATURES, crate::files::TRACKS_JSON),
+                format!(
+                    "{} frames, but ingest has {}; rerun features with --force",
+                    t.num_frames(),
+                    ingest.images.len()
+                ),
+            ));
+        }
+    }
+    let images: Vec<SfmImage> = ingest
+        .images
+        .par_iter()
+        .enumerate()
+        .map(|(k, img)| {
+            let f = ws.read_features(k)?;
+            Ok(SfmImage {
+                id: image_id(k),
+                name: img.info.name.clone(),
+                width: img.info.width,
+                height: img.info.height,
+                keypoints: f
+                    .keypoints
+                    .iter()
+                    .map(|p| Vector2::new(p[0] as f64, p[1] as f64))
+                    .collect(),
+                keypoint_scales: f.keypoints.iter().map(|p| p[2]).collect(),
+                camera_key: camera_key(&img.info),
+                focal_prior_px: img.info.focal_prior_px,
+                frame: img.frame,
+                track_ids: tracks
+                    .as_ref()
+                    .map(|t| t.ids[k].clone())
+                    .unwrap_or_default(),
+                descriptors: quantize_descriptor(&f.descriptors),
+                descriptor_dim: f.dim,
+            })
+        })
+        .collect::<Result<_>>()?;
+    let summaries = ws.read_pairs()?;
+    let db_path = ws.database_path();
+    let db = Database::open(&db_path)?;
+    let ids: Vec<u32> = db.images()?.into_iter().map(|(id, _, _)| id).collect();
+    if ids.len() != images.len() {
+        return Err(PipelineError::workspace(
+            &db_path,
+            format!(
+                "{} images, but ingest has {}; rerun matches with --force",
+                ids.len(),
+                images.len()
+            ),
+        ));
+    }
+    let mut pairs = Vec::new();
+    for s in summaries {
+        if s.configuration == TwoViewConfiguration::TooFewInliers
+            || s.i >= ids.len()
+            || s.j >= ids.len()
+        {
+            continue;
+        }
+        let Some(g) = db.read_two_view_geometry(ids[s.i], ids[s.j])? else {
+            continue;
+        };
+        pairs.push(SfmPair {
+            a: s.i,
+            b: s.j,
+            matches: g.inliers,
+            f: g.f,
+            configuration: s.configuration,
+            view_distance_px: s.view_distance_px,
+        });
+    }
+    Ok(SfmInput {
+        images,
+        pairs,
+        video: ingest.kind == InputKind::Video,
+    })
+}
+
+/// Registers the keypoints of every track to the track's reference (photos only; see
+/// [`handheld_features::refine`]) and replaces the input's keypoints by the refined positions.
+fn refine_input(
+    ws: &Workspace,
+    input: &mut SfmInput,
+    opts: &KeypointRefinementOptions,
+    bars: &dyn Progress,
+) -> Result<RefinementSummary> {
+    let ingest = ws.read_ingest()?;
+    let frames: Vec<Vec<KeypointFrame>> = (0..input.images.len())
+        .into_par_iter()
+        .map(|k| {
+            let f = ws.read_features(k)?;
+            Ok(f.keypoints
+                .iter()
+                .map(|p| KeypointFrame {
+                    x: p[0],
+                    y: p[1],
+                    scale: p[2],
+                    orientation: p[3],
+                })
+                .collect())
+        })
+        .collect::<Result<_>>()?;
+    let pairs: Vec<PairMatches> = input
+        .pairs
+        .iter()
+        .map(|p| PairMatches {
+            a: p.a,
+            b: p.b,
+            matches: &p.matches,
+        })
+        .collect();
+    let load_opts = ImageIngestOptions {
+        min_dimension: 1,
+        ..Default::default()
+    };
+    let load = |k: usize| -> Result<GrayImage> {
+        let path = &ingest
+            .images
+            .get(k)
+            .ok_or_else(|| {
+                PipelineError::workspace(
+                    ws.path(stage::INGEST, crate::files::IMAGES_JSON),
+                    format!("image {k} is not in the ingest list; rerun with --force"),
+                )
+            })?
+            .info
+            .path;
+        let img = load_image(path, &load_opts)?;
+        Ok(GrayImage::from_dynamic(&img.image))
+    };
+    bars.start("refine keypoints", 2 * input.images.len() as u64);
+    let (refined, summary) = refine_track_keypoints(&frames, &pairs, &load, opts, &|| bars.inc(1))?;
+    bars.finish();
+    for (im, pts) in input.images.iter_mut().zip(refined) {
+        if pts.len() == im.keypoints.len() {
+            im.keypoints = pts
+                .iter()
+                .map(|p| Vector2::new(f64::from(p[0]), f64::from(p[1])))
+                .collect();
+        }
+    }
+    Ok(summary)
+}
+
+/// Colours every point from the first image that sees it.
+fn colorize(ws: &Workspace, rec: &mut MetricReconstruction) -> Result<()> {
+    let paths = ws.image_paths()?;
+    let opts = ImageIngestOptions {
+        min_dimension: 1,
+        ..Default::default()
+    };
+    let views: Vec<(ImageId, String)> =
+        rec.views.values().map(|v| (v.id, v.name.clone())).collect();
+    let imgs: BTreeMap<ImageId, image::RgbImage> = views
+        .par_iter()
+        .filter_map(|(id, name)| {
+            let p = paths.get(name)?;
+            load_image(p, &opts).ok().map(|l| (*id, l.image.to_rgb8()))
+        })
+        .collect();
+    for pt in rec.points.values_mut() {
+        let Some(el) = pt.track.elements.first() else {
+            continue;
+        };
+        let (Some(img), Some(v)) = (imgs.get(&el.image_id), rec.views.get(&el.image_id)) else {
+            continue;
+        };
+        let xy = v.observations[el.point2d_idx as usize].xy;
+        let (x, y) = (
+            xy.x.round().clamp(0.0, img.width() as f64 - 1.0) as u32,
+            xy.y.round().clamp(0.0, img.height() as f64 - 1.0) as u32,
+        );
+        pt.color = img.get_pixel(x, y).0;
+    }
+    Ok(())
+}
+
+fn write_model(dir: &Path, rec: &MetricReconstruction, summary: &SparseModelReport) -> Result<()> {
+    std::fs::create_dir_all(dir).map_err(|e| handheld_io::IoError::io(dir, e))?;
+    handheld_io::colmap::write_reconstruction(dir, rec, true, true)?;
+    let cloud = PointCloud {
+        positions: rec
+            .points
+            .values()
+            .map(|p| [p.xyz.x as f32, p.xyz.y as f32, p.xyz.z as f32])
+            .collect(),
+        colors: rec.points.values().map(|p| p.color).collect(),
+        normals: Vec::new(),
+    };
+    handheld_io::ply::write_point_cloud(&dir.join(POINTS_PLY), &cloud, Default::default())?;
+    write_json(&dir.join(SUMMARY_JSON), summary)
+}
