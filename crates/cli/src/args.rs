@@ -273,7 +273,8 @@ impl InputArgs {
         o.matches.close_views = !self.no_close_views;
         o.matches.verification.matching.ratio = self.ratio;
         o.matches.verification.guided = !self.no_guided;
-        o.matches.verification.seed_features = (self.seed_features > 0).then_some(self.seed_features);
+        o.matches.verification.seed_features =
+            (self.seed_features > 0).then_some(self.seed_features);
         let sfm = &mut o.sparse.sfm;
         sfm.seed = self.seed;
         sfm.distortion = self.distortion;

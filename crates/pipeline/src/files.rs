@@ -132,10 +132,7 @@ impl Workspace {
     pub fn read_features(&self, index: usize) -> Result<FeatureFile> {
         let path = self.feature_path(index);
         handheld_io::features_file::read_features(&path).map_err(|e| {
-            PipelineError::workspace(
-                &path,
-                format!("{e}; rerun the features stage with --force"),
-            )
+            PipelineError::workspace(&path, format!("{e}; rerun the features stage with --force"))
         })
     }
 

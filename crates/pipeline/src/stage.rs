@@ -161,8 +161,9 @@ impl<T: Stage> AnyStage for T {
         let dir = ws.begin(name)?;
         let out = self.run(ctx, &dir)?;
         let seconds = t0.elapsed().as_secs_f64();
-        let summary = serde_json::to_value(&out.summary)
-            .map_err(|e| PipelineError::Graph(format!("{name}: summary does not serialise: {e}")))?;
+        let summary = serde_json::to_value(&out.summary).map_err(|e| {
+            PipelineError::Graph(format!("{name}: summary does not serialise: {e}"))
+        })?;
         for w in &out.warnings {
             tracing::warn!("{w}");
         }

@@ -78,7 +78,12 @@ impl Stage for Ingest {
     }
 
     fn run(&self, ctx: &StageContext, dir: &Path) -> Result<Produced<IngestSummary>> {
-        let result = ingest(&self.input, &dir.join(FRAMES_DIR), &self.options, ctx.progress)?;
+        let result = ingest(
+            &self.input,
+            &dir.join(FRAMES_DIR),
+            &self.options,
+            ctx.progress,
+        )?;
         write_json(&dir.join(IMAGES_JSON), &result)?;
         let warnings = result
             .skipped

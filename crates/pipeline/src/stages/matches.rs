@@ -62,7 +62,9 @@ impl MatchesStageOptions {
             if s < MIN_SEED_FEATURES {
                 return Err(PipelineError::option(
                     "--seed-features",
-                    format!("must be 0 (brute force over all) or at least {MIN_SEED_FEATURES}, got {s}"),
+                    format!(
+                        "must be 0 (brute force over all) or at least {MIN_SEED_FEATURES}, got {s}"
+                    ),
                 ));
             }
         }
@@ -142,7 +144,15 @@ impl Stage for Matches {
             pairs.extend(extra);
         }
         let verified = verify_pairs(&features, &pairs, &opts.verification, ctx.progress);
-        finish(dir, &ingest, &features, &verified, pairs.len(), proposed, opts)
+        finish(
+            dir,
+            &ingest,
+            &features,
+            &verified,
+            pairs.len(),
+            proposed,
+            opts,
+        )
     }
 }
 

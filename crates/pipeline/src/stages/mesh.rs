@@ -360,7 +360,11 @@ pub fn build(
                 outputs.push(n.to_string_lossy().into_owned());
             }
         }
-        handheld_io::glb::write_glb(&dir.join(MODEL_GLB), &textured.mesh, Some(&textured.texture))?;
+        handheld_io::glb::write_glb(
+            &dir.join(MODEL_GLB),
+            &textured.mesh,
+            Some(&textured.texture),
+        )?;
         handheld_io::ply::write_mesh(
             &dir.join(MODEL_PLY),
             &textured.mesh,

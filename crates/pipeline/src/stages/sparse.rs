@@ -132,11 +132,15 @@ impl Stage for Sparse {
                     s.attempted,
                     s.median_shift_px,
                 );
-                Some(RefinementReport { summary: s, seconds })
+                Some(RefinementReport {
+                    summary: s,
+                    seconds,
+                })
             }
             _ => None,
         };
-        let mut result = reconstruct(&input, opts, ctx.progress).context("structure from motion")?;
+        let mut result =
+            reconstruct(&input, opts, ctx.progress).context("structure from motion")?;
         for m in result.models.iter_mut() {
             colorize(ws, &mut m.reconstruction)?;
         }

@@ -44,11 +44,13 @@ pub fn run_tracking(
             .collect();
         loaded
     });
-    let tracks =
-        track_video(chunks.map(|r| r.map_err(TrackError)), opts, bars).map_err(|e| e.0)?;
+    let tracks = track_video(chunks.map(|r| r.map_err(TrackError)), opts, bars).map_err(|e| e.0)?;
     bars.finish();
     for k in 0..tracks.num_frames() {
-        write_features(&dir.join(feature_file_name(k)), &to_file(tracks.features(k)))?;
+        write_features(
+            &dir.join(feature_file_name(k)),
+            &to_file(tracks.features(k)),
+        )?;
     }
     let bytes = serde_json::to_vec(&tracks)
         .map_err(|e| PipelineError::workspace(dir.join(TRACKS_JSON), e.to_string()))?;

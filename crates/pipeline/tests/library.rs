@@ -1,0 +1,248 @@
+//! The pipeline driven through its library API, without the CLI binary: a seeded synthetic
+//! hand-held sequence with exact ground truth goes up to `sparse` only, then a stage registered by
+//! the test that reads only `sparse` runs on that workspace (no dense or mesh folder exists), then
+//! the whole standard graph resumes to the textured mesh. Accuracy is scored against the ground
+//! truth.
+
+use std::path::Path;
+
+use handheld_core::{NoProgress, Rigid3};
+use handheld_pipeline::files::{stage, write_json};
+use handheld_pipeline::{
+    Pipeline, PipelineOptions, Produced, Stage, StageContext, StageStatus, Workspace,
+};
+use handheld_testkit::render::{render_sequence, SequenceOptions, SyntheticSequence};
+use serde::{Deserialize, Serialize};
+
+fn scene(dir: &Path) -> SyntheticSequence {
+    let mut opts = SequenceOptions {
+        width: 320,
+        height: 240,
+        num_frames: 8,
+        ..Default::default()
+    };
+    opts.path.sweep = 35.0;
+    let seq = render_sequence(&opts).expect("render");
+    let images = dir.join("images");
+    for (view, img) in seq.gt.views.values().zip(&seq.images) {
+        handheld_io::ingest::write_png(&images.join(&view.name), img).expect("write frame");
+    }
+    seq
+}
+
+/// A stage that needs only the sparse model: the camera centres as a table (what an exporter for
+/// other tools would read).
+struct CameraCentres;
+
+#[derive(Serialize, Deserialize)]
+struct CentresSummary {
+    cameras: usize,
+}
+
+impl Stage for CameraCentres {
+    type Options = ();
+    type Summary = CentresSummary;
+
+    fn name(&self) -> &'static str {
+        "camera_centres"
+    }
+
+    fn reads(&self) -> &'static [&'static str] {
+        &[stage::SPARSE]
+    }
+
+    fn about(&self) -> &'static str {
+        "camera centres of the sparse model"
+    }
+
+    fn options(&self) -> &() {
+        &()
+    }
+
+    fn run(
+        &self,
+        ctx: &StageContext,
+        dir: &Path,
+    ) -> handheld_pipeline::Result<Produced<CentresSummary>> {
+        let rec = ctx.ws.read_sparse_model()?;
+        let centres: Vec<(String, [f64; 3])> = rec
+            .views
+            .values()
+            .map(|v| (v.name.clone(), v.center().coords.into()))
+            .collect();
+        write_json(&dir.join("centres.json"), &centres)?;
+        Ok(Produced::new(
+            vec!["centres.json".into()],
+            CentresSummary {
+                cameras: centres.len(),
+            },
+        ))
+    }
+}
+
+/// Largest error, in degrees, of the relative rotation between consecutive registered views.
+fn relative_rotation_error_deg(est: &[(String, Rigid3)], seq: &SyntheticSequence) -> f64 {
+    let gt = |name: &str| {
+        seq.gt
+            .views
+            .values()
+            .find(|v| v.name == name)
+            .map(|v| v.cam_from_world)
+            .expect("a ground-truth view of that name")
+    };
+    est.windows(2)
+        .map(|w| {
+            let (a, b) = (&w[0], &w[1]);
+            let re = a.1.rotation * b.1.rotation.inverse();
+            let (ga, gb) = (gt(&a.0), gt(&b.0));
+            let rg = ga.rotation * gb.rotation.inverse();
+            (re * rg.inverse()).angle().to_degrees()
+        })
+        .fold(0.0, f64::max)
+}
+
+#[test]
+fn the_stage_graph_runs_through_the_library() {
+    let dir = tempfile::tempdir().expect("temp dir");
+    let seq = scene(dir.path());
+    let input = dir.path().join("images");
+    let ws_path = dir.path().join("ws");
+    let mut options = PipelineOptions::default();
+    options
+        .mesh
+        .fusion
+        .simplify
+        .as_mut()
+        .expect("simplification")
+        .target_faces = 20_000;
+    options.mesh.hold_out = Some("frame_0003.png".into());
+
+    // 1. Up to sparse: only what sparse needs runs.
+    let reports = handheld_pipeline::reconstruct(
+        &input,
+        &ws_path,
+        &options,
+        Some(stage::SPARSE),
+        false,
+        &NoProgress,
+    )
+    .expect("the sparse model");
+    let ran: Vec<&str> = reports.iter().map(|r| r.stage.as_str()).collect();
+    assert_eq!(ran, ["ingest", "features", "matches", "sparse"]);
+    assert!(!ws_path.join(stage::DENSE).exists() && !ws_path.join(stage::MESH).exists());
+    let ws = Workspace::open(&ws_path).expect("workspace");
+    let sparse: handheld_pipeline::stages::sparse::SparseSummary = ws
+        .summary(stage::SPARSE)
+        .expect("summary parses")
+        .expect("sparse ran");
+    assert_eq!(sparse.registered, seq.images.len());
+    let rec = ws.read_sparse_model().expect("model");
+    let est: Vec<(String, Rigid3)> = rec
+        .views
+        .values()
+        .map(|v| (v.name.clone(), v.cam_from_world))
+        .collect();
+    let err = relative_rotation_error_deg(&est, &seq);
+    assert!(err < 0.5, "relative rotation error {err}°");
+
+    // 2. A stage registered from outside, reading only sparse, runs on this workspace.
+    let mut pipeline = Pipeline::standard(&input, &options).expect("graph");
+    pipeline.register(CameraCentres).expect("registration");
+    assert_eq!(
+        pipeline.plan("camera_centres").expect("plan"),
+        ["ingest", "features", "matches", "sparse", "camera_centres"]
+    );
+    let reports = pipeline
+        .run(&ws, Some("camera_centres"), false, &NoProgress)
+        .expect("custom stage");
+    let status: Vec<StageStatus> = reports.iter().map(|r| r.status).collect();
+    assert_eq!(
+        status,
+        [
+            StageStatus::UpToDate,
+            StageStatus::UpToDate,
+            StageStatus::UpToDate,
+            StageStatus::UpToDate,
+            StageStatus::Ran
+        ]
+    );
+    assert_eq!(reports[4].summary["cameras"], seq.images.len());
+    assert!(!ws_path.join(stage::DENSE).exists() && !ws_path.join(stage::MESH).exists());
+
+    // 3. The whole graph resumes: dense and mesh run, the rest is up to date.
+    let reports = pipeline
+        .run(&ws, None, false, &NoProgress)
+        .expect("whole graph");
+    let ran: Vec<(&str, StageStatus)> = reports
+        .iter()
+        .map(|r| (r.stage.as_str(), r.status))
+        .collect();
+    for (name, status) in &ran {
+        let expect = match *name {
+            "dense" | "mesh" => StageStatus::Ran,
+            _ => StageStatus::UpToDate,
+        };
+        assert_eq!(*status, expect, "{name}");
+    }
+    assert_eq!(ran.len(), 7);
+    let dense: handheld_pipeline::stages::dense::DenseStageSummary =
+        ws.summary(stage::DENSE).expect("parses").expect("ran");
+    assert_eq!(dense.views, seq.images.len());
+    let mesh: handheld_pipeline::stages::mesh::MeshStageSummary =
+        ws.summary(stage::MESH).expect("parses").expect("ran");
+    let hold = mesh.hold_out.expect("hold-out comparison");
+    assert!(hold.covered_fraction > 0.5, "{}", hold.covered_fraction);
+    assert!(
+        hold.mean_absolute_difference < 25.0,
+        "{}",
+        hold.mean_absolute_difference
+    );
+    assert!(ws_path.join("mesh/model.glb").exists());
+
+    // 4. Changed options redo exactly the stages below the change.
+    let mut finer = options.clone();
+    finer.mesh.view_meshes = false;
+    let reports =
+        handheld_pipeline::reconstruct(&input, &ws_path, &finer, None, false, &NoProgress)
+            .expect("rerun");
+    let ran: Vec<&str> = reports
+        .iter()
+        .filter(|r| r.status == StageStatus::Ran)
+        .map(|r| r.stage.as_str())
+        .collect();
+    assert_eq!(ran, ["mesh"]);
+}
+
+#[test]
+fn out_of_range_options_are_named() {
+    let mut options = PipelineOptions::default();
+    options.dense.dense.link.min_visibility = 40;
+    let err = Pipeline::standard(Path::new("nowhere"), &options)
+        .err()
+        .expect("rejected");
+    assert_eq!(err.invalid_option(), Some("--min-visibility"), "{err}");
+    let mut options = PipelineOptions::default();
+    options.matches.verification.matching.ratio = 1.5;
+    let err = Pipeline::standard(Path::new("nowhere"), &options)
+        .err()
+        .expect("rejected");
+    assert_eq!(err.invalid_option(), Some("--ratio"), "{err}");
+    let err = Pipeline::standard(Path::new("nowhere"), &PipelineOptions::default())
+        .expect("graph")
+        .plan("render")
+        .expect_err("no such stage");
+    assert!(err.to_string().contains("ingest, features"), "{err}");
+}
+
+#[test]
+fn options_round_trip_through_json() {
+    let o = PipelineOptions::default();
+    let text = serde_json::to_string(&o).expect("serialise");
+    let back: PipelineOptions = serde_json::from_str(&text).expect("deserialise");
+    assert_eq!(serde_json::to_string(&back).expect("again"), text);
+    // A partial file takes the defaults for what it leaves out.
+    let partial: PipelineOptions =
+        serde_json::from_str(r#"{"dense": {"max_size": 800}}"#).expect("partial");
+    assert_eq!(partial.dense.max_size, 800);
+    assert_eq!(partial.mesh.view_meshes, o.mesh.view_meshes);
+}
