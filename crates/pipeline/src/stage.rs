@@ -55,11 +55,12 @@ pub trait Stage: Send + Sync {
     type Summary: Serialize;
 
     /// The stage's name and workspace folder.
-    fn name(&self) -> &'static str;
+    const NAME: &'static str;
     /// The stages whose outputs this one reads.
-    fn reads(&self) -> &'static [&'static str];
+    const READS: &'static [&'static str];
     /// One line for `--help` and reports.
-    fn about(&self) -> &'static str;
+    const ABOUT: &'static str;
+
     fn options(&self) -> &Self::Options;
     /// Adds inputs other than the upstream stages (files outside the workspace) to the fingerprint.
     fn fingerprint_inputs(&self, _fp: &mut Fingerprint) -> Result<()> {
@@ -108,26 +109,26 @@ pub trait AnyStage: Send + Sync {
 
 impl<T: Stage> AnyStage for T {
     fn name(&self) -> &'static str {
-        Stage::name(self)
+        T::NAME
     }
 
     fn reads(&self) -> &'static [&'static str] {
-        Stage::reads(self)
+        T::READS
     }
 
     fn about(&self) -> &'static str {
-        Stage::about(self)
+        T::ABOUT
     }
 
     fn run_or_skip(&self, ctx: &StageContext, force: bool) -> Result<StageReport> {
-        let name = Stage::name(self);
+        let name = T::NAME;
         let ws = ctx.ws;
         let options = serde_json::to_value(self.options())
             .map_err(|e| PipelineError::Graph(format!("{name}: options do not serialise: {e}")))?;
         let mut fp = Fingerprint::new();
         fp.add_str("stage", name).add_json("options", &options);
         self.fingerprint_inputs(&mut fp)?;
-        for up in Stage::reads(self) {
+        for up in T::READS {
             let m = ws.manifest(up).ok_or_else(|| PipelineError::NotRun {
                 needed: (*up).into(),
                 by: name.into(),

@@ -43,17 +43,9 @@ impl Stage for CameraCentres {
     type Options = ();
     type Summary = CentresSummary;
 
-    fn name(&self) -> &'static str {
-        "camera_centres"
-    }
-
-    fn reads(&self) -> &'static [&'static str] {
-        &[stage::SPARSE]
-    }
-
-    fn about(&self) -> &'static str {
-        "camera centres of the sparse model"
-    }
+    const NAME: &'static str = "camera_centres";
+    const READS: &'static [&'static str] = &[stage::SPARSE];
+    const ABOUT: &'static str = "camera centres of the sparse model";
 
     fn options(&self) -> &() {
         &()

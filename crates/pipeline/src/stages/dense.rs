@@ -55,7 +55,7 @@ impl DenseStageOptions {
 
     /// Sets N (odd, at least 3).
     pub fn set_link_views(&mut self, n: usize) -> Result<()> {
-        if n < 3 || n % 2 == 0 {
+        if n < 3 || n.is_multiple_of(2) {
             return Err(PipelineError::option(
                 "--link-views",
                 format!("must be odd and at least 3, got {n}"),
@@ -147,17 +147,10 @@ impl Stage for Dense {
     type Options = DenseStageOptions;
     type Summary = DenseStageSummary;
 
-    fn name(&self) -> &'static str {
-        stage::DENSE
-    }
-
-    fn reads(&self) -> &'static [&'static str] {
-        &[stage::INGEST, stage::FEATURES, stage::SPARSE]
-    }
-
-    fn about(&self) -> &'static str {
-        "rectification, stereo and multi-view linking (§4); writes depth maps and fused.ply"
-    }
+    const NAME: &'static str = stage::DENSE;
+    const READS: &'static [&'static str] = &[stage::INGEST, stage::FEATURES, stage::SPARSE];
+    const ABOUT: &'static str =
+        "rectification, stereo and multi-view linking (§4); writes depth maps and fused.ply";
 
     fn options(&self) -> &DenseStageOptions {
         &self.options

@@ -105,17 +105,10 @@ impl Stage for Features {
     type Options = FeaturesStageOptions;
     type Summary = FeaturesSummary;
 
-    fn name(&self) -> &'static str {
-        stage::FEATURES
-    }
-
-    fn reads(&self) -> &'static [&'static str] {
-        &[stage::INGEST]
-    }
-
-    fn about(&self) -> &'static str {
-        "detect and describe features (RootSIFT), or track a video (KLT, GRIC key-frames)"
-    }
+    const NAME: &'static str = stage::FEATURES;
+    const READS: &'static [&'static str] = &[stage::INGEST];
+    const ABOUT: &'static str =
+        "detect and describe features (RootSIFT), or track a video (KLT, GRIC key-frames)";
 
     fn options(&self) -> &FeaturesStageOptions {
         &self.options

@@ -35,17 +35,9 @@ impl Stage for Ingest {
     type Options = IngestOptions;
     type Summary = IngestSummary;
 
-    fn name(&self) -> &'static str {
-        stage::INGEST
-    }
-
-    fn reads(&self) -> &'static [&'static str] {
-        &[]
-    }
-
-    fn about(&self) -> &'static str {
-        "validate the photos, or decode the video's frames"
-    }
+    const NAME: &'static str = stage::INGEST;
+    const READS: &'static [&'static str] = &[];
+    const ABOUT: &'static str = "validate the photos, or decode the video's frames";
 
     fn options(&self) -> &IngestOptions {
         &self.options

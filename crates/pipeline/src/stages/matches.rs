@@ -97,17 +97,10 @@ impl Stage for Matches {
     type Options = MatchesStageOptions;
     type Summary = MatchesSummary;
 
-    fn name(&self) -> &'static str {
-        stage::MATCHES
-    }
-
-    fn reads(&self) -> &'static [&'static str] {
-        &[stage::INGEST, stage::FEATURES]
-    }
-
-    fn about(&self) -> &'static str {
-        "match image pairs and verify them (Table 1); writes COLMAP's database.db"
-    }
+    const NAME: &'static str = stage::MATCHES;
+    const READS: &'static [&'static str] = &[stage::INGEST, stage::FEATURES];
+    const ABOUT: &'static str =
+        "match image pairs and verify them (Table 1); writes COLMAP's database.db";
 
     fn options(&self) -> &MatchesStageOptions {
         &self.options

@@ -151,17 +151,10 @@ impl Stage for Mesh {
     type Options = MeshStageOptions;
     type Summary = MeshStageSummary;
 
-    fn name(&self) -> &'static str {
-        stage::MESH
-    }
-
-    fn reads(&self) -> &'static [&'static str] {
-        &[stage::INGEST, stage::DENSE]
-    }
-
-    fn about(&self) -> &'static str {
-        "surface models (§5.1): fused textured mesh (OBJ, glTF, PLY) and per-view meshes"
-    }
+    const NAME: &'static str = stage::MESH;
+    const READS: &'static [&'static str] = &[stage::INGEST, stage::DENSE];
+    const ABOUT: &'static str =
+        "surface models (§5.1): fused textured mesh (OBJ, glTF, PLY) and per-view meshes";
 
     fn options(&self) -> &MeshStageOptions {
         &self.options

@@ -101,17 +101,10 @@ impl Stage for Sparse {
     type Options = SparseStageOptions;
     type Summary = SparseSummary;
 
-    fn name(&self) -> &'static str {
-        stage::SPARSE
-    }
-
-    fn reads(&self) -> &'static [&'static str] {
-        &[stage::INGEST, stage::FEATURES, stage::MATCHES]
-    }
-
-    fn about(&self) -> &'static str {
-        "uncalibrated structure and motion with self-calibration (§3); writes the COLMAP model"
-    }
+    const NAME: &'static str = stage::SPARSE;
+    const READS: &'static [&'static str] = &[stage::INGEST, stage::FEATURES, stage::MATCHES];
+    const ABOUT: &'static str =
+        "uncalibrated structure and motion with self-calibration (§3); writes the COLMAP model";
 
     fn options(&self) -> &SparseStageOptions {
         &self.options
