@@ -2,6 +2,7 @@
 //! pipe (`-f image2pipe -c:v ppm`): raw RGB with a tiny header that carries the size, so rotated phone
 //! videos need no special case and nothing is dumped to disk. Stride and time range are applied by
 //! ffmpeg (`select` filter, input seek), so skipped frames are never converted or piped.
+//! Encoding (frames to H.264, [`encode_h264`], [`encode_h264_frames`]) lives in [`encode`].
 
 use std::io::{BufRead, BufReader, Read};
 use std::path::{Path, PathBuf};
@@ -12,6 +13,9 @@ use image::RgbImage;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{IoError, Result};
+
+pub mod encode;
+pub use encode::{encode_h264, encode_h264_frames, EncodeOptions};
 
 /// File extensions (lower case) recognised as video.
 pub const VIDEO_EXTENSIONS: [&str; 6] = ["mp4", "mov", "avi", "mkv", "m4v", "webm"];
