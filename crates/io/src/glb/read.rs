@@ -224,9 +224,15 @@ fn to_rgb(data: &gltf::image::Data) -> Option<RgbImage> {
     let (w, h, px) = (data.width, data.height, &data.pixels);
     let rgb: Vec<u8> = match data.format {
         Format::R8 => px.iter().flat_map(|&g| [g, g, g]).collect(),
-        Format::R8G8 => px.chunks_exact(2).flat_map(|c| [c[0], c[0], c[0]]).collect(),
+        Format::R8G8 => px
+            .chunks_exact(2)
+            .flat_map(|c| [c[0], c[0], c[0]])
+            .collect(),
         Format::R8G8B8 => px.clone(),
-        Format::R8G8B8A8 => px.chunks_exact(4).flat_map(|c| [c[0], c[1], c[2]]).collect(),
+        Format::R8G8B8A8 => px
+            .chunks_exact(4)
+            .flat_map(|c| [c[0], c[1], c[2]])
+            .collect(),
         Format::R16 | Format::R16G16 | Format::R16G16B16 | Format::R16G16B16A16 => {
             let channels = match data.format {
                 Format::R16 => 1,
@@ -255,7 +261,12 @@ fn to_rgb(data: &gltf::image::Data) -> Option<RgbImage> {
             px.chunks_exact(4 * channels)
                 .flat_map(|c| {
                     let f = |k: usize| {
-                        let v = f32::from_ne_bytes([c[4 * k], c[4 * k + 1], c[4 * k + 2], c[4 * k + 3]]);
+                        let v = f32::from_ne_bytes([
+                            c[4 * k],
+                            c[4 * k + 1],
+                            c[4 * k + 2],
+                            c[4 * k + 3],
+                        ]);
                         (v.clamp(0.0, 1.0) * 255.0).round() as u8
                     };
                     [f(0), f(1), f(2)]

@@ -159,10 +159,23 @@ pub fn encode_h264_frames<'a>(
     let program = ffmpeg_program();
     let tmp = temporary_path(output);
     let mut cmd = Command::new(&program);
-    cmd.args(["-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgb24"])
-        .args(["-s", &format!("{w}x{h}"), "-framerate", &opts.fps.to_string()])
-        .args(["-i", "pipe:0"])
-        .stdin(Stdio::piped());
+    cmd.args([
+        "-y",
+        "-loglevel",
+        "error",
+        "-f",
+        "rawvideo",
+        "-pix_fmt",
+        "rgb24",
+    ])
+    .args([
+        "-s",
+        &format!("{w}x{h}"),
+        "-framerate",
+        &opts.fps.to_string(),
+    ])
+    .args(["-i", "pipe:0"])
+    .stdin(Stdio::piped());
     h264_args(&mut cmd, opts, &tmp);
     let (mut child, stderr) = spawn(cmd, &program)?;
     let mut written = Ok(());
