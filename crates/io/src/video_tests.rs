@@ -149,27 +149,40 @@ fn missing_ffmpeg_says_how_to_install() {
 
 #[test]
 fn out_of_range_options_name_the_option() {
-    assert!(VideoOptions {
-        stride: 0,
-        ..Default::default()
-    }
-    .validate()
-    .unwrap_err()
-    .contains("--stride"));
-    assert!(VideoOptions {
-        end_s: Some(0.0),
-        ..Default::default()
-    }
-    .validate()
-    .unwrap_err()
-    .contains("--end"));
-    assert!(VideoOptions {
-        start_s: -1.0,
-        ..Default::default()
-    }
-    .validate()
-    .unwrap_err()
-    .contains("--start"));
+    let check = |o: VideoOptions, option: &str, flag: &str| {
+        let err = o.validate().unwrap_err();
+        assert!(
+            matches!(&err, IoError::InvalidOption { option: name, .. } if *name == option),
+            "{err:?}"
+        );
+        assert!(err.to_string().contains(flag), "{err}");
+    };
+    let d = VideoOptions::default;
+    check(VideoOptions { stride: 0, ..d() }, "stride", "--stride");
+    check(
+        VideoOptions {
+            end_s: Some(0.0),
+            ..d()
+        },
+        "end_s",
+        "--end",
+    );
+    check(
+        VideoOptions {
+            start_s: -1.0,
+            ..d()
+        },
+        "start_s",
+        "--start",
+    );
+    check(
+        VideoOptions {
+            max_frames: Some(0),
+            ..d()
+        },
+        "max_frames",
+        "--max-frames",
+    );
 }
 
 /// Frame `k` of the encoding tests: uniformly grey at level 20·k + 30, 64×48.
@@ -211,7 +224,8 @@ fn encoded_frames_decode_back() {
 
     // The same frames from numbered PNG files, as the demo writes them.
     for (k, f) in frames.iter().enumerate() {
-        f.save(dir.path().join(format!("frame_{k:04}.png"))).unwrap();
+        f.save(dir.path().join(format!("frame_{k:04}.png")))
+            .unwrap();
     }
     let out = dir.path().join("files.mp4");
     encode_h264(
@@ -224,10 +238,17 @@ fn encoded_frames_decode_back() {
 
     // No input files: the error names the video and nothing is left behind.
     let out = dir.path().join("none.mp4");
-    let err = encode_h264(&dir.path().join("missing_%04d.png"), &out, &EncodeOptions::default())
-        .unwrap_err()
-        .to_string();
-    assert!(err.contains("none.mp4") && err.contains("could not encode"), "{err}");
+    let err = encode_h264(
+        &dir.path().join("missing_%04d.png"),
+        &out,
+        &EncodeOptions::default(),
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        err.contains("none.mp4") && err.contains("could not encode"),
+        "{err}"
+    );
     assert!(!out.exists() && !dir.path().join("none.tmp.mp4").exists());
 }
 
@@ -238,7 +259,10 @@ fn encoding_checks_frames_and_options_first() {
     let err = encode_h264_frames(&odd, out, &EncodeOptions::default())
         .unwrap_err()
         .to_string();
-    assert!(err.contains("never_written.mp4") && err.contains("even"), "{err}");
+    assert!(
+        err.contains("never_written.mp4") && err.contains("even"),
+        "{err}"
+    );
     let none: [RgbImage; 0] = [];
     assert!(encode_h264_frames(&none, out, &EncodeOptions::default()).is_err());
     let bad = EncodeOptions {
