@@ -58,7 +58,7 @@ impl ExtractionOptions {
     pub fn validate(&self) -> Result<(), FeatureError> {
         self.sift.validate()?;
         check(
-            !self.max_image_size.is_some_and(|m| m < 64),
+            self.max_image_size.is_none_or(|m| m >= 64),
             "max_image_size",
             || "must be at least 64 pixels (--max-image-size)".into(),
         )

@@ -78,7 +78,7 @@ impl PairVerificationOptions {
             format!("must be positive, got {e}")
         })?;
         check(
-            !self.seed_features.is_some_and(|k| k < 64),
+            self.seed_features.is_none_or(|k| k >= 64),
             "seed_features",
             || "must be at least 64".into(),
         )
