@@ -117,8 +117,9 @@ pub(crate) fn solve(
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(opts.num_threads)
         .build()
-        .map_err(|e| {
-            BundleError::InvalidOptions(format!("cannot start {} threads: {e}", opts.num_threads))
+        .map_err(|e| BundleError::InvalidOption {
+            option: "num_threads",
+            reason: format!("cannot start {} threads: {e}", opts.num_threads),
         })?;
     pool.install(|| run(p, opts, progress))
 }

@@ -2,8 +2,11 @@
 //! Triggs correction that folds `ρ` into the residual and Jacobian so the Gauss–Newton model matches
 //! the robustified cost to second order (Triggs et al. 2000 §4.3; Ceres' `Corrector`).
 
+use crate::options::BundleError;
+
 /// A robust loss; the cost of one observation is `½ ρ(‖r‖²)`.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
 pub enum RobustLoss {
     /// `ρ(s) = s`.
     None,
@@ -14,13 +17,15 @@ pub enum RobustLoss {
 }
 
 impl RobustLoss {
-    pub fn validate(&self) -> Result<(), String> {
+    /// Checks the loss scale; the error names the option `loss`.
+    pub fn validate(&self) -> Result<(), BundleError> {
         match self {
             RobustLoss::None => Ok(()),
             RobustLoss::Huber(a) | RobustLoss::Cauchy(a) if a.is_finite() && *a > 0.0 => Ok(()),
-            _ => Err(format!(
-                "the robust loss scale must be positive and finite: {self:?}"
-            )),
+            _ => Err(BundleError::InvalidOption {
+                option: "loss",
+                reason: format!("the robust loss scale must be positive and finite: {self:?}"),
+            }),
         }
     }
 
@@ -123,7 +128,10 @@ mod tests {
                 assert!((d2 - fd2).abs() < 1e-6 * (1.0 + d2.abs()), "{loss:?} {s}");
             }
         }
-        assert!(RobustLoss::Huber(0.0).validate().is_err());
+        assert!(matches!(
+            RobustLoss::Huber(0.0).validate(),
+            Err(BundleError::InvalidOption { option: "loss", .. })
+        ));
     }
 
     #[test]

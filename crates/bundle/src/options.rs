@@ -2,10 +2,13 @@
 //! documented defaults (those of Ceres Solver's `Solver::Options` where a counterpart exists) and a
 //! `validate()`.
 
+use serde::{Deserialize, Serialize};
+
 use crate::loss::RobustLoss;
 
 /// How the reduced camera system `S δc = b` (Triggs et al. 2000, eq. 6.2) is solved.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
 pub enum LinearSolverKind {
     /// Dense Cholesky for up to [`BundleOptions::dense_max_dimension`] reduced parameters, else sparse.
     Auto,
@@ -27,7 +30,7 @@ impl LinearSolverKind {
 }
 
 /// Levenberg–Marquardt options.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct BundleOptions {
     /// Maximum number of iterations (linear solves, successful or not). Default 100.
     pub max_iterations: usize,
@@ -75,27 +78,48 @@ impl Default for BundleOptions {
 }
 
 impl BundleOptions {
+    /// Checks every option; the error names the first offending one.
     pub fn validate(&self) -> Result<(), BundleError> {
-        let bad = |what: &str| Err(BundleError::InvalidOptions(what.to_string()));
-        let nonneg = [
-            self.function_tolerance,
-            self.gradient_tolerance,
-            self.parameter_tolerance,
-        ];
-        if nonneg.iter().any(|v| !(v.is_finite() && *v >= 0.0)) {
-            return bad("tolerances must be finite and non-negative");
+        let check = |ok: bool, option: &'static str, reason: &str| {
+            if ok {
+                Ok(())
+            } else {
+                Err(BundleError::InvalidOption {
+                    option,
+                    reason: reason.to_string(),
+                })
+            }
+        };
+        for (option, v) in [
+            ("function_tolerance", self.function_tolerance),
+            ("gradient_tolerance", self.gradient_tolerance),
+            ("parameter_tolerance", self.parameter_tolerance),
+        ] {
+            check(
+                v.is_finite() && v >= 0.0,
+                option,
+                "tolerances must be finite and non-negative",
+            )?;
         }
-        if !(self.initial_trust_region_radius > 0.0
-            && self.max_trust_region_radius >= self.initial_trust_region_radius
-            && self.min_trust_region_radius >= 0.0
-            && self.min_trust_region_radius < self.initial_trust_region_radius)
-        {
-            return bad("trust-region radii must satisfy 0 ≤ min < initial ≤ max");
-        }
-        if !(self.min_relative_decrease > 0.0 && self.min_relative_decrease < 1.0) {
-            return bad("min_relative_decrease must lie in (0, 1)");
-        }
-        self.loss.validate().map_err(BundleError::InvalidOptions)
+        let radii = "trust-region radii must satisfy 0 ≤ min < initial ≤ max";
+        let (initial, max, min) = (
+            self.initial_trust_region_radius,
+            self.max_trust_region_radius,
+            self.min_trust_region_radius,
+        );
+        check(initial > 0.0, "initial_trust_region_radius", radii)?;
+        check(max >= initial, "max_trust_region_radius", radii)?;
+        check(
+            min >= 0.0 && min < initial,
+            "min_trust_region_radius",
+            radii,
+        )?;
+        check(
+            self.min_relative_decrease > 0.0 && self.min_relative_decrease < 1.0,
+            "min_relative_decrease",
+            "must lie in (0, 1)",
+        )?;
+        self.loss.validate()
     }
 }
 
@@ -159,8 +183,12 @@ pub struct BundleSummary {
 /// Errors of bundle adjustment. Finding no better solution is not an error (see [`Termination`]).
 #[derive(Debug, thiserror::Error)]
 pub enum BundleError {
-    #[error("invalid bundle adjustment options: {0}")]
-    InvalidOptions(String),
+    /// An option is out of its valid range; `option` is the field's name.
+    #[error("invalid bundle adjustment option `{option}`: {reason}")]
+    InvalidOption {
+        option: &'static str,
+        reason: String,
+    },
     #[error("invalid bundle adjustment input: {0}")]
     InvalidInput(String),
     #[error("the initial cost is not finite (a point lies in a camera's focal plane, or a parameter is NaN)")]
@@ -175,4 +203,45 @@ pub enum BundleError {
     },
     #[error("sparse Cholesky failed: {0}")]
     Linear(String),
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn option_of(o: BundleOptions) -> &'static str {
+        match o.validate() {
+            Err(BundleError::InvalidOption { option, .. }) => option,
+            other => panic!("expected an option error, got {other:?}"),
+        }
+    }
+
+    #[test]
+    fn validate_names_the_option() {
+        assert!(BundleOptions::default().validate().is_ok());
+        let d = BundleOptions::default;
+        let o = |f: fn(&mut BundleOptions)| {
+            let mut o = d();
+            f(&mut o);
+            option_of(o)
+        };
+        assert_eq!(o(|o| o.gradient_tolerance = -1.0), "gradient_tolerance");
+        assert_eq!(
+            o(|o| o.initial_trust_region_radius = 0.0),
+            "initial_trust_region_radius"
+        );
+        assert_eq!(
+            o(|o| o.max_trust_region_radius = 1.0),
+            "max_trust_region_radius"
+        );
+        assert_eq!(
+            o(|o| o.min_trust_region_radius = 1e5),
+            "min_trust_region_radius"
+        );
+        assert_eq!(
+            o(|o| o.min_relative_decrease = 1.0),
+            "min_relative_decrease"
+        );
+        assert_eq!(o(|o| o.loss = RobustLoss::Cauchy(f64::NAN)), "loss");
+    }
 }

@@ -92,18 +92,9 @@ pub fn gt_by_name(
 /// Encodes the rendered frames as an H.264 video (`ffmpeg`), as a camcorder or phone would.
 fn encode_video(out: &Path) -> Result<std::path::PathBuf> {
     let video = out.join("video.mp4");
-    let tmp = out.join("video.tmp.mp4");
-    let status = std::process::Command::new(handheld_io::video::ffmpeg_program())
-        .args(["-y", "-loglevel", "error", "-framerate", "25", "-i"])
-        .arg(out.join("images").join("frame_%04d.png"))
-        .args(["-c:v", "libx264", "-crf", "12", "-pix_fmt", "yuv420p"])
-        .arg(&tmp)
-        .status()
-        .context("running ffmpeg to encode the demo video (install ffmpeg, or run the demo without --video)")?;
-    if !status.success() {
-        anyhow::bail!("ffmpeg could not encode {} ({status})", video.display());
-    }
-    std::fs::rename(&tmp, &video).with_context(|| format!("{}: cannot write", video.display()))?;
+    let pattern = out.join("images").join("frame_%04d.png");
+    handheld_io::video::encode_h264(&pattern, &video, &Default::default())
+        .context("encoding the demo video (or run the demo without --video)")?;
     Ok(video)
 }
 

@@ -11,6 +11,7 @@
 //! Nothing here touches a file: input and output live in `handheld-io`.
 
 pub mod camera;
+pub mod closest;
 pub mod geometry3d;
 pub mod ids;
 pub mod maps;

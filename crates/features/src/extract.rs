@@ -5,6 +5,7 @@ use image::DynamicImage;
 use serde::{Deserialize, Serialize};
 
 use crate::detector::{FeatureDetector, Features};
+use crate::error::{check, FeatureError};
 use crate::gray::GrayImage;
 use crate::sift::{Sift, SiftOptions};
 
@@ -53,12 +54,14 @@ impl Default for ExtractionOptions {
 }
 
 impl ExtractionOptions {
-    pub fn validate(&self) -> Result<(), String> {
+    /// Checks the SIFT options and the image size limit; the error names the offending option.
+    pub fn validate(&self) -> Result<(), FeatureError> {
         self.sift.validate()?;
-        if self.max_image_size.is_some_and(|m| m < 64) {
-            return Err("--max-image-size must be at least 64 pixels".into());
-        }
-        Ok(())
+        check(
+            self.max_image_size.is_none_or(|m| m >= 64),
+            "max_image_size",
+            || "must be at least 64 pixels (--max-image-size)".into(),
+        )
     }
 }
 

@@ -16,11 +16,12 @@
 use rayon::prelude::*;
 
 use crate::detector::{Descriptors, FeatureDetector, Features, Keypoint};
+use crate::error::{check, FeatureError};
 use crate::gray::GrayImage;
 use crate::zncc::zncc_patch_into;
 
 /// Options of [`detect_harris`].
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct HarrisOptions {
     /// Harris' `k` in `R = det M − k (trace M)²`. Default 0.04 (paper §2.1).
     pub k: f32,
@@ -74,47 +75,35 @@ impl Default for HarrisOptions {
 
 impl HarrisOptions {
     /// Checks that every field is in range.
-    pub fn validate(&self) -> Result<(), String> {
-        if !(self.k > 0.0 && self.k < 0.25) {
-            return Err(format!("harris k must be in (0, 0.25), got {}", self.k));
-        }
-        if !(self.derivative_sigma >= 0.0 && self.derivative_sigma.is_finite()) {
-            return Err(format!(
-                "derivative_sigma must be finite and non-negative, got {}",
-                self.derivative_sigma
-            ));
-        }
-        if !(self.window_sigma > 0.0 && self.window_sigma.is_finite()) {
-            return Err(format!(
-                "window_sigma must be finite and positive, got {}",
-                self.window_sigma
-            ));
-        }
-        if self.nms_radius == 0 {
-            return Err("nms_radius must be at least 1".into());
-        }
-        if !(self.refine_guard >= 0.0 && self.refine_guard.is_finite()) {
-            return Err(format!(
-                "refine_guard must be finite and non-negative, got {}",
-                self.refine_guard
-            ));
-        }
-        if self.cell_size == 0 {
-            return Err("cell_size must be positive".into());
-        }
-        if !(0.0..1.0).contains(&self.min_relative_response) {
-            return Err(format!(
-                "min_relative_response must be in [0, 1), got {}",
-                self.min_relative_response
-            ));
-        }
-        if !(self.min_response >= 0.0 && self.min_response.is_finite()) {
-            return Err(format!(
-                "min_response must be finite and non-negative, got {}",
-                self.min_response
-            ));
-        }
-        Ok(())
+    pub fn validate(&self) -> Result<(), FeatureError> {
+        check(self.k > 0.0 && self.k < 0.25, "k", || {
+            format!("harris k must be in (0, 0.25), got {}", self.k)
+        })?;
+        let (d, w) = (self.derivative_sigma, self.window_sigma);
+        check(d >= 0.0 && d.is_finite(), "derivative_sigma", || {
+            format!("must be finite and non-negative, got {d}")
+        })?;
+        check(w > 0.0 && w.is_finite(), "window_sigma", || {
+            format!("must be finite and positive, got {w}")
+        })?;
+        check(self.nms_radius != 0, "nms_radius", || {
+            "must be at least 1".into()
+        })?;
+        let g = self.refine_guard;
+        check(g >= 0.0 && g.is_finite(), "refine_guard", || {
+            format!("must be finite and non-negative, got {g}")
+        })?;
+        check(self.cell_size != 0, "cell_size", || {
+            "must be positive".into()
+        })?;
+        let r = self.min_relative_response;
+        check((0.0..1.0).contains(&r), "min_relative_response", || {
+            format!("must be in [0, 1), got {r}")
+        })?;
+        let m = self.min_response;
+        check(m >= 0.0 && m.is_finite(), "min_response", || {
+            format!("must be finite and non-negative, got {m}")
+        })
     }
 }
 

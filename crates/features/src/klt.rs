@@ -24,13 +24,14 @@
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use crate::error::{check, FeatureError};
 use crate::gray::GrayImage;
 use crate::harris::{detect_harris, HarrisOptions};
 use crate::klt_align::{affine_register, build_pyramid, lk_translation, Level};
 use crate::zncc::sample_patch;
 
 /// Options of [`KltTracker`].
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct KltOptions {
     /// Half-size of the integration window: `(2r+1)²` pixels. Default 7 (15×15).
     pub window_radius: usize,
@@ -93,59 +94,63 @@ impl Default for KltOptions {
 
 impl KltOptions {
     /// Checks that every field is in range.
-    pub fn validate(&self) -> Result<(), String> {
-        if !(1..=32).contains(&self.window_radius) {
-            return Err(format!(
-                "window_radius must be in 1..=32, got {}",
-                self.window_radius
-            ));
-        }
-        if !(1..=8).contains(&self.levels) {
-            return Err(format!("levels must be in 1..=8, got {}", self.levels));
-        }
-        if self.max_iterations == 0 {
-            return Err("max_iterations must be positive".into());
-        }
-        if !(self.epsilon > 0.0 && self.epsilon.is_finite()) {
-            return Err(format!(
-                "epsilon must be finite and positive, got {}",
-                self.epsilon
-            ));
-        }
-        if !(self.min_eigenvalue >= 0.0 && self.min_eigenvalue.is_finite()) {
-            return Err(format!(
-                "min_eigenvalue must be finite and non-negative, got {}",
-                self.min_eigenvalue
-            ));
-        }
+    pub fn validate(&self) -> Result<(), FeatureError> {
+        check(
+            (1..=32).contains(&self.window_radius),
+            "window_radius",
+            || format!("must be in 1..=32, got {}", self.window_radius),
+        )?;
+        check((1..=8).contains(&self.levels), "levels", || {
+            format!("must be in 1..=8, got {}", self.levels)
+        })?;
+        check(self.max_iterations != 0, "max_iterations", || {
+            "must be positive".into()
+        })?;
+        check(
+            self.epsilon > 0.0 && self.epsilon.is_finite(),
+            "epsilon",
+            || format!("must be finite and positive, got {}", self.epsilon),
+        )?;
+        check(
+            self.min_eigenvalue >= 0.0 && self.min_eigenvalue.is_finite(),
+            "min_eigenvalue",
+            || {
+                format!(
+                    "must be finite and non-negative, got {}",
+                    self.min_eigenvalue
+                )
+            },
+        )?;
         for (name, v) in [
             ("forward_backward_max", self.forward_backward_max),
             ("affine_max_residual", self.affine_max_residual),
         ] {
             if let Some(v) = v {
-                if !(v > 0.0 && v.is_finite()) {
-                    return Err(format!("{name} must be finite and positive, got {v}"));
-                }
+                check(v > 0.0 && v.is_finite(), name, || {
+                    format!("must be finite and positive, got {v}")
+                })?;
             }
         }
-        if !(self.affine_max_shift > 0.0 && self.affine_max_shift.is_finite()) {
-            return Err(format!(
-                "affine_max_shift must be finite and positive, got {}",
-                self.affine_max_shift
-            ));
-        }
-        if !(self.image_sigma >= 0.0 && self.image_sigma <= 10.0) {
-            return Err(format!(
-                "image_sigma must be in [0, 10], got {}",
-                self.image_sigma
-            ));
-        }
-        if !(self.redetect_min_distance >= 0.0 && self.redetect_min_distance.is_finite()) {
-            return Err(format!(
-                "redetect_min_distance must be finite and non-negative, got {}",
-                self.redetect_min_distance
-            ));
-        }
+        check(
+            self.affine_max_shift > 0.0 && self.affine_max_shift.is_finite(),
+            "affine_max_shift",
+            || format!("must be finite and positive, got {}", self.affine_max_shift),
+        )?;
+        check(
+            self.image_sigma >= 0.0 && self.image_sigma <= 10.0,
+            "image_sigma",
+            || format!("must be in [0, 10], got {}", self.image_sigma),
+        )?;
+        check(
+            self.redetect_min_distance >= 0.0 && self.redetect_min_distance.is_finite(),
+            "redetect_min_distance",
+            || {
+                format!(
+                    "must be finite and non-negative, got {}",
+                    self.redetect_min_distance
+                )
+            },
+        )?;
         self.detector.validate()
     }
 }
@@ -186,7 +191,7 @@ pub struct KltTracker {
 
 impl KltTracker {
     /// A tracker with validated options.
-    pub fn new(options: KltOptions) -> Result<Self, String> {
+    pub fn new(options: KltOptions) -> Result<Self, FeatureError> {
         options.validate()?;
         Ok(Self {
             options,

@@ -14,6 +14,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::detector::{Descriptors, Features};
+use crate::error::{check, FeatureError};
 
 /// A correspondence between descriptor `i` of the first set and descriptor `j` of the second.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -47,17 +48,15 @@ impl Default for MatchOptions {
 }
 
 impl MatchOptions {
-    pub fn validate(&self) -> Result<(), String> {
-        if !(self.ratio.is_finite() && self.ratio > 0.0) {
-            return Err(format!(
-                "ratio must be positive and finite, got {}",
-                self.ratio
-            ));
-        }
+    /// Checks the ratio and the distance limit; the error names the offending option.
+    pub fn validate(&self) -> Result<(), FeatureError> {
+        check(self.ratio.is_finite() && self.ratio > 0.0, "ratio", || {
+            format!("must be positive and finite, got {}", self.ratio)
+        })?;
         if let Some(d) = self.max_distance {
-            if !(d.is_finite() && d >= 0.0) {
-                return Err(format!("max_distance must be finite and ≥ 0, got {d}"));
-            }
+            check(d.is_finite() && d >= 0.0, "max_distance", || {
+                format!("must be finite and ≥ 0, got {d}")
+            })?;
         }
         Ok(())
     }

@@ -21,6 +21,7 @@ use std::collections::HashMap;
 
 use rayon::prelude::*;
 
+use crate::error::{check, FeatureError};
 use crate::gray::GrayImage;
 use crate::klt::KltOptions;
 use crate::klt_align::{affine_register, build_pyramid, Level};
@@ -65,32 +66,27 @@ impl Default for KeypointRefinementOptions {
 
 impl KeypointRefinementOptions {
     /// Checks that every field is in range, naming the offending one.
-    pub fn validate(&self) -> Result<(), String> {
-        if !(2..=32).contains(&self.window_radius) {
-            return Err(format!(
-                "window_radius must be in 2..=32, got {}",
-                self.window_radius
-            ));
-        }
+    pub fn validate(&self) -> Result<(), FeatureError> {
+        check(
+            (2..=32).contains(&self.window_radius),
+            "window_radius",
+            || format!("must be in 2..=32, got {}", self.window_radius),
+        )?;
         for (name, v) in [
             ("level_scale", self.level_scale),
             ("max_shift_scales", self.max_shift_scales),
             ("max_shift_px", self.max_shift_px),
         ] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(format!("{name} must be positive and finite, got {v}"));
-            }
+            check(v.is_finite() && v > 0.0, name, || {
+                format!("must be positive and finite, got {v}")
+            })?;
         }
-        if !(-1.0..=1.0).contains(&self.min_zncc) {
-            return Err(format!(
-                "min_zncc must be in [-1, 1], got {}",
-                self.min_zncc
-            ));
-        }
-        if self.max_iterations == 0 {
-            return Err("max_iterations must be at least 1".into());
-        }
-        Ok(())
+        check((-1.0..=1.0).contains(&self.min_zncc), "min_zncc", || {
+            format!("must be in [-1, 1], got {}", self.min_zncc)
+        })?;
+        check(self.max_iterations != 0, "max_iterations", || {
+            "must be at least 1".into()
+        })
     }
 }
 

@@ -23,6 +23,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::detector::{Descriptors, FeatureDetector, Features, Keypoint};
+use crate::error::{check, FeatureError};
 use crate::gray::{gaussian_kernel, GrayImage};
 
 mod descriptor;
@@ -89,23 +90,22 @@ impl Default for SiftOptions {
 }
 
 impl SiftOptions {
-    pub fn validate(&self) -> Result<(), String> {
-        let check = |ok: bool, msg: &dyn Fn() -> String| if ok { Ok(()) } else { Err(msg()) };
-        check(self.num_octaves != Some(0), &|| {
-            "num_octaves must be at least 1".into()
+    /// Checks that every field is in range; the error names the first offending one.
+    pub fn validate(&self) -> Result<(), FeatureError> {
+        check(self.num_octaves != Some(0), "num_octaves", || {
+            "must be at least 1".into()
         })?;
-        check((1..=16).contains(&self.octave_layers), &|| {
-            format!(
-                "octave_layers must be in 1..=16, got {}",
-                self.octave_layers
-            )
-        })?;
+        check(
+            (1..=16).contains(&self.octave_layers),
+            "octave_layers",
+            || format!("must be in 1..=16, got {}", self.octave_layers),
+        )?;
         for (name, v) in [
             ("contrast_threshold", self.contrast_threshold),
             ("sigma", self.sigma),
         ] {
-            check(v.is_finite() && v > 0.0, &|| {
-                format!("{name} must be positive and finite, got {v}")
+            check(v.is_finite() && v > 0.0, name, || {
+                format!("must be positive and finite, got {v}")
             })?;
         }
         let (e, i, p) = (
@@ -113,17 +113,17 @@ impl SiftOptions {
             self.input_sigma,
             self.orientation_peak_ratio,
         );
-        check(e.is_finite() && e >= 1.0, &|| {
-            format!("edge_threshold must be ≥ 1, got {e}")
+        check(e.is_finite() && e >= 1.0, "edge_threshold", || {
+            format!("must be ≥ 1, got {e}")
         })?;
-        check(i.is_finite() && i >= 0.0, &|| {
-            format!("input_sigma must be ≥ 0, got {i}")
+        check(i.is_finite() && i >= 0.0, "input_sigma", || {
+            format!("must be ≥ 0, got {i}")
         })?;
-        check(p > 0.0 && p <= 1.0, &|| {
-            format!("orientation_peak_ratio must be in (0, 1], got {p}")
+        check(p > 0.0 && p <= 1.0, "orientation_peak_ratio", || {
+            format!("must be in (0, 1], got {p}")
         })?;
-        check(self.max_features != Some(0), &|| {
-            "max_features must be at least 1 (use None for no limit)".into()
+        check(self.max_features != Some(0), "max_features", || {
+            "must be at least 1 (use None for no limit)".into()
         })
     }
 }

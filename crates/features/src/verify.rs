@@ -22,6 +22,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::detector::{Descriptors, Features};
+use crate::error::{check, FeatureError};
 use crate::matching::{match_descriptors, Match, MatchOptions};
 
 /// Options of [`verify_pairs`].
@@ -65,16 +66,22 @@ impl Default for PairVerificationOptions {
 }
 
 impl PairVerificationOptions {
-    pub fn validate(&self) -> Result<(), String> {
+    /// Checks the matching and two-view options and the guided-matching fields; the error names
+    /// the offending option (`two_view` for any of the two-view options).
+    pub fn validate(&self) -> Result<(), FeatureError> {
         self.matching.validate()?;
-        self.two_view.validate()?;
-        if self.guided_max_epipolar_px.is_nan() || self.guided_max_epipolar_px <= 0.0 {
-            return Err("guided_max_epipolar_px must be positive".into());
-        }
-        if self.seed_features.is_some_and(|k| k < 64) {
-            return Err("seed_features must be at least 64".into());
-        }
-        Ok(())
+        self.two_view
+            .validate()
+            .map_err(|reason| FeatureError::option("two_view", reason))?;
+        let e = self.guided_max_epipolar_px;
+        check(!e.is_nan() && e > 0.0, "guided_max_epipolar_px", || {
+            format!("must be positive, got {e}")
+        })?;
+        check(
+            self.seed_features.is_none_or(|k| k >= 64),
+            "seed_features",
+            || "must be at least 64".into(),
+        )
     }
 }
 

@@ -12,6 +12,7 @@ use handheld_core::Progress;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use crate::error::{check, FeatureError};
 use crate::keyframes::{select_keyframes, KeyframeOptions, KeyframeReason};
 use crate::klt::{KltOptions, KltTracker};
 use crate::matching::Match;
@@ -45,18 +46,16 @@ impl Default for VideoTrackingOptions {
 }
 
 impl VideoTrackingOptions {
-    pub fn validate(&self) -> Result<(), String> {
+    /// Checks the KLT options, the key-frame window and ratio; the error names the offending option.
+    pub fn validate(&self) -> Result<(), FeatureError> {
         self.klt.validate()?;
-        if self.keyframe_window == 0 {
-            return Err("keyframe_window must be at least 1".into());
-        }
-        if !(self.keyframes.track_ratio > 0.0 && self.keyframes.track_ratio <= 1.0) {
-            return Err(format!(
-                "key-frame track ratio must be in (0, 1], got {}",
-                self.keyframes.track_ratio
-            ));
-        }
-        Ok(())
+        check(self.keyframe_window != 0, "keyframe_window", || {
+            "must be at least 1".into()
+        })?;
+        let ratio = self.keyframes.track_ratio;
+        check(ratio > 0.0 && ratio <= 1.0, "track_ratio", || {
+            format!("the key-frame track ratio must be in (0, 1], got {ratio}")
+        })
     }
 }
 
@@ -127,8 +126,8 @@ pub fn track_video<E>(
 where
     E: From<String>,
 {
-    opts.validate().map_err(E::from)?;
-    let mut tracker = KltTracker::new(opts.klt.clone()).map_err(E::from)?;
+    opts.validate().map_err(|e| E::from(e.to_string()))?;
+    let mut tracker = KltTracker::new(opts.klt.clone()).map_err(|e| E::from(e.to_string()))?;
     let mut out = VideoTracks::default();
     for frame in frames {
         let frame = frame?;
@@ -242,6 +241,12 @@ mod tests {
             keyframe_window: 0,
             ..Default::default()
         };
-        assert!(o.validate().is_err());
+        assert!(matches!(
+            o.validate(),
+            Err(FeatureError::InvalidOption {
+                option: "keyframe_window",
+                ..
+            })
+        ));
     }
 }

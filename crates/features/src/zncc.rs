@@ -10,6 +10,7 @@
 use rayon::prelude::*;
 
 use crate::detector::Features;
+use crate::error::{check, FeatureError};
 use crate::gray::GrayImage;
 
 /// Patches whose intensity standard deviation (values in [0, 1]) is below this are too uniform to be
@@ -122,7 +123,7 @@ pub fn zncc(a: &[f32], b: &[f32]) -> f32 {
 }
 
 /// Options of [`match_zncc`].
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct ZnccMatchOptions {
     /// Minimum ZNCC of an accepted match. Default 0.8.
     pub min_score: f32,
@@ -144,19 +145,15 @@ impl Default for ZnccMatchOptions {
 }
 
 impl ZnccMatchOptions {
-    pub fn validate(&self) -> Result<(), String> {
-        if !(-1.0..=1.0).contains(&self.min_score) {
-            return Err(format!(
-                "min_score must be in [-1, 1], got {}",
-                self.min_score
-            ));
-        }
+    /// Checks the score range and the search radius; the error names the offending option.
+    pub fn validate(&self) -> Result<(), FeatureError> {
+        check((-1.0..=1.0).contains(&self.min_score), "min_score", || {
+            format!("must be in [-1, 1], got {}", self.min_score)
+        })?;
         if let Some(r) = self.max_disparity {
-            if !(r > 0.0 && r.is_finite()) {
-                return Err(format!(
-                    "max_disparity must be finite and positive, got {r}"
-                ));
-            }
+            check(r > 0.0 && r.is_finite(), "max_disparity", || {
+                format!("must be finite and positive, got {r}")
+            })?;
         }
         Ok(())
     }

@@ -22,6 +22,15 @@ pub enum IoError {
     FfmpegMissing { program: String },
     #[error("{path}: ffmpeg cannot read this video: {reason}")]
     Video { path: PathBuf, reason: String },
+    /// `ffmpeg` ran but could not write the video `path`.
+    #[error("{path}: ffmpeg could not encode the video: {reason}; check that this ffmpeg has the libx264 encoder (`ffmpeg -encoders`) and that the folder is writable")]
+    Encode { path: PathBuf, reason: String },
+    /// An option of an io function is out of its valid range; `option` is the field's name.
+    #[error("invalid option `{option}`: {reason}")]
+    InvalidOption {
+        option: &'static str,
+        reason: String,
+    },
 }
 
 impl IoError {

@@ -9,7 +9,8 @@
 //! Without a texture the vertex colours (if any) become `COLOR_0`; with one they are left out,
 //! because glTF multiplies the texture by `COLOR_0`. The material is marked
 //! `KHR_materials_unlit` (photographic textures already contain the lighting), with a
-//! non-metallic PBR fallback for viewers without the extension.
+//! non-metallic PBR fallback for viewers without the extension. [`read_glb`] (in [`read`]) reads
+//! such files, and glTF models from elsewhere, back.
 
 use std::path::Path;
 
@@ -20,6 +21,9 @@ use serde_json::{json, Value};
 use crate::atomic::write_bytes_atomic;
 use crate::error::{IoError, Result};
 use crate::obj::{check_mesh, encode_png};
+
+pub mod read;
+pub use read::read_glb;
 
 const ARRAY_BUFFER: u32 = 34962;
 const ELEMENT_ARRAY_BUFFER: u32 = 34963;

@@ -25,6 +25,20 @@ pub struct ImageIngestOptions {
     pub skip_unreadable: bool,
 }
 
+impl ImageIngestOptions {
+    /// Checks option ranges for ingest; the error names the option. (Listing a folder with
+    /// [`list_image_folder`] accepts any `min_images`, 0 included.)
+    pub fn validate(&self) -> Result<()> {
+        if self.min_images < 2 {
+            return Err(IoError::InvalidOption {
+                option: "min_images",
+                reason: "--min-images must be at least 2: one view cannot be reconstructed".into(),
+            });
+        }
+        Ok(())
+    }
+}
+
 impl Default for ImageIngestOptions {
     fn default() -> Self {
         Self {

@@ -25,12 +25,9 @@ pub struct IngestOptions {
 
 impl IngestOptions {
     /// Checks option ranges; the error names the option.
-    pub fn validate(&self) -> std::result::Result<(), String> {
+    pub fn validate(&self) -> Result<()> {
         self.video.validate()?;
-        if self.images.min_images < 2 {
-            return Err("--min-images must be at least 2: one view cannot be reconstructed".into());
-        }
-        Ok(())
+        self.images.validate()
     }
 }
 
@@ -68,10 +65,7 @@ pub fn ingest(
     opts: &IngestOptions,
     progress: &dyn Progress,
 ) -> Result<IngestResult> {
-    opts.validate().map_err(|reason| IoError::Input {
-        path: input.to_path_buf(),
-        reason,
-    })?;
+    opts.validate()?;
     if !input.exists() {
         return Err(IoError::NotFound {
             path: input.to_path_buf(),

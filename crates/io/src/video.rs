@@ -2,6 +2,7 @@
 //! pipe (`-f image2pipe -c:v ppm`): raw RGB with a tiny header that carries the size, so rotated phone
 //! videos need no special case and nothing is dumped to disk. Stride and time range are applied by
 //! ffmpeg (`select` filter, input seek), so skipped frames are never converted or piped.
+//! Encoding (frames to H.264, [`encode_h264`], [`encode_h264_frames`]) lives in [`encode`].
 
 use std::io::{BufRead, BufReader, Read};
 use std::path::{Path, PathBuf};
@@ -12,6 +13,9 @@ use image::RgbImage;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{IoError, Result};
+
+pub mod encode;
+pub use encode::{encode_h264, encode_h264_frames, EncodeOptions};
 
 /// File extensions (lower case) recognised as video.
 pub const VIDEO_EXTENSIONS: [&str; 6] = ["mp4", "mov", "avi", "mkv", "m4v", "webm"];
@@ -49,27 +53,32 @@ impl Default for VideoOptions {
 }
 
 impl VideoOptions {
-    /// Checks the option ranges; the error names the option.
-    pub fn validate(&self) -> std::result::Result<(), String> {
+    /// Checks the option ranges; the error names the option (and its command-line flag).
+    pub fn validate(&self) -> Result<()> {
+        let bad =
+            |option: &'static str, reason: String| Err(IoError::InvalidOption { option, reason });
         if self.stride == 0 {
-            return Err("--stride must be at least 1".into());
+            return bad("stride", "--stride must be at least 1".into());
         }
         if !self.start_s.is_finite() || self.start_s < 0.0 {
-            return Err(format!(
-                "--start must be a time ≥ 0 s, got {}",
-                self.start_s
-            ));
+            return bad(
+                "start_s",
+                format!("--start must be a time ≥ 0 s, got {}", self.start_s),
+            );
         }
         if let Some(end) = self.end_s {
             if !end.is_finite() || end <= self.start_s {
-                return Err(format!(
-                    "--end ({end} s) must come after --start ({} s)",
-                    self.start_s
-                ));
+                return bad(
+                    "end_s",
+                    format!(
+                        "--end ({end} s) must come after --start ({} s)",
+                        self.start_s
+                    ),
+                );
             }
         }
         if self.max_frames == Some(0) {
-            return Err("--max-frames must be at least 1".into());
+            return bad("max_frames", "--max-frames must be at least 1".into());
         }
         Ok(())
     }
@@ -216,10 +225,7 @@ pub struct VideoReader {
 impl VideoReader {
     /// Probes the file and starts ffmpeg.
     pub fn open(path: &Path, opts: &VideoOptions) -> Result<Self> {
-        opts.validate().map_err(|reason| IoError::Input {
-            path: path.to_path_buf(),
-            reason,
-        })?;
+        opts.validate()?;
         let info = probe(path)?;
         let program = ffmpeg_program();
         let mut cmd = Command::new(&program);

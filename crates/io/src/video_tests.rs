@@ -149,25 +149,129 @@ fn missing_ffmpeg_says_how_to_install() {
 
 #[test]
 fn out_of_range_options_name_the_option() {
-    assert!(VideoOptions {
-        stride: 0,
-        ..Default::default()
+    let check = |o: VideoOptions, option: &str, flag: &str| {
+        let err = o.validate().unwrap_err();
+        assert!(
+            matches!(&err, IoError::InvalidOption { option: name, .. } if *name == option),
+            "{err:?}"
+        );
+        assert!(err.to_string().contains(flag), "{err}");
+    };
+    let d = VideoOptions::default;
+    check(VideoOptions { stride: 0, ..d() }, "stride", "--stride");
+    check(
+        VideoOptions {
+            end_s: Some(0.0),
+            ..d()
+        },
+        "end_s",
+        "--end",
+    );
+    check(
+        VideoOptions {
+            start_s: -1.0,
+            ..d()
+        },
+        "start_s",
+        "--start",
+    );
+    check(
+        VideoOptions {
+            max_frames: Some(0),
+            ..d()
+        },
+        "max_frames",
+        "--max-frames",
+    );
+}
+
+/// Frame `k` of the encoding tests: uniformly grey at level 20·k + 30, 64×48.
+fn grey_frame(k: u32) -> RgbImage {
+    RgbImage::from_pixel(64, 48, image::Rgb([(20 * k + 30) as u8; 3]))
+}
+
+/// Decodes `path` with the reader and checks it holds the frames of [`grey_frame`] 0..n.
+fn check_decoded(path: &Path, n: u32) {
+    let info = probe(path).unwrap();
+    assert_eq!(info.codec, "h264");
+    assert_eq!((info.width, info.height), (64, 48));
+    let frames: Vec<_> = VideoReader::open(path, &VideoOptions::default())
+        .unwrap()
+        .collect::<Result<_>>()
+        .unwrap();
+    assert_eq!(frames.len(), n as usize);
+    for (k, f) in frames.iter().enumerate() {
+        let want = level(&grey_frame(k as u32));
+        assert!(
+            (level(&f.image) - want).abs() < 3.0,
+            "frame {k}: level {} for {want}",
+            level(&f.image)
+        );
     }
-    .validate()
-    .unwrap_err()
-    .contains("--stride"));
-    assert!(VideoOptions {
-        end_s: Some(0.0),
-        ..Default::default()
+}
+
+#[test]
+fn encoded_frames_decode_back() {
+    if !have_ffmpeg() {
+        return;
     }
-    .validate()
-    .unwrap_err()
-    .contains("--end"));
-    assert!(VideoOptions {
-        start_s: -1.0,
-        ..Default::default()
+    let dir = tempfile::tempdir().unwrap();
+    let frames: Vec<RgbImage> = (0..6).map(grey_frame).collect();
+    let out = dir.path().join("memory.mp4");
+    encode_h264_frames(&frames, &out, &EncodeOptions::default()).unwrap();
+    assert!(!dir.path().join("memory.tmp.mp4").exists());
+    check_decoded(&out, 6);
+
+    // The same frames from numbered PNG files, as the demo writes them.
+    for (k, f) in frames.iter().enumerate() {
+        f.save(dir.path().join(format!("frame_{k:04}.png")))
+            .unwrap();
     }
-    .validate()
+    let out = dir.path().join("files.mp4");
+    encode_h264(
+        &dir.path().join("frame_%04d.png"),
+        &out,
+        &EncodeOptions::default(),
+    )
+    .unwrap();
+    check_decoded(&out, 6);
+
+    // No input files: the error names the video and nothing is left behind.
+    let out = dir.path().join("none.mp4");
+    let err = encode_h264(
+        &dir.path().join("missing_%04d.png"),
+        &out,
+        &EncodeOptions::default(),
+    )
     .unwrap_err()
-    .contains("--start"));
+    .to_string();
+    assert!(
+        err.contains("none.mp4") && err.contains("could not encode"),
+        "{err}"
+    );
+    assert!(!out.exists() && !dir.path().join("none.tmp.mp4").exists());
+}
+
+#[test]
+fn encoding_checks_frames_and_options_first() {
+    let out = Path::new("never_written.mp4");
+    let odd = [RgbImage::new(63, 48)];
+    let err = encode_h264_frames(&odd, out, &EncodeOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("never_written.mp4") && err.contains("even"),
+        "{err}"
+    );
+    let none: [RgbImage; 0] = [];
+    assert!(encode_h264_frames(&none, out, &EncodeOptions::default()).is_err());
+    let bad = EncodeOptions {
+        crf: 60,
+        ..Default::default()
+    };
+    assert!(matches!(
+        bad.validate(),
+        Err(IoError::InvalidOption { option: "crf", .. })
+    ));
+    assert!(!out.exists());
 }

@@ -3,6 +3,7 @@
 //! along the widest centroid axis, up to [`LEAF`] triangles per leaf; the query descends the
 //! nearer child first and prunes boxes farther than the best distance found.
 
+use handheld_core::closest::point_triangle_distance_squared;
 use handheld_core::TriMesh;
 use nalgebra::{Point3, Vector3};
 
@@ -27,48 +28,9 @@ pub struct MeshIndex {
     nodes: Vec<Node>,
 }
 
+/// Squared distance from `p` to the triangle `t` (Ericson §5.1.5, in `handheld_core::closest`).
 fn point_triangle_distance2(p: &Point3<f64>, t: &[Point3<f64>; 3]) -> f64 {
-    // Ericson, Real-Time Collision Detection, 5.1.5 (closest point on a triangle).
-    let (a, b, c) = (t[0], t[1], t[2]);
-    let (ab, ac, ap) = (b - a, c - a, p - a);
-    let (d1, d2) = (ab.dot(&ap), ac.dot(&ap));
-    if d1 <= 0.0 && d2 <= 0.0 {
-        return ap.norm_squared();
-    }
-    let bp = p - b;
-    let (d3, d4) = (ab.dot(&bp), ac.dot(&bp));
-    if d3 >= 0.0 && d4 <= d3 {
-        return bp.norm_squared();
-    }
-    let vc = d1 * d4 - d3 * d2;
-    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
-        let v = d1 / (d1 - d3);
-        return (p - (a + ab * v)).norm_squared();
-    }
-    let cp = p - c;
-    let (d5, d6) = (ab.dot(&cp), ac.dot(&cp));
-    if d6 >= 0.0 && d5 <= d6 {
-        return cp.norm_squared();
-    }
-    let vb = d5 * d2 - d1 * d6;
-    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
-        let w = d2 / (d2 - d6);
-        return (p - (a + ac * w)).norm_squared();
-    }
-    let va = d3 * d6 - d5 * d4;
-    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
-        let w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
-        return (p - (b + (c - b) * w)).norm_squared();
-    }
-    let denom = va + vb + vc;
-    if denom.abs() < f64::MIN_POSITIVE {
-        return ap
-            .norm_squared()
-            .min(bp.norm_squared())
-            .min(cp.norm_squared());
-    }
-    let (v, w) = (vb / denom, vc / denom);
-    (p - (a + ab * v + ac * w)).norm_squared()
+    point_triangle_distance_squared(p, &t[0], &t[1], &t[2])
 }
 
 fn box_distance2(p: &Point3<f64>, lo: &Vector3<f64>, hi: &Vector3<f64>) -> f64 {

@@ -6,6 +6,9 @@
 //! `r·(1 − cos(π/resolution))`). Triangles are counter-clockwise seen from the outside (from the
 //! `edge_u × edge_v` side for planes); vertex normals are area-weighted from the faces.
 
+/// Distance from a point to a triangle (Ericson §5.1.5), shared with `handheld-mesh` through
+/// `handheld_core::closest` and re-exported here for the tests that use it.
+pub use handheld_core::closest::point_triangle_distance;
 use handheld_core::{PointCloud, TriMesh};
 use nalgebra::{Point3, Vector2, Vector3};
 
@@ -95,48 +98,6 @@ impl Scene {
     }
 }
 
-/// Distance from `p` to the triangle `(a, b, c)` (Ericson, *Real-Time Collision Detection*, 5.1.5).
-pub fn point_triangle_distance(
-    p: &Point3<f64>,
-    a: &Point3<f64>,
-    b: &Point3<f64>,
-    c: &Point3<f64>,
-) -> f64 {
-    let (ab, ac, ap) = (b - a, c - a, p - a);
-    let (d1, d2) = (ab.dot(&ap), ac.dot(&ap));
-    if d1 <= 0.0 && d2 <= 0.0 {
-        return ap.norm();
-    }
-    let bp = p - b;
-    let (d3, d4) = (ab.dot(&bp), ac.dot(&bp));
-    if d3 >= 0.0 && d4 <= d3 {
-        return bp.norm();
-    }
-    let vc = d1 * d4 - d3 * d2;
-    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
-        let v = d1 / (d1 - d3);
-        return (p - (a + ab * v)).norm();
-    }
-    let cp = p - c;
-    let (d5, d6) = (ab.dot(&cp), ac.dot(&cp));
-    if d6 >= 0.0 && d5 <= d6 {
-        return cp.norm();
-    }
-    let vb = d5 * d2 - d1 * d6;
-    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
-        let w = d2 / (d2 - d6);
-        return (p - (a + ac * w)).norm();
-    }
-    let va = d3 * d6 - d5 * d4;
-    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
-        let w = (d4 - d3) / ((d4 - d3) + (d5 - d6));
-        return (p - (b + (c - b) * w)).norm();
-    }
-    let denom = 1.0 / (va + vb + vc);
-    let (v, w) = (vb * denom, vc * denom);
-    (p - (a + ab * v + ac * w)).norm()
-}
-
 /// Distance from `p` to the nearest triangle of `mesh` (brute force; meant for tests and evaluation).
 pub fn distance_to_mesh(mesh: &TriMesh, p: &Point3<f64>) -> f64 {
     let v = |i: u32| {
@@ -185,30 +146,5 @@ mod tests {
             }
         }
         assert!(checked > 100);
-    }
-
-    #[test]
-    fn point_triangle_distance_regions() {
-        let (a, b, c) = (
-            Point3::new(0.0, 0.0, 0.0),
-            Point3::new(1.0, 0.0, 0.0),
-            Point3::new(0.0, 1.0, 0.0),
-        );
-        assert!(
-            (point_triangle_distance(&Point3::new(0.2, 0.2, 0.5), &a, &b, &c) - 0.5).abs() < 1e-12
-        );
-        assert!(
-            (point_triangle_distance(&Point3::new(-1.0, -1.0, 0.0), &a, &b, &c) - 2f64.sqrt())
-                .abs()
-                < 1e-12
-        );
-        assert!(
-            (point_triangle_distance(&Point3::new(0.5, -2.0, 0.0), &a, &b, &c) - 2.0).abs() < 1e-12
-        );
-        assert!(
-            (point_triangle_distance(&Point3::new(1.0, 1.0, 0.0), &a, &b, &c) - 0.5f64.sqrt())
-                .abs()
-                < 1e-12
-        );
     }
 }
