@@ -7,12 +7,14 @@
 //! returns one or more metric models: a broken sequence gives several models with the reason, never
 //! a silent partial result.
 
+mod context;
 pub mod graph;
 mod hypotheses;
 mod init;
 pub mod input;
 pub mod metric;
 pub mod metric_ba;
+mod model;
 pub mod options;
 mod predict;
 pub mod projective;
@@ -34,7 +36,7 @@ pub use input::{SfmImage, SfmInput, SfmPair};
 pub use metric::SelfCalibrationReport;
 pub use metric_ba::MetricBaRecord;
 pub use options::{Distortion, KnownIntrinsics, SfmOptions};
-pub use projective_ba::ProjectiveBaRecord;
+pub use model::ProjectiveBaRecord;
 pub use uncertainty::UncertaintyReport;
 
 /// Why the SfM stage could not produce any model.
@@ -116,7 +118,7 @@ pub fn reconstruct(
         return Err(SfmError::TooFewImages(usable));
     }
     let graph = graph::CorrespondenceGraph::build(input, 8);
-    let ctx = projective::Context::new(input, &graph, options);
+    let ctx = context::Context::new(input, &graph, options);
     let estimate_aspect = options.estimate_aspect.unwrap_or(input.video);
     let n = input.images.len();
     // Images without any verified pair (a video's in-between frames) cannot start or join the
@@ -333,8 +335,8 @@ pub fn reconstruct(
 
 #[allow(clippy::too_many_arguments)]
 fn summarize(
-    ctx: &projective::Context,
-    model: &projective::ProjectiveModel,
+    ctx: &context::Context,
+    model: &model::ProjectiveModel,
     rec: &MetricReconstruction,
     self_calibration: SelfCalibrationReport,
     metric_ba: Vec<MetricBaRecord>,

@@ -14,7 +14,7 @@ use handheld_core::{CameraId, ImageId, MetricReconstruction, PointId};
 use serde::Serialize;
 
 use crate::options::Distortion;
-use crate::projective::Context;
+use crate::context::Context;
 
 /// One metric bundle adjustment, for the summary.
 #[derive(Clone, Debug, Serialize)]

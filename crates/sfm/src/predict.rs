@@ -16,7 +16,7 @@ use nalgebra::Vector2;
 use rayon::prelude::*;
 
 use crate::input::SfmImage;
-use crate::projective::Context;
+use crate::context::Context;
 
 /// Search radius around a predicted projection, pixels.
 const SEARCH_RADIUS_PX: f64 = 3.0;

@@ -22,7 +22,7 @@ use handheld_core::{MetricReconstruction, Observation, View};
 use handheld_robust::CalibratedMatch;
 use nalgebra::{Matrix3, Vector2, Vector3};
 
-use crate::projective::Context;
+use crate::context::Context;
 use crate::register::{camera_of, insert_view, resect};
 
 /// Nearest observed points that vote for a keypoint's plane; a majority must agree.

@@ -10,7 +10,7 @@ use serde::Serialize;
 
 use crate::metric::median;
 use crate::options::Distortion;
-use crate::projective::Context;
+use crate::context::Context;
 
 /// Per-point uncertainty statistics from the BA engine's covariance (§3.3).
 #[derive(Clone, Debug, Serialize)]
