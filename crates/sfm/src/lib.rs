@@ -42,8 +42,13 @@ pub use uncertainty::UncertaintyReport;
 /// Why the SfM stage could not produce any model.
 #[derive(Debug, thiserror::Error)]
 pub enum SfmError {
-    #[error("invalid SfM option: {0}")]
-    InvalidOptions(String),
+    /// A [`SfmOptions`] field is out of its valid range; `option` is the field's name
+    /// (`self_calibration.<field>` for the nested self-calibration options).
+    #[error("invalid SfM option `{option}`: {reason}")]
+    InvalidOption {
+        option: &'static str,
+        reason: String,
+    },
     #[error("invalid SfM input: {0}")]
     InvalidInput(String),
     #[error("need at least 2 images with features, got {0}; add more overlapping photos")]
@@ -107,7 +112,7 @@ pub fn reconstruct(
     options: &SfmOptions,
     progress: &dyn Progress,
 ) -> Result<SfmResult, SfmError> {
-    options.validate().map_err(SfmError::InvalidOptions)?;
+    options.validate()?;
     input.validate().map_err(SfmError::InvalidInput)?;
     let usable = input
         .images
