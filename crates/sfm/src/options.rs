@@ -111,9 +111,8 @@ impl SfmOptions {
     /// Rejects out-of-range values with [`SfmError::InvalidOption`], naming the field
     /// (`self_calibration.<field>` for the nested self-calibration options).
     pub fn validate(&self) -> Result<(), SfmError> {
-        let bad = |option: &'static str, reason: String| {
-            Err(SfmError::InvalidOption { option, reason })
-        };
+        let bad =
+            |option: &'static str, reason: String| Err(SfmError::InvalidOption { option, reason });
         let pos = [
             ("projective_max_error_px", self.projective_max_error_px),
             ("metric_max_error_px", self.metric_max_error_px),
@@ -169,18 +168,16 @@ impl SfmOptions {
                 );
             }
         }
-        self.self_calibration
-            .validate()
-            .map_err(|e| match e {
-                SelfCalibrationError::InvalidOption { option, reason } => SfmError::InvalidOption {
-                    option: self_calibration_option(option),
-                    reason,
-                },
-                other => SfmError::InvalidOption {
-                    option: "self_calibration",
-                    reason: other.to_string(),
-                },
-            })
+        self.self_calibration.validate().map_err(|e| match e {
+            SelfCalibrationError::InvalidOption { option, reason } => SfmError::InvalidOption {
+                option: self_calibration_option(option),
+                reason,
+            },
+            other => SfmError::InvalidOption {
+                option: "self_calibration",
+                reason: other.to_string(),
+            },
+        })
     }
 }
 
