@@ -17,6 +17,7 @@ pub mod metric_ba;
 mod model;
 pub mod options;
 mod pipeline;
+mod planes;
 mod predict;
 pub mod projective;
 mod projective_ba;
