@@ -10,7 +10,7 @@
 
 use nalgebra::Matrix3x4;
 
-use crate::projective::{cameras_in_order, ProjectiveModel};
+use crate::model::{cameras_in_order, ProjectiveModel};
 use crate::selfcal::{upgrade_for_focal, FocalUpgrade};
 
 /// Focal range searched, in `K_N` units (eq. 24: `f / (w + h)`).

@@ -9,7 +9,8 @@ use handheld_geometry::{
 };
 use nalgebra::{Matrix3, Matrix3x4, Vector2, Vector3};
 
-use crate::projective::{Context, ProjectiveModel, NONE};
+use crate::context::Context;
+use crate::model::{ProjectiveModel, NONE};
 
 /// The eq. 16 pair for a fundamental matrix `F` (normalised coordinates, `x2ᵀ F x1 = 0`):
 /// `P1 = [I | 0]`, `P2 = [[e]× F + e aᵀ | σ e]`. Any `a` and `σ` reproduce `F`; we choose them so

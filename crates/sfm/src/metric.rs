@@ -13,7 +13,8 @@ use handheld_core::{
 use nalgebra::{Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector2, Vector3};
 use serde::Serialize;
 
-use crate::projective::{cameras_in_order, Context, ProjectiveModel};
+use crate::context::Context;
+use crate::model::{cameras_in_order, ProjectiveModel};
 use crate::selfcal::{decompose_camera, self_calibrate, SelfCalibration};
 
 /// Self-calibration diagnostics for the summary.

@@ -13,8 +13,8 @@ use handheld_bundle::{
 use handheld_core::{CameraId, ImageId, MetricReconstruction, PointId};
 use serde::Serialize;
 
+use crate::context::Context;
 use crate::options::Distortion;
-use crate::projective::Context;
 
 /// One metric bundle adjustment, for the summary.
 #[derive(Clone, Debug, Serialize)]

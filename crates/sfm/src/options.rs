@@ -2,7 +2,8 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::selfcal::SelfCalibrationOptions;
+use crate::selfcal::{SelfCalibrationError, SelfCalibrationOptions};
+use crate::SfmError;
 
 /// Which radial distortion coefficients metric BA estimates (eq. 3).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -107,8 +108,11 @@ impl Default for SfmOptions {
 }
 
 impl SfmOptions {
-    /// Rejects out-of-range values, naming the option.
-    pub fn validate(&self) -> Result<(), String> {
+    /// Rejects out-of-range values with [`SfmError::InvalidOption`], naming the field
+    /// (`self_calibration.<field>` for the nested self-calibration options).
+    pub fn validate(&self) -> Result<(), SfmError> {
+        let bad =
+            |option: &'static str, reason: String| Err(SfmError::InvalidOption { option, reason });
         let pos = [
             ("projective_max_error_px", self.projective_max_error_px),
             ("metric_max_error_px", self.metric_max_error_px),
@@ -116,50 +120,150 @@ impl SfmOptions {
             ("loss_scale_px", self.loss_scale_px),
             ("principal_point_prior", self.principal_point_prior),
         ];
-        for (name, v) in pos {
+        for (option, v) in pos {
             if !(v.is_finite() && v > 0.0) {
-                return Err(format!("{name} must be positive and finite, got {v}"));
+                return bad(option, format!("must be positive and finite, got {v}"));
             }
         }
         if self.init_min_points < 8 {
-            return Err(format!(
-                "init_min_points must be at least 8, got {}",
-                self.init_min_points
-            ));
-        }
-        if self.min_resection_inliers < 6 {
-            return Err(format!(
-                "min_resection_inliers must be at least 6, got {}",
-                self.min_resection_inliers
-            ));
-        }
-        if self.max_initial_pairs == 0 || self.max_resection_attempts == 0 || self.max_models == 0 {
-            return Err(
-                "max_initial_pairs, max_resection_attempts and max_models must be at least 1"
-                    .into(),
+            return bad(
+                "init_min_points",
+                format!("must be at least 8, got {}", self.init_min_points),
             );
         }
+        if self.min_resection_inliers < 6 {
+            return bad(
+                "min_resection_inliers",
+                format!("must be at least 6, got {}", self.min_resection_inliers),
+            );
+        }
+        for (option, v) in [
+            ("max_initial_pairs", self.max_initial_pairs),
+            ("max_resection_attempts", self.max_resection_attempts),
+            ("max_models", self.max_models),
+        ] {
+            if v == 0 {
+                return bad(option, "must be at least 1, got 0".into());
+            }
+        }
         if !(self.ba_growth_factor.is_finite() && self.ba_growth_factor > 1.0) {
-            return Err(format!(
-                "ba_growth_factor must be > 1, got {}",
-                self.ba_growth_factor
-            ));
+            return bad(
+                "ba_growth_factor",
+                format!("must be > 1, got {}", self.ba_growth_factor),
+            );
         }
         if self.min_track_length < 2 {
-            return Err(format!(
-                "min_track_length must be at least 2, got {}",
-                self.min_track_length
-            ));
+            return bad(
+                "min_track_length",
+                format!("must be at least 2, got {}", self.min_track_length),
+            );
         }
         if let Some(k) = self.known_intrinsics {
             let positive = |v: f64| v.is_finite() && v > 0.0;
             let finite = k.cx.is_finite() && k.cy.is_finite();
             if !(positive(k.fx) && positive(k.fy) && finite) {
-                return Err(format!(
-                    "known_intrinsics need positive focal lengths and a finite principal point, got {k:?}"
-                ));
+                return bad(
+                    "known_intrinsics",
+                    format!("need positive focal lengths and a finite principal point, got {k:?}"),
+                );
             }
         }
-        self.self_calibration.validate().map_err(|e| e.to_string())
+        self.self_calibration.validate().map_err(|e| match e {
+            SelfCalibrationError::InvalidOption { option, reason } => SfmError::InvalidOption {
+                option: self_calibration_option(option),
+                reason,
+            },
+            other => SfmError::InvalidOption {
+                option: "self_calibration",
+                reason: other.to_string(),
+            },
+        })
+    }
+}
+
+/// The path of a [`SelfCalibrationOptions`] field inside [`SfmOptions`], as the user writes it.
+fn self_calibration_option(field: &'static str) -> &'static str {
+    match field {
+        "iterations" => "self_calibration.iterations",
+        "sigma_focal_sq" => "self_calibration.sigma_focal_sq",
+        "sigma_aspect" => "self_calibration.sigma_aspect",
+        "sigma_principal_point" => "self_calibration.sigma_principal_point",
+        "sigma_skew" => "self_calibration.sigma_skew",
+        "estimated_aspect_weight" => "self_calibration.estimated_aspect_weight",
+        "prior_mean_weight" => "self_calibration.prior_mean_weight",
+        "degenerate_singular_ratio" => "self_calibration.degenerate_singular_ratio",
+        _ => "self_calibration",
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rejected(o: SfmOptions) -> &'static str {
+        match o.validate() {
+            Err(SfmError::InvalidOption { option, .. }) => option,
+            other => panic!("expected an option error, got {other:?}"),
+        }
+    }
+
+    #[test]
+    fn validate_names_the_offending_field() {
+        assert!(SfmOptions::default().validate().is_ok());
+        let err = SfmOptions {
+            loss_scale_px: f64::NAN,
+            ..Default::default()
+        }
+        .validate()
+        .unwrap_err();
+        assert_eq!(
+            err.to_string(),
+            "invalid SfM option `loss_scale_px`: must be positive and finite, got NaN"
+        );
+        let d = SfmOptions::default;
+        assert_eq!(
+            rejected(SfmOptions {
+                max_models: 0,
+                ..d()
+            }),
+            "max_models"
+        );
+        assert_eq!(
+            rejected(SfmOptions {
+                init_min_points: 3,
+                ..d()
+            }),
+            "init_min_points"
+        );
+        assert_eq!(
+            rejected(SfmOptions {
+                known_intrinsics: Some(KnownIntrinsics {
+                    fx: -1.0,
+                    fy: 500.0,
+                    cx: 0.0,
+                    cy: 0.0
+                }),
+                ..d()
+            }),
+            "known_intrinsics"
+        );
+        let mut o = d();
+        o.self_calibration.sigma_skew = 0.0;
+        assert_eq!(rejected(o), "self_calibration.sigma_skew");
+    }
+
+    #[test]
+    fn the_error_fits_anyhow_style_callers() {
+        fn boxed(e: SfmError) -> Box<dyn std::error::Error + Send + Sync + 'static> {
+            Box::new(e)
+        }
+        let e = SfmOptions {
+            min_track_length: 1,
+            ..Default::default()
+        }
+        .validate()
+        .map_err(boxed)
+        .unwrap_err();
+        assert!(e.to_string().contains("min_track_length"), "{e}");
     }
 }

@@ -15,8 +15,8 @@ use handheld_core::{ImageId, MetricReconstruction, PointId, TrackElement};
 use nalgebra::Vector2;
 use rayon::prelude::*;
 
+use crate::context::Context;
 use crate::input::SfmImage;
-use crate::projective::Context;
 
 /// Search radius around a predicted projection, pixels.
 const SEARCH_RADIUS_PX: f64 = 3.0;

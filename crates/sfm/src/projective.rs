@@ -4,216 +4,22 @@
 //!
 //! - Initial frame (§3.1, in `init.rs`): the pair that maximises matches × image-based distance (eq. 14); the camera
 //!   pair of eq. 16 with the reference plane `a` chosen to make the frame quasi-Euclidean (see
-//!   [`initial_cameras`]); points by the optimal method of Hartley & Sturm (eqs. 17–18).
+//!   `initial_cameras`); points by the optimal method of Hartley & Sturm (eqs. 17–18).
 //! - Adding views (§3.2): 2D–3D candidates from every registered view matched to the new one (the
 //!   predecessor and all close views), projective resection by the 6-point DLT inside the shared
 //!   RANSAC with T(1,1); structure refinement by eq. 20; new points from all registered partners.
 //! - Projective bundle adjustment (§3.3, eq. 21) after the model grows by a fixed factor and at the end,
 //!   each followed by removal of observations that no longer reproject within the threshold.
-
-use handheld_core::ImageId;
-use std::collections::BTreeMap;
-use std::sync::Arc;
+//!
+//! The shared read-only data live in `context.rs`, the model and its bookkeeping in `model.rs`, so
+//! that `init`, `projective_ba` and `tracks` depend on those and not on this module.
 
 use handheld_geometry::{reprojection_distance, resection_iterative, triangulate_iterative};
-use handheld_robust::{
-    run as ransac, Match2d3d, Msac, RansacOptions, ResectionEstimator, UniformSampler,
-};
-use nalgebra::{Matrix3, Matrix3x4, Vector2, Vector4};
+use handheld_robust::{run as ransac, Match2d3d, Msac, ResectionEstimator, UniformSampler};
+use nalgebra::{Matrix3x4, Vector2, Vector4};
 
-use crate::graph::CorrespondenceGraph;
-use crate::input::SfmInput;
-use crate::options::SfmOptions;
-use crate::projective_ba::ProjectiveBaRecord;
-
-/// "No point" in [`ProjectiveModel::kp_point`].
-pub(crate) const NONE: u32 = u32::MAX;
-
-/// A projective point and its observations `(image index, keypoint index)`; `m` is unit-norm with
-/// `p3·m > 0` for every observing camera (oriented projective geometry).
-#[derive(Clone, Debug)]
-pub(crate) struct PPoint {
-    pub m: Vector4<f64>,
-    pub obs: Vec<(u32, u32)>,
-}
-
-/// Shared read-only data of a reconstruction.
-pub(crate) struct Context<'a> {
-    pub input: &'a SfmInput,
-    pub graph: &'a CorrespondenceGraph,
-    pub opts: &'a SfmOptions,
-    /// Keypoints normalised by `K_N⁻¹` (eq. 24).
-    pub kps: Vec<Vec<Vector2<f64>>>,
-    /// `K_N` per image.
-    pub kn: Vec<Matrix3<f64>>,
-    /// Pixels → normalised units (`1 / (w + h)`).
-    pub scale: Vec<f64>,
-    /// Localisation σ (pixels) of every keypoint, per image id, for metric BA; empty when the
-    /// observations are not weighted (see [`keypoint_sigmas`]).
-    pub keypoint_sigma: BTreeMap<ImageId, Arc<[f64]>>,
-}
-
-/// σ = √(s / median s), clamped to [0.5, 4], of every keypoint with a detection scale `s`
-/// (`SfmOptions::scale_weighted_observations`). The median is over all keypoints of all images,
-/// so the median keypoint keeps σ = 1 px and thresholds stay in pixels.
-fn keypoint_sigmas(input: &SfmInput, opts: &SfmOptions) -> BTreeMap<ImageId, Arc<[f64]>> {
-    if !opts.scale_weighted_observations {
-        return BTreeMap::new();
-    }
-    let mut all: Vec<f32> = input
-        .images
-        .iter()
-        .flat_map(|im| im.keypoint_scales.iter().copied())
-        .collect();
-    if all.is_empty() {
-        return BTreeMap::new();
-    }
-    let mid = all.len() / 2;
-    let median = f64::from(*all.select_nth_unstable_by(mid, f32::total_cmp).1);
-    input
-        .images
-        .iter()
-        .filter(|im| !im.keypoint_scales.is_empty())
-        .map(|im| {
-            let s: Arc<[f64]> = im
-                .keypoint_scales
-                .iter()
-                .map(|&s| (f64::from(s) / median).sqrt().clamp(0.5, 4.0))
-                .collect();
-            (im.id, s)
-        })
-        .collect()
-}
-
-impl<'a> Context<'a> {
-    pub fn new(input: &'a SfmInput, graph: &'a CorrespondenceGraph, opts: &'a SfmOptions) -> Self {
-        let kn: Vec<Matrix3<f64>> = input
-            .images
-            .iter()
-            .map(|im| crate::selfcal::normalization_matrix(im.width, im.height))
-            .collect();
-        let kps = input
-            .images
-            .iter()
-            .zip(&kn)
-            .map(|(im, k)| {
-                let s = k[(0, 0)];
-                let (cx, cy) = (k[(0, 2)], k[(1, 2)]);
-                im.keypoints
-                    .iter()
-                    .map(|p| Vector2::new((p.x - cx) / s, (p.y - cy) / s))
-                    .collect()
-            })
-            .collect();
-        let scale = kn.iter().map(|k| 1.0 / k[(0, 0)]).collect();
-        Self {
-            input,
-            graph,
-            opts,
-            kps,
-            kn,
-            scale,
-            keypoint_sigma: keypoint_sigmas(input, opts),
-        }
-    }
-
-    /// RANSAC options of a resection (projective or calibrated) of `image`: T(1,1), a seed per
-    /// image derived from the options' seed (same seed, same model), at most 5000 trials.
-    pub fn resection_ransac(&self, image: usize, max_error: f64) -> RansacOptions {
-        RansacOptions {
-            max_error,
-            tdd: Some(1),
-            seed: self.opts.seed ^ (image as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15),
-            min_inlier_ratio: 0.02,
-            max_iterations: 5000,
-            ..Default::default()
-        }
-    }
-
-    /// The projective inlier threshold of an image in normalised units.
-    pub fn threshold(&self, image: usize) -> f64 {
-        self.opts.projective_max_error_px * self.scale[image]
-    }
-
-    pub(crate) fn median_scale(&self) -> f64 {
-        let mut s = self.scale.clone();
-        s.sort_by(f64::total_cmp);
-        s[s.len() / 2]
-    }
-}
-
-/// The growing projective model.
-pub(crate) struct ProjectiveModel {
-    pub cams: Vec<Option<Matrix3x4<f64>>>,
-    pub kp_point: Vec<Vec<u32>>,
-    pub points: Vec<Option<PPoint>>,
-    /// Registration order (the initial pair first).
-    pub order: Vec<usize>,
-    pub init_pair: (usize, usize),
-    pub ba: Vec<ProjectiveBaRecord>,
-    /// Images whose resection failed, with the reason (the last attempt).
-    pub failures: BTreeMap<usize, String>,
-}
-
-impl ProjectiveModel {
-    pub(crate) fn new(ctx: &Context) -> Self {
-        let n = ctx.input.images.len();
-        Self {
-            cams: vec![None; n],
-            kp_point: ctx
-                .input
-                .images
-                .iter()
-                .map(|im| vec![NONE; im.keypoints.len()])
-                .collect(),
-            points: Vec::new(),
-            order: Vec::new(),
-            init_pair: (0, 0),
-            ba: Vec::new(),
-            failures: BTreeMap::new(),
-        }
-    }
-
-    pub fn num_points(&self) -> usize {
-        self.points.iter().filter(|p| p.is_some()).count()
-    }
-
-    pub(crate) fn add_point(&mut self, m: Vector4<f64>, obs: Vec<(u32, u32)>) {
-        let id = self.points.len() as u32;
-        for &(i, k) in &obs {
-            self.kp_point[i as usize][k as usize] = id;
-        }
-        self.points.push(Some(PPoint { m, obs }));
-    }
-
-    pub(crate) fn remove_point(&mut self, id: usize) {
-        if let Some(p) = self.points[id].take() {
-            for (i, k) in p.obs {
-                self.kp_point[i as usize][k as usize] = NONE;
-            }
-        }
-    }
-
-    /// The observations of `pt` that its position does not reproject within the threshold.
-    pub(crate) fn unexplained(&self, ctx: &Context, pt: &PPoint) -> Vec<(u32, u32)> {
-        pt.obs
-            .iter()
-            .copied()
-            .filter(|&(i, k)| self.obs_error(ctx, &pt.m, i, k) >= ctx.threshold(i as usize))
-            .collect()
-    }
-
-    /// Reprojection error (normalised units) and orientation of one observation.
-    pub(crate) fn obs_error(&self, ctx: &Context, m: &Vector4<f64>, image: u32, kp: u32) -> f64 {
-        let Some(p) = &self.cams[image as usize] else {
-            return f64::INFINITY;
-        };
-        if (p.row(2) * m)[0] <= 0.0 {
-            return f64::INFINITY;
-        }
-        reprojection_distance(p, m, &ctx.kps[image as usize][kp as usize])
-    }
-}
+use crate::context::Context;
+use crate::model::{ProjectiveModel, NONE};
 
 impl ProjectiveModel {
     /// 2D–3D candidates of an unregistered image: `(keypoint, point)` pairs through the
@@ -362,50 +168,6 @@ impl ProjectiveModel {
         // Step 3.5: new points.
         self.triangulate_image(ctx, image);
         Ok(n_inliers)
-    }
-
-    /// Re-triangulates a point from all its observations (eq. 20); keeps the new position only if every
-    /// observation stays within the threshold, else drops the worst observations.
-    pub(crate) fn refine_point(&mut self, ctx: &Context, pid: usize) {
-        let Some(pt) = self.points[pid].clone() else {
-            return;
-        };
-        let cams: Vec<Matrix3x4<f64>> = pt
-            .obs
-            .iter()
-            .filter_map(|&(i, _)| self.cams[i as usize])
-            .collect();
-        let xs: Vec<Vector2<f64>> = pt
-            .obs
-            .iter()
-            .map(|&(i, k)| ctx.kps[i as usize][k as usize])
-            .collect();
-        if cams.len() != xs.len() {
-            return;
-        }
-        if let Ok(m) = triangulate_iterative(&cams, &xs, ctx.opts.triangulation_iterations) {
-            if pt
-                .obs
-                .iter()
-                .all(|&(i, k)| self.obs_error(ctx, &m, i, k) < ctx.threshold(i as usize))
-            {
-                if let Some(p) = self.points[pid].as_mut() {
-                    p.m = m;
-                }
-                return;
-            }
-        }
-        // Keep the old position; drop observations that it does not explain.
-        let bad = self.unexplained(ctx, &pt);
-        for (i, k) in bad {
-            self.kp_point[i as usize][k as usize] = NONE;
-            if let Some(p) = self.points[pid].as_mut() {
-                p.obs.retain(|&(a, b)| (a, b) != (i, k));
-            }
-        }
-        if self.points[pid].as_ref().is_some_and(|p| p.obs.len() < 2) {
-            self.remove_point(pid);
-        }
     }
 
     /// New points from the keypoints of `image` that have registered partners without a point.
@@ -573,13 +335,4 @@ fn grow(
     model.bundle(ctx, 100)?;
     progress.finish();
     Ok(())
-}
-
-/// The projective cameras (normalised coordinates) in registration order.
-pub(crate) fn cameras_in_order(model: &ProjectiveModel) -> Vec<(usize, Matrix3x4<f64>)> {
-    model
-        .order
-        .iter()
-        .filter_map(|&i| model.cams[i].map(|p| (i, p)))
-        .collect()
 }

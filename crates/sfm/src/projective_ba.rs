@@ -12,18 +12,8 @@ use handheld_core::{
 };
 use nalgebra::Vector2;
 
-use crate::projective::{Context, ProjectiveModel, NONE};
-
-/// One projective bundle adjustment, for the summary.
-#[derive(Clone, Debug, serde::Serialize)]
-pub struct ProjectiveBaRecord {
-    pub registered: usize,
-    pub points: usize,
-    pub iterations: usize,
-    pub initial_rms_px: f64,
-    pub final_rms_px: f64,
-    pub observations_removed: usize,
-}
+use crate::context::Context;
+use crate::model::{ProjectiveBaRecord, ProjectiveModel, NONE};
 
 impl ProjectiveModel {
     /// Removes observations outside the threshold (or behind a camera) and points left with < 2 views.

@@ -19,7 +19,7 @@ use handheld_core::{
 use handheld_robust::{run as ransac, CalibratedMatch, Msac, P3pEstimator, UniformSampler};
 use nalgebra::{Matrix3x4, Point3, Translation3};
 
-use crate::projective::Context;
+use crate::context::Context;
 
 /// Smallest triangulation angle of a new two-view point.
 const MIN_ANGLE_DEG: f64 = 1.5;

@@ -9,35 +9,25 @@
 //!
 //! The partner's depth at each matched keypoint is read from the model instead. The points the
 //! partner observes are segmented into planes (sequential RANSAC in its camera frame: the largest
-//! plane, then the largest among the rest, ...). A matched keypoint takes the plane that most of its
-//! nearest observed points belong to, and its depth where its ray meets that plane. This extends
-//! planar structure, e.g. the rest of a wall, past where the model's points stop. A plane fitted to
-//! the nearest points alone extrapolates badly: on iclnuim-5 its depths were 36 % off in median
-//! against the ground-truth depth maps, the whole wall's plane 1.7 %. The view is then resected
-//! (P3P inside the shared RANSAC) from these pseudo-points with a looser threshold, and
-//! [`crate::register::triangulate_new`] makes real points of the pair's matches, which the
-//! following bundle adjustment refines.
+//! plane, then the largest among the rest, ...; `planes.rs`). A matched keypoint takes the plane
+//! that most of its nearest observed points belong to, and its depth where its ray meets that
+//! plane. This extends planar structure, e.g. the rest of a wall, past where the model's points
+//! stop. A plane fitted to the nearest points alone extrapolates badly: on iclnuim-5 its depths
+//! were 36 % off in median against the ground-truth depth maps, the whole wall's plane 1.7 %. The
+//! view is then resected (P3P inside the shared RANSAC) from these pseudo-points with a looser
+//! threshold, and [`crate::register::triangulate_new`] makes real points of the pair's matches,
+//! which the following bundle adjustment refines.
 
 use handheld_core::{MetricReconstruction, Observation, View};
 use handheld_robust::CalibratedMatch;
-use nalgebra::{Matrix3, Vector2, Vector3};
+use nalgebra::{Vector2, Vector3};
 
-use crate::projective::Context;
+use crate::context::Context;
+use crate::planes::{segment_planes, Plane};
 use crate::register::{camera_of, insert_view, resect};
 
 /// Nearest observed points that vote for a keypoint's plane; a majority must agree.
 const NEIGHBOURS: usize = 20;
-/// Plane inliers lie within this fraction of their depth,
-const PLANE_TOLERANCE: f64 = 0.01;
-/// and within this fraction of the points' extent (median distance from their centroid): far
-/// from a long lens, a whole curved object is thinner than 1 % of its depth and would pass as a
-/// plane (dinoSparseRing).
-const EXTENT_TOLERANCE: f64 = 0.02;
-/// Planes found per partner, and the fewest points a plane must hold.
-const MAX_PLANES: usize = 6;
-const MIN_PLANE_POINTS: usize = 30;
-/// RANSAC trials per plane.
-const PLANE_TRIALS: usize = 2000;
 /// The resection threshold is this multiple of the metric threshold: the planes extrapolate.
 const THRESHOLD_FACTOR: f64 = 2.0;
 /// Partners tried, most matches first.
@@ -128,9 +118,6 @@ pub(crate) fn register_from_partner(
     Err(last)
 }
 
-/// A plane `nᵀX = d` with unit normal `n`.
-type Plane = (Vector3<f64>, f64);
-
 /// The observed points of one registered view, in its camera frame, with their pixels and plane
 /// labels.
 struct PartnerDepth {
@@ -203,77 +190,6 @@ impl PartnerDepth {
     }
 }
 
-/// Sequential RANSAC: the plane `nᵀX = d` (unit `n`) with the most points within
-/// [`PLANE_TOLERANCE`] of their depth, refitted to them by least squares, then the same among the
-/// rest, up to [`MAX_PLANES`] planes of at least [`MIN_PLANE_POINTS`]. Returns each point's plane.
-fn segment_planes(pts: &[Vector3<f64>], seed: u64) -> (Vec<Option<usize>>, Vec<Plane>) {
-    use rand::{Rng, SeedableRng};
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-    let mut label = vec![None; pts.len()];
-    let mut planes = Vec::new();
-    let centroid = pts.iter().fold(Vector3::zeros(), |s, p| s + p) / pts.len().max(1) as f64;
-    let mut spread: Vec<f64> = pts.iter().map(|p| (p - centroid).norm()).collect();
-    let mid = spread.len() / 2;
-    let extent = if spread.is_empty() {
-        0.0
-    } else {
-        *spread.select_nth_unstable_by(mid, f64::total_cmp).1
-    };
-    let near = |n: &Vector3<f64>, d: f64, p: &Vector3<f64>| {
-        (n.dot(p) - d).abs() <= (PLANE_TOLERANCE * p.z).min(EXTENT_TOLERANCE * extent)
-    };
-    for _ in 0..MAX_PLANES {
-        let rest: Vec<usize> = (0..pts.len()).filter(|&i| label[i].is_none()).collect();
-        if rest.len() < MIN_PLANE_POINTS {
-            break;
-        }
-        let mut best: Option<(usize, Vector3<f64>, f64)> = None;
-        for _ in 0..PLANE_TRIALS {
-            let (a, b, c) = (
-                pts[rest[rng.random_range(0..rest.len())]],
-                pts[rest[rng.random_range(0..rest.len())]],
-                pts[rest[rng.random_range(0..rest.len())]],
-            );
-            let n = (b - a).cross(&(c - a));
-            let len = n.norm();
-            if len < 1e-12 {
-                continue;
-            }
-            let n = n / len;
-            let d = n.dot(&a);
-            let count = rest.iter().filter(|&&i| near(&n, d, &pts[i])).count();
-            if best.as_ref().is_none_or(|b| count > b.0) {
-                best = Some((count, n, d));
-            }
-        }
-        let Some((count, n, d)) = best else { break };
-        if count < MIN_PLANE_POINTS {
-            break;
-        }
-        let inl: Vec<usize> = rest
-            .iter()
-            .copied()
-            .filter(|&i| near(&n, d, &pts[i]))
-            .collect();
-        let centroid = inl.iter().fold(Vector3::zeros(), |s, &i| s + pts[i]) / inl.len() as f64;
-        let cov = inl.iter().fold(Matrix3::zeros(), |s, &i| {
-            let q = pts[i] - centroid;
-            s + q * q.transpose()
-        });
-        let eig = cov.symmetric_eigen();
-        let mut n2: Vector3<f64> = eig.eigenvectors.column(eig.eigenvalues.imin()).into_owned();
-        if n2.dot(&n) < 0.0 {
-            n2 = -n2;
-        }
-        let d2 = n2.dot(&centroid);
-        for &i in &inl {
-            label[i] = Some(planes.len());
-        }
-        planes.push((n2, d2));
-    }
-    (label, planes)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -292,27 +208,6 @@ mod tests {
             }
         }
         pts
-    }
-
-    #[test]
-    fn a_small_curved_object_far_away_is_not_a_plane() {
-        // A ball of radius 0.05 at depth 1 (a long lens around a small object): thinner than 1 %
-        // of its depth near its silhouette, but curved at the scale of its extent.
-        let mut pts = Vec::new();
-        for i in 0..20 {
-            for j in 0..10 {
-                let (a, b) = (i as f64 * 0.314, 0.2 + j as f64 * 0.12);
-                let dir = Vector3::new(b.sin() * a.cos(), b.sin() * a.sin(), -b.cos());
-                pts.push(Vector3::new(0.0, 0.0, 1.0) + 0.05 * dir);
-            }
-        }
-        let (label, planes) = segment_planes(&pts, 5);
-        let labelled = label.iter().filter(|l| l.is_some()).count();
-        assert!(
-            labelled < pts.len() / 2,
-            "{} planes label {labelled} points",
-            planes.len()
-        );
     }
 
     #[test]

@@ -7,7 +7,8 @@
 //! there, and two points merge only when each explains all observations of the other and they share
 //! no view.
 
-use crate::projective::{Context, ProjectiveModel, NONE};
+use crate::context::Context;
+use crate::model::{ProjectiveModel, NONE};
 
 /// What [`ProjectiveModel::complete_and_merge_tracks`] changed.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]

@@ -8,9 +8,9 @@ use handheld_bundle::{
 use handheld_core::MetricReconstruction;
 use serde::Serialize;
 
+use crate::context::Context;
 use crate::metric::median;
 use crate::options::Distortion;
-use crate::projective::Context;
 
 /// Per-point uncertainty statistics from the BA engine's covariance (§3.3).
 #[derive(Clone, Debug, Serialize)]

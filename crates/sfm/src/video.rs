@@ -7,7 +7,7 @@ use std::collections::{BTreeMap, HashMap};
 
 use handheld_core::{MetricReconstruction, PointId};
 
-use crate::projective::Context;
+use crate::context::Context;
 use crate::register::register_one;
 
 /// `track id → 3D point` over every registered view.

@@ -46,9 +46,10 @@ pub fn upgrade_for_focal(
         return Err(SelfCalibrationError::TooFewCameras(n));
     }
     if !(focal.is_finite() && focal > 0.0) {
-        return Err(SelfCalibrationError::InvalidOptions(format!(
-            "the focal hypothesis must be positive and finite, got {focal}"
-        )));
+        return Err(SelfCalibrationError::InvalidOption {
+            option: "focal",
+            reason: format!("the focal hypothesis must be positive and finite, got {focal}"),
+        });
     }
     let k_inv = Matrix3::new(1.0 / focal, 0.0, 0.0, 0.0, 1.0 / focal, 0.0, 0.0, 0.0, 1.0);
     let mut cams = Vec::with_capacity(n);

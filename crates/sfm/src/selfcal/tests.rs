@@ -52,7 +52,10 @@ fn options_validate() {
     ];
     for o in bad {
         assert!(
-            matches!(o.validate(), Err(SelfCalibrationError::InvalidOptions(_))),
+            matches!(
+                o.validate(),
+                Err(SelfCalibrationError::InvalidOption { .. })
+            ),
             "{o:?}"
         );
     }

@@ -98,7 +98,7 @@ fn invalid_inputs_are_errors() {
     };
     assert!(matches!(
         self_calibrate(&[p, p], &bad_opts),
-        Err(SelfCalibrationError::InvalidOptions(_))
+        Err(SelfCalibrationError::InvalidOption { .. })
     ));
 }
 

@@ -22,9 +22,12 @@ pub enum SelfCalibrationError {
         /// Index of the offending camera in the input slice.
         index: usize,
     },
-    /// An option is out of its valid range.
-    #[error("invalid self-calibration options: {0}")]
-    InvalidOptions(String),
+    /// An option is out of its valid range; `option` is the field's name.
+    #[error("invalid self-calibration option `{option}`: {reason}")]
+    InvalidOption {
+        option: &'static str,
+        reason: String,
+    },
     /// A decomposition (SVD or symmetric eigen-decomposition) did not converge.
     #[error("self-calibration linear algebra failed: {0}")]
     Numerical(String),
@@ -127,41 +130,45 @@ impl SelfCalibrationOptions {
     /// `[1e-12, 1e12]`, the aspect factor in `(0, 1]`, the prior-mean weight in `[0, 1e6]`, the
     /// degeneracy ratio in `[0, 1)`.
     pub fn validate(&self) -> Result<(), SelfCalibrationError> {
+        let bad = |option: &'static str, reason: String| {
+            Err(SelfCalibrationError::InvalidOption { option, reason })
+        };
         if self.iterations == 0 || self.iterations > 1000 {
-            return Err(SelfCalibrationError::InvalidOptions(format!(
-                "iterations must be in 1..=1000, got {}",
-                self.iterations
-            )));
+            return bad(
+                "iterations",
+                format!("must be in 1..=1000, got {}", self.iterations),
+            );
         }
-        for (name, value) in [
+        for (option, value) in [
             ("sigma_focal_sq", self.sigma_focal_sq),
             ("sigma_aspect", self.sigma_aspect),
             ("sigma_principal_point", self.sigma_principal_point),
             ("sigma_skew", self.sigma_skew),
         ] {
             if !(value.is_finite() && (1e-12..=1e12).contains(&value)) {
-                return Err(SelfCalibrationError::InvalidOptions(format!(
-                    "{name} must be a finite standard deviation in [1e-12, 1e12], got {value}"
-                )));
+                return bad(
+                    option,
+                    format!("must be a finite standard deviation in [1e-12, 1e12], got {value}"),
+                );
             }
         }
         if !(self.estimated_aspect_weight > 0.0 && self.estimated_aspect_weight <= 1.0) {
-            return Err(SelfCalibrationError::InvalidOptions(format!(
-                "estimated_aspect_weight must be in (0, 1], got {}",
-                self.estimated_aspect_weight
-            )));
+            return bad(
+                "estimated_aspect_weight",
+                format!("must be in (0, 1], got {}", self.estimated_aspect_weight),
+            );
         }
         if !(self.prior_mean_weight.is_finite() && (0.0..=1e6).contains(&self.prior_mean_weight)) {
-            return Err(SelfCalibrationError::InvalidOptions(format!(
-                "prior_mean_weight must be in [0, 1e6], got {}",
-                self.prior_mean_weight
-            )));
+            return bad(
+                "prior_mean_weight",
+                format!("must be in [0, 1e6], got {}", self.prior_mean_weight),
+            );
         }
         if !(self.degenerate_singular_ratio >= 0.0 && self.degenerate_singular_ratio < 1.0) {
-            return Err(SelfCalibrationError::InvalidOptions(format!(
-                "degenerate_singular_ratio must be in [0, 1), got {}",
-                self.degenerate_singular_ratio
-            )));
+            return bad(
+                "degenerate_singular_ratio",
+                format!("must be in [0, 1), got {}", self.degenerate_singular_ratio),
+            );
         }
         Ok(())
     }

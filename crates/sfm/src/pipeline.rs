@@ -1,0 +1,385 @@
+//! The steps that build one metric model (Table 2, then §3.4 and the metric adjustments), each a
+//! small function, and [`StepError`], which says which of them failed and why.
+//!
+//! 1. [`projective_step`]: Table 2 steps 2–4 on the views still free (`projective.rs`);
+//! 2. [`metric_frame`]: the upgrade of eq. 27 from the linear self-calibration (§3.4, eqs. 24–27),
+//!    or from a known calibration (eq. 26 with `K` given), with the fall-backs on the priors and the
+//!    focal hypotheses when the motion is critical, the best-explaining candidate kept;
+//! 3. metric bundle adjustment (`metric_ba.rs`);
+//! 4. [`calibrated_registration_step`]: views the projective stage could not add, by calibrated
+//!    resection (`register.rs`), then adjusted again;
+//! 5. [`predicted_matches_step`]: more observations at the predicted projections (§3.2,
+//!    `predict.rs`), then a final adjustment;
+//! 6. [`video_frames_step`]: a video's in-between frames from their tracks (`video.rs`);
+//! 7. [`uncertainty_step`]: per-point and intrinsics uncertainty (`uncertainty.rs`).
+
+use std::collections::BTreeMap;
+use std::time::Instant;
+
+use handheld_core::{MetricReconstruction, Progress};
+
+use crate::context::Context;
+use crate::metric::Upgraded;
+use crate::model::ProjectiveModel;
+use crate::{
+    hypotheses, metric, metric_ba, predict, projective, register, uncertainty, video,
+    MetricBaRecord, SfmModel, UncertaintyReport,
+};
+
+/// The step that stopped one model, with the reason it gave.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum StepError {
+    /// Table 2 steps 2–4: no initial pair could start a model, or a projective bundle adjustment
+    /// failed. The views left cannot start another model, so the search ends.
+    #[error("projective reconstruction: {0}")]
+    Projective(String),
+    /// §3.4: the metric upgrade (linear self-calibration, eq. 27) failed.
+    #[error("metric upgrade: {0}")]
+    MetricUpgrade(String),
+    /// The first metric bundle adjustment of the upgraded model failed.
+    #[error("metric adjustment of the upgraded model: {0}")]
+    MetricAdjustment(String),
+    /// The adjustment after `added` views were registered by calibrated resection failed.
+    #[error("adjustment after the calibrated registration of {added} more views: {reason}")]
+    CalibratedRegistration { added: usize, reason: String },
+    /// The final adjustment after `added` observations were found at their predicted projections
+    /// failed.
+    #[error("final adjustment after {added} observations at predicted projections: {reason}")]
+    PredictedMatches { added: usize, reason: String },
+    /// The adjustment after `added` in-between video frames were registered failed.
+    #[error("adjustment after registering {added} in-between video frames: {reason}")]
+    VideoFrames { added: usize, reason: String },
+}
+
+impl StepError {
+    /// Whether no further model should be attempted after this failure (the others only discard
+    /// the current model).
+    pub fn ends_search(&self) -> bool {
+        matches!(self, Self::Projective(_))
+    }
+}
+
+/// What the successive models share: the views still free to start or join one, and why views
+/// could not be registered.
+pub(crate) struct Search {
+    /// Views that may start or join the next projective model.
+    pub allowed: Vec<bool>,
+    pub failures: BTreeMap<usize, String>,
+}
+
+impl Search {
+    /// Images without any verified pair (a video's in-between frames) cannot start or join the
+    /// projective model; video frames are registered from their tracks afterwards.
+    pub fn new(ctx: &Context) -> Self {
+        let allowed = ctx
+            .input
+            .images
+            .iter()
+            .enumerate()
+            .map(|(i, im)| !im.keypoints.is_empty() && !ctx.graph.neighbours(i).is_empty())
+            .collect();
+        Self {
+            allowed,
+            failures: BTreeMap::new(),
+        }
+    }
+
+    /// Views still free to start a model.
+    pub fn free(&self) -> usize {
+        self.allowed.iter().filter(|a| **a).count()
+    }
+
+    /// Marks views as taken by a model: they no longer start or join another one.
+    fn take(&mut self, images: &[usize]) {
+        for &i in images {
+            self.allowed[i] = false;
+        }
+    }
+}
+
+/// Seconds per step, as reported in the summary.
+type Timings = BTreeMap<String, f64>;
+
+fn record(timings: &mut Timings, step: &str, since: Instant) {
+    timings.insert(step.to_string(), since.elapsed().as_secs_f64());
+}
+
+/// Builds the next model from the free views of `search`: the steps of the module docs in order.
+/// `Ok(None)` when the projective model holds fewer than 2 views (nothing more can be built); an
+/// error names the step that failed. The views of the projective model are taken from `search`
+/// whatever happens after.
+pub(crate) fn build_model(
+    ctx: &Context,
+    search: &mut Search,
+    progress: &dyn Progress,
+) -> Result<Option<SfmModel>, StepError> {
+    let estimate_aspect = ctx.opts.estimate_aspect.unwrap_or(ctx.input.video);
+    let mut timings = Timings::new();
+    let t0 = Instant::now();
+    let model = projective_step(ctx, search, progress)?;
+    record(&mut timings, "projective", t0);
+    if model.order.len() < 2 {
+        return Ok(None);
+    }
+    let t1 = Instant::now();
+    let up = metric::upgrade(ctx, &model, estimate_aspect).map_err(StepError::MetricUpgrade)?;
+    record(&mut timings, "self_calibration", t1);
+    let t2 = Instant::now();
+    let (mut rec, is_prior, mut report) = metric_frame(ctx, &model, up, estimate_aspect);
+    let mut metric_ba = metric_ba::refine_metric(ctx, &mut rec, estimate_aspect)
+        .map_err(StepError::MetricAdjustment)?;
+    let t_reg = Instant::now();
+    metric_ba.extend(calibrated_registration_step(
+        ctx,
+        &mut rec,
+        search,
+        estimate_aspect,
+    )?);
+    record(&mut timings, "calibrated_registration", t_reg);
+    let t_pred = Instant::now();
+    metric_ba.extend(predicted_matches_step(ctx, &mut rec, estimate_aspect)?);
+    record(&mut timings, "predicted_matches", t_pred);
+    let t_frames = Instant::now();
+    if let Some(records) = video_frames_step(ctx, &mut rec, search, estimate_aspect)? {
+        metric_ba.extend(records);
+        record(&mut timings, "video_frames", t_frames);
+    }
+    if is_prior {
+        report.used_prior_fallback = true;
+    }
+    record(&mut timings, "metric_ba", t2);
+    let t3 = Instant::now();
+    let (uncertainty, uncertainty_note) = uncertainty_step(ctx, &rec);
+    record(&mut timings, "uncertainty", t3);
+    let summary = crate::summarize(
+        ctx,
+        &model,
+        &rec,
+        report,
+        metric_ba,
+        uncertainty,
+        uncertainty_note,
+        timings,
+    );
+    Ok(Some(SfmModel {
+        reconstruction: rec,
+        summary,
+    }))
+}
+
+/// Table 2 steps 2–4 on the free views; the views it registers are taken from `search` and the
+/// reasons of those it could not register recorded.
+fn projective_step(
+    ctx: &Context,
+    search: &mut Search,
+    progress: &dyn Progress,
+) -> Result<ProjectiveModel, StepError> {
+    let model = projective::reconstruct_projective(ctx, &search.allowed, progress)
+        .map_err(StepError::Projective)?;
+    search.take(&model.order);
+    for (i, e) in &model.failures {
+        search.failures.insert(*i, e.clone());
+    }
+    Ok(model)
+}
+
+/// The metric frame to adjust, whether it came from the priors (or a focal hypothesis) rather
+/// than from the self-calibration, and the self-calibration report.
+///
+/// A known calibration gives the upgrade itself (eq. 26 with `K` given), whatever the motion; the
+/// self-calibrated candidates are built only without one, or if it is inconsistent with the
+/// cameras. When the linear self-calibration is doubtful (critical motion, or an `Ω*` that is not
+/// semi-definite), the frame from the priors alone and the focal hypotheses (see `hypotheses`) are
+/// candidates too, and a short adjustment keeps the best-explaining one: the paper's "fall back on
+/// the priors" without trusting either blindly.
+fn metric_frame(
+    ctx: &Context,
+    model: &ProjectiveModel,
+    up: Upgraded,
+    estimate_aspect: bool,
+) -> (MetricReconstruction, bool, metric::SelfCalibrationReport) {
+    let report = up.report;
+    let known = ctx.opts.known_intrinsics.and_then(|k| {
+        let focal = 0.5 * (k.fx + k.fy) * ctx.scale.first().copied().unwrap_or(f64::NAN);
+        let h = hypotheses::known_focal_upgrade(model, focal).filter(|h| !h.clamped)?;
+        metric::from_transform(ctx, model, &h.t, estimate_aspect).ok()
+    });
+    let from_known = known.is_some();
+    let mut candidates = vec![(known.unwrap_or(up.rec), false)];
+    if report.degenerate.is_some() && !from_known {
+        if !report.used_prior_fallback {
+            if let Ok(r) = metric::prior_frame(ctx, model, estimate_aspect) {
+                candidates.push((r, true));
+            }
+        }
+        // Critical motion leaves the focal free in eq. 26: try the focal lengths that the
+        // cameras fit best with the other priors exact (see `hypotheses`).
+        for h in hypotheses::focal_hypotheses(model, 3) {
+            tracing::debug!(focal = h.focal, residual = h.residual, "focal hypothesis");
+            if let Ok(r) = metric::from_transform(ctx, model, &h.t, estimate_aspect) {
+                candidates.push((r, true));
+            }
+        }
+    }
+    // One candidate: adjust it. Several: keep the one a short adjustment explains best.
+    let (rec, is_prior) = if candidates.len() == 1 {
+        candidates.swap_remove(0)
+    } else {
+        let scores: Vec<f64> = candidates
+            .iter()
+            .map(|(r, _)| metric_ba::quick_score(ctx, r, estimate_aspect))
+            .collect();
+        tracing::debug!(?scores, "metric frame candidates");
+        let best = (0..candidates.len())
+            .max_by(|&a, &b| scores[a].total_cmp(&scores[b]))
+            .unwrap_or(0);
+        candidates.swap_remove(best)
+    };
+    (rec, is_prior, report)
+}
+
+/// Views the projective stage could not add (planar 2D–3D matches, late links) are tried again
+/// with calibrated resection, then everything is adjusted once more. The views added are taken
+/// from `search` (even when that adjustment fails).
+fn calibrated_registration_step(
+    ctx: &Context,
+    rec: &mut MetricReconstruction,
+    search: &mut Search,
+    estimate_aspect: bool,
+) -> Result<Vec<MetricBaRecord>, StepError> {
+    let added = register::register_calibrated(ctx, rec, &search.allowed, &mut search.failures);
+    if added.is_empty() {
+        return Ok(Vec::new());
+    }
+    search.take(&added);
+    for i in &added {
+        search.failures.remove(i);
+    }
+    metric_ba::refine_metric(ctx, rec, estimate_aspect).map_err(|reason| {
+        StepError::CalibratedRegistration {
+            added: added.len(),
+            reason,
+        }
+    })
+}
+
+/// §3.2: more observations of the existing points, found at their predicted projections, then a
+/// final adjustment.
+fn predicted_matches_step(
+    ctx: &Context,
+    rec: &mut MetricReconstruction,
+    estimate_aspect: bool,
+) -> Result<Vec<MetricBaRecord>, StepError> {
+    let added = predict::extend_tracks(ctx, rec);
+    if added == 0 {
+        return Ok(Vec::new());
+    }
+    tracing::debug!(
+        extended = added,
+        "observations added by predicted projection"
+    );
+    metric_ba::final_adjustment(ctx, rec, estimate_aspect)
+        .map_err(|reason| StepError::PredictedMatches { added, reason })
+}
+
+/// Video: every in-between frame from its tracks, then all frames adjusted together. `None` when
+/// no frame was added (nothing adjusted).
+fn video_frames_step(
+    ctx: &Context,
+    rec: &mut MetricReconstruction,
+    search: &mut Search,
+    estimate_aspect: bool,
+) -> Result<Option<Vec<MetricBaRecord>>, StepError> {
+    let frames = video::register_frames(ctx, rec, &mut search.failures);
+    if frames.is_empty() {
+        return Ok(None);
+    }
+    tracing::info!("registered {} in-between video frames", frames.len());
+    metric_ba::refine_metric(ctx, rec, estimate_aspect)
+        .map(Some)
+        .map_err(|reason| StepError::VideoFrames {
+            added: frames.len(),
+            reason,
+        })
+}
+
+/// Per-point and intrinsics uncertainty when enabled; otherwise, or when it fails, the note saying
+/// why it is missing (a model without it is still a model).
+fn uncertainty_step(
+    ctx: &Context,
+    rec: &MetricReconstruction,
+) -> (Option<UncertaintyReport>, Option<String>) {
+    if !ctx.opts.uncertainty {
+        return (None, Some("disabled".into()));
+    }
+    match uncertainty::uncertainty(ctx, rec) {
+        Ok(u) => (Some(u), None),
+        Err(e) => (None, Some(e)),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use handheld_core::{ImageId, NoProgress};
+    use nalgebra::Vector2;
+
+    use super::*;
+    use crate::{reconstruct, SfmError, SfmImage, SfmInput, SfmOptions};
+
+    fn image(i: u32) -> SfmImage {
+        SfmImage {
+            id: ImageId(i),
+            name: format!("{i}.png"),
+            width: 64,
+            height: 48,
+            keypoints: vec![Vector2::new(1.0, 2.0); 10],
+            keypoint_scales: Vec::new(),
+            camera_key: "cam".into(),
+            focal_prior_px: None,
+            frame: None,
+            track_ids: Vec::new(),
+            descriptors: Vec::new(),
+            descriptor_dim: 0,
+        }
+    }
+
+    #[test]
+    fn images_without_pairs_give_the_no_overlap_error() {
+        let input = SfmInput {
+            images: (0..3).map(image).collect(),
+            ..Default::default()
+        };
+        let err = reconstruct(&input, &SfmOptions::default(), &NoProgress).unwrap_err();
+        assert!(
+            matches!(
+                err,
+                SfmError::NoOverlap {
+                    linked: 0,
+                    total: 3
+                }
+            ),
+            "{err:?}"
+        );
+        assert_eq!(
+            err.to_string(),
+            "no model could be built: only 0 of 3 images have verified matches with another image \
+             (need 2): the images do not overlap, or the camera hardly moves (video: too few \
+             key-frames)"
+        );
+    }
+
+    #[test]
+    fn step_errors_name_the_step_and_keep_the_reason() {
+        let e = SfmError::NoModel(StepError::CalibratedRegistration {
+            added: 2,
+            reason: "metric bundle adjustment (final): diverged".into(),
+        });
+        assert_eq!(
+            e.to_string(),
+            "no model could be built: adjustment after the calibrated registration of 2 more \
+             views: metric bundle adjustment (final): diverged"
+        );
+        assert!(StepError::Projective("x".into()).ends_search());
+        assert!(!StepError::MetricUpgrade("x".into()).ends_search());
+    }
+}
