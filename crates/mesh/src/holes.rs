@@ -30,7 +30,8 @@ use nalgebra::{Vector2, Vector3};
 use crate::topology::{edge_key, face_components};
 
 /// Options of [`fill_holes`].
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct HoleFillOptions {
     /// Holes whose boundary is longer than this (world units) stay open; 0 fills none.
     pub max_perimeter: f64,
@@ -65,7 +66,8 @@ pub struct BoundaryLoop {
 }
 
 /// What [`fill_holes`] found and did.
-#[derive(Clone, Debug, Default, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct HoleReport {
     /// Outer boundaries (one per open piece) and holes found.
     pub outer_loops: usize,

@@ -25,7 +25,8 @@ use crate::mc_tables::{triangle_table, EDGE_AXIS, EDGE_CORNER};
 use crate::tsdf::{Block, TsdfVolume, BLOCK};
 
 /// Options of [`extract_mesh`].
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct ExtractOptions {
     /// A voxel is known when its accumulated weight is above this. Default 0.
     pub min_weight: f64,

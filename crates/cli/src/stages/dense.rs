@@ -15,10 +15,10 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
-use handheld_core::{FloatMap, ImageId, MetricReconstruction};
+use handheld_core::{FloatMap, ImageId, MetricReconstruction, PosedView};
 use handheld_dense::{
-    dense_reconstruct, scale_camera, DenseInputView, DenseOptions, LinkOptions, PairOptions,
-    StereoMethod, StereoOptions,
+    dense_reconstruct, scale_camera, DenseOptions, LinkOptions, PairOptions, StereoMethod,
+    StereoOptions,
 };
 use handheld_io::images::{load_image, ImageIngestOptions};
 use handheld_io::workspace::{Fingerprint, Workspace};
@@ -114,7 +114,7 @@ fn load_views(
     rec: &MetricReconstruction,
     ids: &[ImageId],
     max_size: u32,
-) -> Result<Vec<DenseInputView>> {
+) -> Result<Vec<PosedView>> {
     let opts = ImageIngestOptions {
         min_dimension: 1,
         ..Default::default()
@@ -159,17 +159,12 @@ fn load_views(
             } else {
                 (img, camera.clone())
             };
-            Ok(DenseInputView {
-                name: view.name.clone(),
+            Ok(PosedView::new(
+                view.name.clone(),
                 camera,
-                cam_from_world: view.cam_from_world,
-                image: FloatMap::from_u8(
-                    img.width() as usize,
-                    img.height() as usize,
-                    3,
-                    img.as_raw(),
-                ),
-            })
+                view.cam_from_world,
+                img,
+            ))
         })
         .collect()
 }
@@ -262,84 +257,43 @@ pub fn densify(
     }
     let mut per_view = Vec::new();
     let mut outputs = Vec::new();
-    let (cloud, summary) = dense_reconstruct(&views, &points, &opts.dense, bars, |v, r| {
+    let (cloud, summary) = dense_reconstruct(&views, &points, &opts.dense, bars, |r| {
+        let v = &r.view;
         let name = &v.name;
-        let l = &r.linked;
-        let conf = FloatMap {
-            data: l
-                .depth
-                .data
-                .iter()
-                .zip(&l.variance.data)
-                .map(|(z, var)| {
-                    if z.is_finite() {
-                        1.0 / (1.0 + var.sqrt() / (0.005 * z))
-                    } else {
-                        0.0
-                    }
-                })
-                .collect(),
-            ..l.depth.clone()
-        };
-        let write = || -> Result<()> {
-            for (sub, map) in [
-                ("depth", &l.depth),
-                ("variance", &l.variance),
-                ("confidence", &conf),
-                ("visibility", &l.visibility),
-            ] {
-                handheld_io::pfm::write_pfm(&dir.join(sub).join(format!("{name}.pfm")), map)?;
+        let write = || -> Result<Vec<String>> {
+            let written = handheld_io::dense_folder::write_view(dir, v)?;
+            for (map, kind) in [(&v.depth, "depth"), (&v.visibility, "visibility")] {
+                if let Some(map) = map {
+                    preview(map, &dir.join("preview").join(format!("{name}.{kind}.png")))?;
+                }
             }
-            preview(
-                &l.depth,
-                &dir.join("preview").join(format!("{name}.depth.png")),
-            )?;
-            preview(
-                &l.visibility,
-                &dir.join("preview").join(format!("{name}.visibility.png")),
-            )?;
-            Ok(())
+            Ok(written)
         };
-        write().map_err(|e| handheld_dense::DenseError::Linking {
+        let written = write().map_err(|e| handheld_dense::DenseError::Linking {
             reason: format!("{name}: cannot write the maps: {e:#}"),
         })?;
-        for sub in ["depth", "variance", "confidence", "visibility"] {
-            outputs.push(format!("{sub}/{name}.pfm"));
-        }
+        outputs.extend(written);
         tracing::info!(
             "dense: {name}: {:.1} % filled in {:.2} s",
-            l.fill() * 100.0,
+            v.fill() * 100.0,
             r.seconds
         );
         per_view.push(json!({
             "image": name,
             "width": v.camera.width,
             "height": v.camera.height,
-            "fill": l.fill(),
+            "fill": v.fill(),
             "seconds": r.seconds,
         }));
         Ok(())
     })?;
     handheld_io::ply::write_point_cloud(&dir.join("fused.ply"), &cloud, Default::default())?;
-    let cameras: Vec<_> = views
-        .iter()
-        .map(|v| {
-            json!({
-                "image": v.name,
-                "camera": v.camera,
-                "cam_from_world": v.cam_from_world,
-            })
-        })
-        .collect();
-    handheld_io::atomic::write_bytes_atomic(
-        &dir.join("cameras.json"),
-        &serde_json::to_vec_pretty(&cameras)?,
-    )?;
+    handheld_io::dense_folder::write_cameras(dir, &views)?;
     let s = json!({
         "views": summary.views,
         "pairs_matched": summary.pairs_matched,
         "polar_pairs": summary.polar_pairs,
-        "pairs_failed": summary.pairs_failed.iter().map(|(p, why)| json!({"pair": [views[*p].name, views[*p + 1].name], "reason": why})).collect::<Vec<_>>(),
+        "pairs_failed": summary.pairs_failed.iter().map(|f| json!({"pair": [views[f.first].name, views[f.first + 1].name], "reason": f.reason})).collect::<Vec<_>>(),
         "fused_points": summary.fused_points,
         "seconds_pairs": summary.seconds_pairs,
         "seconds_linking": summary.seconds_linking,

@@ -10,15 +10,14 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
-use handheld_core::{Camera, FloatMap, Rigid3};
-use handheld_io::images::{load_image, ImageIngestOptions};
+use handheld_core::PosedView;
+use handheld_io::dense_folder::MapKind;
 use handheld_io::workspace::{Fingerprint, Workspace};
 use handheld_mesh::{
-    fuse_depth_maps, mesh_from_depth_map, texture_mesh, DepthView, FusionOptions, ImageView,
-    SimplifyOptions, SingleMeshOptions, TextureOptions, TsdfOptions, VoxelSize,
+    fuse_depth_maps, mesh_from_depth_map, texture_mesh, FusionOptions, SimplifyOptions,
+    SingleMeshOptions, TextureOptions, TsdfOptions, VoxelSize,
 };
 use image::RgbImage;
-use rayon::prelude::*;
 use serde_json::json;
 
 use crate::args::{MeshArgs, MeshMode, MeshStageArgs};
@@ -86,108 +85,13 @@ pub fn options(a: &MeshArgs) -> Result<MeshStageOptions> {
     })
 }
 
-/// One key view read back from `dense/`.
-struct KeyView {
-    name: String,
-    camera: Camera,
-    cam_from_world: Rigid3,
-    depth: FloatMap,
-    confidence: Option<FloatMap>,
-    image: RgbImage,
-}
-
-impl KeyView {
-    fn depth_view(&self) -> DepthView<'_> {
-        DepthView {
-            camera: &self.camera,
-            cam_from_world: self.cam_from_world,
-            depth: &self.depth,
-            confidence: self.confidence.as_ref(),
-        }
-    }
-
-    fn image_view(&self) -> ImageView<'_> {
-        ImageView {
-            camera: &self.camera,
-            cam_from_world: self.cam_from_world,
-            image: &self.image,
-            depth: Some(&self.depth),
-        }
-    }
-}
-
-#[derive(serde::Deserialize)]
-struct CameraEntry {
-    image: String,
-    camera: Camera,
-    cam_from_world: Rigid3,
-}
-
-fn load_key_views(dense: &Path, paths: &BTreeMap<String, PathBuf>) -> Result<Vec<KeyView>> {
-    let cams_path = dense.join("cameras.json");
-    let entries: Vec<CameraEntry> =
-        serde_json::from_slice(&std::fs::read(&cams_path).with_context(|| {
-            format!(
-                "{}: cannot read (run the dense stage first)",
-                cams_path.display()
-            )
-        })?)
-        .with_context(|| format!("{}: corrupt (rerun the dense stage)", cams_path.display()))?;
-    let opts = ImageIngestOptions {
-        min_dimension: 1,
-        ..Default::default()
-    };
-    entries
-        .into_par_iter()
-        .map(|e| {
-            let dpath = dense.join("depth").join(format!("{}.pfm", e.image));
-            let depth = handheld_io::pfm::read_pfm(&dpath)
-                .with_context(|| format!("{}: cannot read the depth map", dpath.display()))?;
-            if (depth.width, depth.height) != (e.camera.width as usize, e.camera.height as usize) {
-                anyhow::bail!(
-                    "{}: depth map is {}x{} but its camera is {}x{}",
-                    dpath.display(),
-                    depth.width,
-                    depth.height,
-                    e.camera.width,
-                    e.camera.height
-                );
-            }
-            let cpath = dense.join("confidence").join(format!("{}.pfm", e.image));
-            let confidence = if cpath.exists() {
-                Some(handheld_io::pfm::read_pfm(&cpath).with_context(|| {
-                    format!("{}: cannot read the confidence map", cpath.display())
-                })?)
-            } else {
-                None
-            };
-            let path = paths
-                .get(&e.image)
-                .with_context(|| format!("{}: no such image among the inputs", e.image))?;
-            let img = load_image(path, &opts)
-                .with_context(|| format!("{}: cannot read the image", path.display()))?
-                .image
-                .to_rgb8();
-            let image = if (img.width(), img.height()) == (e.camera.width, e.camera.height) {
-                img
-            } else {
-                image::imageops::resize(
-                    &img,
-                    e.camera.width,
-                    e.camera.height,
-                    image::imageops::FilterType::Triangle,
-                )
-            };
-            Ok(KeyView {
-                name: e.image,
-                camera: e.camera,
-                cam_from_world: e.cam_from_world,
-                depth,
-                confidence,
-                image,
-            })
-        })
-        .collect()
+/// The key views of `dense/` with their depth and confidence maps and images.
+fn load_key_views(dense: &Path, paths: &BTreeMap<String, PathBuf>) -> Result<Vec<PosedView>> {
+    Ok(handheld_io::dense_folder::read_views(
+        dense,
+        |name| paths.get(name).cloned(),
+        &[MapKind::Confidence],
+    )?)
 }
 
 pub fn run(
@@ -227,7 +131,7 @@ pub fn build(
     dir: &Path,
     bars: &Bars,
 ) -> Result<StageOutput> {
-    let views = load_key_views(dense, paths)?;
+    let mut views = load_key_views(dense, paths)?;
     if views.is_empty() {
         anyhow::bail!(
             "{}: no depth maps (run the dense stage first)",
@@ -240,9 +144,8 @@ pub fn build(
         std::fs::create_dir_all(dir.join("views"))?;
         let mut faces = Vec::new();
         for v in &views {
-            let dv = v.depth_view();
             // A view whose depth map gives no triangle is skipped with a warning, not fatal.
-            let (mesh, s) = match mesh_from_depth_map(&dv, Some(&v.image), &opts.single, bars) {
+            let (mesh, s) = match mesh_from_depth_map(v, &opts.single, bars) {
                 Ok(r) if !r.0.faces.is_empty() => r,
                 Ok(_) => {
                     tracing::warn!("{}: the depth map gives no triangles", v.name);
@@ -270,14 +173,10 @@ pub fn build(
         None => None,
     };
     if opts.mode == MeshMode::Fused {
-        let depth_views: Vec<DepthView> = views
-            .iter()
-            .enumerate()
-            .filter(|(i, _)| Some(*i) != held)
-            .map(|(_, v)| v.depth_view())
-            .collect();
+        // The held-out view is left out of the model.
+        let held = held.map(|h| views.remove(h));
         let (mesh, fs) =
-            fuse_depth_maps(&depth_views, &opts.fusion, bars).context("volumetric fusion")?;
+            fuse_depth_maps(&views, &opts.fusion, bars).context("volumetric fusion")?;
         let hole_json = |h: &handheld_mesh::HoleReport| {
             json!({
                 "outer_loops": h.outer_loops,
@@ -288,14 +187,8 @@ pub fn build(
                 "faces_added": h.faces_added,
             })
         };
-        let image_views: Vec<ImageView> = views
-            .iter()
-            .enumerate()
-            .filter(|(i, _)| Some(*i) != held)
-            .map(|(_, v)| v.image_view())
-            .collect();
         let (textured, ts) =
-            texture_mesh(&mesh, &image_views, &opts.texture, bars).context("texturing")?;
+            texture_mesh(&mesh, &views, &opts.texture, bars).context("texturing")?;
         let files = handheld_io::obj::write_obj(
             &dir.join("model.obj"),
             &textured.mesh,
@@ -320,8 +213,8 @@ pub fn build(
             handheld_io::ply::PlyFormat::BinaryLittleEndian,
         )?;
         outputs.extend(["model.glb".into(), "model.ply".into()]);
-        if let Some(h) = held {
-            summary["hold_out"] = hold_out_check(&views[h], &textured, dir)?;
+        if let Some(h) = &held {
+            summary["hold_out"] = hold_out_check(h, &textured, dir)?;
             outputs.push("holdout.png".into());
         }
         summary["fusion"] = json!({
@@ -367,7 +260,7 @@ pub fn build(
 /// Renders the textured model from a view left out of it and compares with the photo; writes
 /// `holdout.png` (rendering | photo | 4× absolute difference).
 fn hold_out_check(
-    v: &KeyView,
+    v: &PosedView,
     textured: &handheld_mesh::TexturedMesh,
     dir: &Path,
 ) -> Result<serde_json::Value> {
@@ -408,12 +301,7 @@ fn hold_out_check(
 /// `handheld mesh --depth-maps DENSE --images I -o OUT`: the mesh stage alone.
 pub fn run_standalone(a: &MeshStageArgs, bars: &Bars) -> Result<serde_json::Value> {
     let opts = options(&a.mesh)?;
-    let cams_path = a.depth_maps.join("cameras.json");
-    let entries: Vec<CameraEntry> = serde_json::from_slice(
-        &std::fs::read(&cams_path)
-            .with_context(|| format!("{}: cannot read", cams_path.display()))?,
-    )
-    .with_context(|| format!("{}: corrupt", cams_path.display()))?;
+    let entries = handheld_io::dense_folder::read_cameras(&a.depth_maps)?;
     let paths = entries
         .iter()
         .map(|e| (e.image.clone(), a.images.join(&e.image)))

@@ -19,7 +19,8 @@ use planar::PlanarRect;
 use polar::PolarRect;
 
 /// Which rectification to use.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
 pub enum RectifyMethod {
     /// Planar when both epipoles are farther than [`RectifyOptions::planar_epipole_distance`]
     /// image diagonals from the image centres (and the planar images stay small enough), polar
@@ -33,7 +34,8 @@ pub enum RectifyMethod {
 }
 
 /// Options of [`rectify_pair`].
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct RectifyOptions {
     pub method: RectifyMethod,
     /// In diagonals; planar rectification is used in `Auto` mode beyond this epipole distance.
@@ -53,6 +55,7 @@ impl Default for RectifyOptions {
 }
 
 impl RectifyOptions {
+    /// Checks every option; the error names the first offending one.
     pub fn validate(&self) -> Result<()> {
         if !(self.planar_epipole_distance.is_finite() && self.planar_epipole_distance > 0.0) {
             return Err(DenseError::InvalidOption {
