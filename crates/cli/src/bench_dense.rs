@@ -14,10 +14,10 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use clap::Args;
-use handheld_core::{Camera, FloatMap, Rigid3};
+use handheld_core::{Camera, FloatMap, PosedView, Rigid3};
 use handheld_dense::{
-    link_depth, match_sequence_pairs, rectify_pair, DenseView, LinkOptions, LinkView, PairOptions,
-    RectifyMethod, RectifyOptions, StereoMatcher, StereoOptions,
+    link_depth, match_sequence_pairs, rectify_pair, LinkOptions, PairOptions, RectifyMethod,
+    RectifyOptions, StereoMatcher, StereoOptions,
 };
 use handheld_testkit::path::PathOptions;
 use handheld_testkit::render::{render_sequence, SequenceOptions};
@@ -63,21 +63,18 @@ fn linking(width: u32) -> Result<serde_json::Value> {
     let frames: Vec<(&Camera, &Rigid3)> = (0..15)
         .map(|i| seq.frame(i).context("frame"))
         .collect::<Result<_>>()?;
-    let images: Vec<FloatMap> = seq.images.iter().map(to_map).collect();
     let points: Vec<Point3<f64>> = seq.gt.points.values().map(|p| p.xyz).collect();
-    let views: Vec<DenseView> = frames
+    let views: Vec<PosedView> = frames
         .iter()
-        .zip(&images)
-        .map(|((c, p), image)| DenseView {
-            camera: c,
-            cam_from_world: p,
-            image,
+        .zip(&seq.images)
+        .enumerate()
+        .map(|(i, ((c, p), image))| {
+            PosedView::new(format!("frame{i}"), (*c).clone(), **p, image.clone())
         })
         .collect();
     let t = Instant::now();
     let pairs = match_sequence_pairs(&views, &points, &PairOptions::default())?;
     let pair_s = t.elapsed().as_secs_f64() / pairs.len() as f64;
-    let lviews: Vec<LinkView> = views.iter().map(DenseView::link_view).collect();
     let reference = 7;
     let truth = &seq.depths[reference];
     let mut curve = Vec::new();
@@ -88,7 +85,7 @@ fn linking(width: u32) -> Result<serde_json::Value> {
             ..Default::default()
         };
         let t = Instant::now();
-        let linked = link_depth(&lviews, &pairs, reference, &o)?;
+        let linked = link_depth(&views, &pairs, reference, &o)?;
         let secs = t.elapsed().as_secs_f64();
         let (mut n, mut errs) = (0usize, Vec::new());
         for (z, g) in linked.depth.data.iter().zip(&truth.data) {

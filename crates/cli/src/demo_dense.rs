@@ -108,7 +108,7 @@ pub fn dense_accuracy(out: &Path, workspace: &Path, video: bool) -> Result<serde
 /// Middlebury multi-view accuracy (90%) and completeness (within 1% of the scene size) of the
 /// fused mesh against the exact scene mesh, over the scene surface the rendered views saw.
 pub fn mesh_accuracy(out: &Path, workspace: &Path, video: bool) -> Result<serde_json::Value> {
-    use handheld_mesh::{eval::visible_surface_samples, evaluate, DepthView, EvalOptions};
+    use handheld_mesh::{eval::visible_surface_samples, evaluate, EvalOptions, PosedView};
     let aligned = Aligned::load(out, workspace, video)?;
     let (gt, sim) = (&aligned.gt, aligned.sim);
     let mut mesh = handheld_io::ply::read_mesh(&workspace.join("mesh").join("model.ply"))?;
@@ -144,15 +144,14 @@ pub fn mesh_accuracy(out: &Path, workspace: &Path, video: bool) -> Result<serde_
             )?,
         ));
     }
-    let views: Vec<DepthView> = depths
-        .iter()
+    // Only the depth maps are read: the views carry no image.
+    let views: Vec<PosedView> = depths
+        .into_iter()
         .filter_map(|(g, d)| {
-            Some(DepthView {
-                camera: gt.cameras.get(&g.camera_id)?,
-                cam_from_world: g.cam_from_world,
-                depth: d,
-                confidence: None,
-            })
+            let camera = gt.cameras.get(&g.camera_id)?.clone();
+            let mut v = PosedView::new(&g.name, camera, g.cam_from_world, Default::default());
+            v.depth = Some(d);
+            Some(v)
         })
         .collect();
     let samples = visible_surface_samples(&views, 4)?;

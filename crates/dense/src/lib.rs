@@ -58,13 +58,15 @@ mod zncc;
 
 pub use disparity::Disparity;
 pub use error::DenseError;
-pub use link::{link_depth, LinkOptions, LinkView, LinkedDepth};
-pub use options::{HoleFill, MatchingCost, SgmPaths, StereoMethod, StereoOptions};
+pub use link::{link_depth, LinkOptions, LinkedDepth, CONFIDENCE_RELATIVE_SIGMA};
+pub use options::{
+    HoleFill, MatchingCost, ParseStereoMethodError, SgmPaths, StereoMethod, StereoOptions,
+};
 pub use pair::{
-    match_pair, match_pair_with, match_sequence_pairs, DenseView, PairDisparity, PairOptions,
+    grey_image, match_pair, match_pair_with, match_sequence_pairs, PairDisparity, PairOptions,
 };
 pub use rectify::{rectify_pair, Rectification, RectifyMethod, RectifyOptions};
 pub use stage::{
-    dense_reconstruct, scale_camera, DenseInputView, DenseOptions, DenseSummary, DenseViewResult,
+    dense_reconstruct, scale_camera, DenseOptions, DenseSummary, DenseViewResult, FailedPair,
 };
 pub use stereo::{match_rectified, StereoMatcher, SGM_BAND_OVERLAP};

@@ -10,15 +10,17 @@
 //! when the match leaves the image. The visibility `V` counts the views that agree (reference
 //! included); pixels below `V_min` are dropped.
 
-use handheld_core::{Camera, FloatMap, Rigid3};
+use handheld_core::{Camera, FloatMap, PosedView};
 use nalgebra::{Matrix3, Vector2, Vector3};
 use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
 
 use crate::error::{DenseError, Result};
 use crate::pair::PairDisparity;
 
 /// Options of [`link_depth`].
-#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
 pub struct LinkOptions {
     /// Matching uncertainty of one link, pixels (1σ).
     pub sigma_px: f64,
@@ -49,6 +51,7 @@ impl Default for LinkOptions {
 }
 
 impl LinkOptions {
+    /// Checks every option; the error names the first offending one.
     pub fn validate(&self) -> Result<()> {
         let bad = |option: &'static str, reason: String| {
             Err(DenseError::InvalidOption { option, reason })
@@ -69,36 +72,48 @@ impl LinkOptions {
     }
 }
 
-/// A view's camera and pose, as linking needs them.
-#[derive(Clone, Copy, Debug)]
-pub struct LinkView<'a> {
-    pub camera: &'a Camera,
-    pub cam_from_world: &'a Rigid3,
-}
-
-impl<'a> crate::pair::DenseView<'a> {
-    /// The camera and pose of this view, for [`link_depth`].
-    pub fn link_view(&self) -> LinkView<'a> {
-        LinkView {
-            camera: self.camera,
-            cam_from_world: self.cam_from_world,
-        }
-    }
-}
-
 /// Linked depth of a reference view: z-depth in its camera frame, the fused variance, and the
 /// visibility `V`. Pixels without a kept estimate hold `NaN` depth and variance and `V = 0`.
 #[derive(Clone, Debug, PartialEq)]
 pub struct LinkedDepth {
+    /// Camera-frame `z`, `NaN` where nothing was kept.
     pub depth: FloatMap,
+    /// The Kalman-fused variance of `depth` (model units²), `NaN` where nothing was kept.
     pub variance: FloatMap,
+    /// `V`, the number of views linked (reference included), 0 where nothing was kept.
     pub visibility: FloatMap,
 }
+
+/// Relative depth error at which [`LinkedDepth::confidence`] is ½: `σ = 0.005·z`.
+pub const CONFIDENCE_RELATIVE_SIGMA: f32 = 0.005;
 
 impl LinkedDepth {
     /// Fraction of pixels with a depth.
     pub fn fill(&self) -> f64 {
         self.depth.fill_ratio()
+    }
+
+    /// The fusion weight of each pixel, `1 / (1 + σ/(0.005·z))` (½ where the 1σ error is 0.5 % of
+    /// the depth), 0 where there is no depth.
+    pub fn confidence(&self) -> FloatMap {
+        FloatMap {
+            data: self
+                .depth
+                .data
+                .iter()
+                .zip(&self.variance.data)
+                .map(|(z, var)| {
+                    if z.is_finite() {
+                        1.0 / (1.0 + var.sqrt() / (CONFIDENCE_RELATIVE_SIGMA * z))
+                    } else {
+                        0.0
+                    }
+                })
+                .collect(),
+            width: self.depth.width,
+            height: self.depth.height,
+            channels: self.depth.channels,
+        }
     }
 }
 
@@ -110,7 +125,7 @@ struct Geo {
 }
 
 impl Geo {
-    fn new(v: &LinkView<'_>) -> Self {
+    fn new(v: &PosedView) -> Self {
         Self {
             camera: v.camera.clone(),
             rot: *v.cam_from_world.rotation.to_rotation_matrix().matrix(),
@@ -151,10 +166,11 @@ fn depth_from_link(
 }
 
 /// Links the reference view `reference` of `views` through the adjacent pairs: `pairs[i]` holds
-/// the disparity of views `i` (left) and `i + 1` (right). Chains run up to `max_links` views in
-/// each direction, alternating sides so the gate sees both directions early.
+/// the disparity of views `i` (left) and `i + 1` (right). Only the views' cameras and poses are
+/// read. Chains run up to `max_links` views in each direction, alternating sides so the gate sees
+/// both directions early.
 pub fn link_depth(
-    views: &[LinkView<'_>],
+    views: &[PosedView],
     pairs: &[Option<PairDisparity>],
     reference: usize,
     opts: &LinkOptions,

@@ -3,10 +3,16 @@
 //! Defaults were chosen by measurement on the Middlebury teddy and cones pairs (450×375, 64
 //! disparities); see the crate documentation for the numbers.
 
+use std::fmt;
+use std::str::FromStr;
+
+use serde::{Deserialize, Serialize};
+
 use crate::error::{DenseError, Result};
 
-/// Which optimiser turns the matching cost into a disparity map.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+/// Which optimiser turns the matching cost into a disparity map. Parsed from and displayed as
+/// `sgm` / `dp` (also its serde names).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum StereoMethod {
     /// Semi-Global Matching (Hirschmüller, PAMI 2008) over 8 or 4 paths.
@@ -16,8 +22,44 @@ pub enum StereoMethod {
     Dp,
 }
 
+impl StereoMethod {
+    /// Every method, in the order of [`Self::name`]s a command line lists.
+    pub const ALL: [StereoMethod; 2] = [StereoMethod::Sgm, StereoMethod::Dp];
+
+    /// The method's name: `sgm` or `dp`.
+    pub fn name(self) -> &'static str {
+        match self {
+            StereoMethod::Sgm => "sgm",
+            StereoMethod::Dp => "dp",
+        }
+    }
+}
+
+impl fmt::Display for StereoMethod {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// A name that is not a [`StereoMethod`].
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("unknown stereo method `{0}`: expected `sgm` or `dp`")]
+pub struct ParseStereoMethodError(pub String);
+
+impl FromStr for StereoMethod {
+    type Err = ParseStereoMethodError;
+
+    /// `sgm` or `dp`, case-insensitive.
+    fn from_str(s: &str) -> std::result::Result<Self, Self::Err> {
+        Self::ALL
+            .into_iter()
+            .find(|m| m.name().eq_ignore_ascii_case(s.trim()))
+            .ok_or_else(|| ParseStereoMethodError(s.to_string()))
+    }
+}
+
 /// The pixel-wise (or window) matching cost that fills the cost volume.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum MatchingCost {
     /// Hamming distance of census transforms (Zabih & Woodfill 1994) over a `width`×`height`
@@ -29,7 +71,7 @@ pub enum MatchingCost {
 }
 
 /// How the pixels rejected by the checks are filled (they stay marked invalid).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum HoleFill {
     /// Leave them `NaN`.
@@ -42,7 +84,7 @@ pub enum HoleFill {
 }
 
 /// Number of SGM aggregation directions.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum SgmPaths {
     /// Horizontal and vertical only (faster, more streaking).
@@ -63,7 +105,8 @@ impl SgmPaths {
 
 /// Options of [`crate::match_rectified`]. Disparity convention: the left pixel `(x, y)` matches
 /// the right pixel `(x − d, y)`; `min_disparity..=max_disparity` is searched (both inclusive).
-#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
 pub struct StereoOptions {
     /// Optimiser. Default [`StereoMethod::Sgm`].
     pub method: StereoMethod,
@@ -275,6 +318,16 @@ mod tests {
             DenseError::InvalidOption { option, .. } => option,
             other => panic!("expected an option error, got {other}"),
         }
+    }
+
+    #[test]
+    fn stereo_method_parses_and_displays_its_name() {
+        for m in StereoMethod::ALL {
+            assert_eq!(m.to_string().parse::<StereoMethod>(), Ok(m));
+        }
+        assert_eq!("SGM".parse::<StereoMethod>(), Ok(StereoMethod::Sgm));
+        let e = "census".parse::<StereoMethod>().unwrap_err();
+        assert!(e.to_string().contains("`sgm` or `dp`"), "{e}");
     }
 
     #[test]

@@ -2,8 +2,10 @@
 //! points both views see, match (§4.2), and keep only disparities whose two ends fall inside
 //! their images.
 
-use handheld_core::{Camera, FloatMap, Rigid3};
+use handheld_core::{FloatMap, PosedView};
+use image::RgbImage;
 use nalgebra::{Point3, Vector2};
+use serde::{Deserialize, Serialize};
 
 use crate::disparity::Disparity;
 use crate::error::{DenseError, Result};
@@ -11,18 +13,11 @@ use crate::options::StereoOptions;
 use crate::rectify::{rectify_pair, Rectification, RectifyOptions};
 use crate::stereo::StereoMatcher;
 
-/// A calibrated view for dense matching: its camera, pose (`cam_from_world`) and image
-/// (1-channel grey or 3-channel RGB, 0..=255, the original distorted pixels).
-#[derive(Clone, Copy, Debug)]
-pub struct DenseView<'a> {
-    pub camera: &'a Camera,
-    pub cam_from_world: &'a Rigid3,
-    pub image: &'a FloatMap,
-}
-
 /// Options of [`match_pair`].
-#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
 pub struct PairOptions {
+    /// Rectification of the pair.
     pub rectify: RectifyOptions,
     /// Matcher settings; its disparity range is replaced by the one from the sparse points.
     pub stereo: StereoOptions,
@@ -59,11 +54,12 @@ pub struct PairDisparity {
     pub range: (i32, i32),
 }
 
-/// Rectifies and matches `left` against `right`. `points` are sparse world points (those both
-/// views see fix the disparity range, as §4.2 asks).
+/// Rectifies and matches `left` against `right` (their cameras, poses and images; the original
+/// distorted pixels). `points` are sparse world points (those both views see fix the disparity
+/// range, as §4.2 asks).
 pub fn match_pair(
-    left: DenseView<'_>,
-    right: DenseView<'_>,
+    left: &PosedView,
+    right: &PosedView,
     points: &[Point3<f64>],
     opts: &PairOptions,
 ) -> Result<PairDisparity> {
@@ -74,41 +70,45 @@ pub fn match_pair(
 /// Every consecutive pair `(i, i + 1)` of an ordered sequence, matched with one reused matcher:
 /// the pair disparities [`crate::link_depth`] chains through.
 pub fn match_sequence_pairs(
-    views: &[DenseView<'_>],
+    views: &[PosedView],
     points: &[Point3<f64>],
     opts: &PairOptions,
 ) -> Result<Vec<Option<PairDisparity>>> {
     let mut matcher = StereoMatcher::new(opts.stereo.clone())?;
     views
         .windows(2)
-        .map(|w| match_pair_with(&mut matcher, w[0], w[1], points, opts).map(Some))
+        .map(|w| match_pair_with(&mut matcher, &w[0], &w[1], points, opts).map(Some))
         .collect()
 }
 
 /// [`match_pair`] with a reusable matcher (its options are `opts.stereo` apart from the range).
 pub fn match_pair_with(
     matcher: &mut StereoMatcher,
-    left: DenseView<'_>,
-    right: DenseView<'_>,
+    left: &PosedView,
+    right: &PosedView,
     points: &[Point3<f64>],
     opts: &PairOptions,
 ) -> Result<PairDisparity> {
-    for (v, which) in [(&left, "left"), (&right, "right")] {
-        if (v.image.width, v.image.height) != (v.camera.width as usize, v.camera.height as usize) {
+    for (v, which) in [(left, "left"), (right, "right")] {
+        if (v.image.width(), v.image.height()) != (v.camera.width, v.camera.height) {
             return Err(DenseError::InvalidImage {
                 which,
                 reason: format!(
-                    "image is {}x{} but its camera is {}x{}",
-                    v.image.width, v.image.height, v.camera.width, v.camera.height
+                    "{}: image is {}x{} but its camera is {}x{}",
+                    v.name,
+                    v.image.width(),
+                    v.image.height(),
+                    v.camera.width,
+                    v.camera.height
                 ),
             });
         }
     }
     let rect = rectify_pair(
-        left.camera,
-        left.cam_from_world,
-        right.camera,
-        right.cam_from_world,
+        &left.camera,
+        &left.cam_from_world,
+        &right.camera,
+        &right.cam_from_world,
         &opts.rectify,
     )?;
     let range = rect
@@ -127,8 +127,8 @@ pub fn match_pair_with(
         });
     }
     // The matcher works on grey levels: convert first, so resampling touches one channel.
-    let (l, lmask) = rect.resample(0, &to_grey(left.image));
-    let (r, rmask) = rect.resample(1, &to_grey(right.image));
+    let (l, lmask) = rect.resample(0, &grey_image(&left.image));
+    let (r, rmask) = rect.resample(1, &grey_image(&right.image));
     matcher.set_disparity_range(range.0, range.1.max(range.0 + 1))?;
     let mut d = matcher.match_pair(&l, &r)?;
     restrict_to_images(&mut d, &lmask, &rmask);
@@ -154,6 +154,21 @@ pub fn to_grey(map: &FloatMap) -> std::borrow::Cow<'_, FloatMap> {
             .map(|c| 0.299 * c[0] + 0.587 * c[1] + 0.114 * c[2])
             .collect(),
     })
+}
+
+/// Rec. 601 luma of an 8-bit RGB image as a one-channel float map (the same values as
+/// [`to_grey`] of the image's float copy).
+pub fn grey_image(image: &RgbImage) -> FloatMap {
+    FloatMap {
+        width: image.width() as usize,
+        height: image.height() as usize,
+        channels: 1,
+        data: image
+            .as_raw()
+            .chunks_exact(3)
+            .map(|c| 0.299 * f32::from(c[0]) + 0.587 * f32::from(c[1]) + 0.114 * f32::from(c[2]))
+            .collect(),
+    }
 }
 
 /// Drops disparities whose pixel or whose match lies outside the resampled image.

@@ -7,28 +7,22 @@
 
 use std::time::Instant;
 
-use handheld_core::{Camera, FloatMap, PointCloud, Progress, Rigid3};
+use handheld_core::{Camera, PointCloud, PosedView, Progress};
 use nalgebra::{Point3, Vector2, Vector3};
+use serde::{Deserialize, Serialize};
 
 use crate::error::{DenseError, Result};
-use crate::link::{link_depth, LinkOptions, LinkView, LinkedDepth};
-use crate::pair::{match_pair_with, DenseView, PairDisparity, PairOptions};
+use crate::link::{link_depth, LinkOptions, LinkedDepth};
+use crate::pair::{match_pair_with, PairDisparity, PairOptions};
 use crate::stereo::StereoMatcher;
 
-/// One input view of [`dense_reconstruct`], in sequence order.
-#[derive(Clone, Debug)]
-pub struct DenseInputView {
-    pub name: String,
-    pub camera: Camera,
-    pub cam_from_world: Rigid3,
-    /// RGB or grey, 0..=255, the size of `camera`.
-    pub image: FloatMap,
-}
-
 /// Options of [`dense_reconstruct`].
-#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
 pub struct DenseOptions {
+    /// Rectification and matching of each adjacent pair.
     pub pair: PairOptions,
+    /// Multi-view linking of each view through its neighbours.
     pub link: LinkOptions,
     /// Pixel stride of the fused point cloud.
     pub fused_stride: usize,
@@ -49,6 +43,7 @@ impl Default for DenseOptions {
 }
 
 impl DenseOptions {
+    /// Checks every option; the error names the first offending one.
     pub fn validate(&self) -> Result<()> {
         self.pair.stereo.validate()?;
         self.pair.rectify.validate()?;
@@ -66,34 +61,53 @@ impl DenseOptions {
 /// The result for one reference view.
 #[derive(Clone, Debug)]
 pub struct DenseViewResult {
+    /// Index of the view in the input sequence.
     pub index: usize,
-    pub linked: LinkedDepth,
+    /// The input view (its image copied) with `depth`, `variance`, `confidence`
+    /// ([`LinkedDepth::confidence`]) and `visibility` filled.
+    pub view: PosedView,
     /// Seconds spent on this view (its share of pair matching plus linking).
     pub seconds: f64,
 }
 
+/// A pair of adjacent views that could not be rectified or matched.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FailedPair {
+    /// The pair's first view (the second is `first + 1`).
+    pub first: usize,
+    /// Why it failed.
+    pub reason: String,
+}
+
 /// What happened to the whole sequence.
-#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct DenseSummary {
+    /// Views densified.
     pub views: usize,
+    /// Adjacent pairs rectified and matched.
     pub pairs_matched: usize,
     /// Pairs that could not be rectified or matched, with the reason.
-    pub pairs_failed: Vec<(usize, String)>,
+    pub pairs_failed: Vec<FailedPair>,
+    /// Pairs rectified with polar rectification.
     pub polar_pairs: usize,
+    /// Points in the fused cloud.
     pub fused_points: usize,
+    /// Seconds spent rectifying and matching pairs.
     pub seconds_pairs: f64,
+    /// Seconds spent linking.
     pub seconds_linking: f64,
 }
 
-/// Depth of every view of a sequence. `points` are the sparse points (for disparity ranges).
-/// `on_view` receives each view's result as soon as it is ready (to be written out), and the
-/// fused cloud is returned with the summary.
+/// Depth of every view of a sequence (each view's camera, pose and image are read; its maps are
+/// ignored). `points` are the sparse points (for disparity ranges). `on_view` receives each
+/// view's result as soon as it is ready (to be written out), and the fused cloud is returned with
+/// the summary.
 pub fn dense_reconstruct(
-    views: &[DenseInputView],
+    views: &[PosedView],
     points: &[Point3<f64>],
     opts: &DenseOptions,
     progress: &dyn Progress,
-    mut on_view: impl FnMut(&DenseInputView, DenseViewResult) -> Result<()>,
+    mut on_view: impl FnMut(DenseViewResult) -> Result<()>,
 ) -> Result<(PointCloud, DenseSummary)> {
     opts.validate()?;
     if views.len() < 2 {
@@ -105,14 +119,9 @@ pub fn dense_reconstruct(
         });
     }
     for v in views {
-        if (v.image.width, v.image.height) != (v.camera.width as usize, v.camera.height as usize) {
-            return Err(DenseError::Linking {
-                reason: format!(
-                    "{}: image is {}x{} but its camera is {}x{}",
-                    v.name, v.image.width, v.image.height, v.camera.width, v.camera.height
-                ),
-            });
-        }
+        v.check_image().map_err(|e| DenseError::Linking {
+            reason: e.to_string(),
+        })?;
     }
     let n = views.len();
     let links = opts.link.max_links.max(1);
@@ -122,13 +131,6 @@ pub fn dense_reconstruct(
         views: n,
         ..Default::default()
     };
-    let link_views: Vec<LinkView> = views
-        .iter()
-        .map(|v| LinkView {
-            camera: &v.camera,
-            cam_from_world: &v.cam_from_world,
-        })
-        .collect();
     let mut matcher = StereoMatcher::new(opts.pair.stereo.clone())?;
     let mut cloud = PointCloud::default();
     let mut recent: Vec<(usize, LinkedDepth)> = Vec::new();
@@ -143,15 +145,8 @@ pub fn dense_reconstruct(
             }
             computed[p] = true;
             let (a, b) = (&views[p], &views[p + 1]);
-            fn dv(v: &DenseInputView) -> DenseView<'_> {
-                DenseView {
-                    camera: &v.camera,
-                    cam_from_world: &v.cam_from_world,
-                    image: &v.image,
-                }
-            }
             let tp = Instant::now();
-            match match_pair_with(&mut matcher, dv(a), dv(b), points, &opts.pair) {
+            match match_pair_with(&mut matcher, a, b, points, &opts.pair) {
                 Ok(pd) => {
                     summary.pairs_matched += 1;
                     summary.polar_pairs += usize::from(pd.rectification.is_polar());
@@ -159,7 +154,10 @@ pub fn dense_reconstruct(
                 }
                 Err(e) => {
                     tracing::warn!("dense: pair {} – {} skipped: {e}", a.name, b.name);
-                    summary.pairs_failed.push((p, e.to_string()));
+                    summary.pairs_failed.push(FailedPair {
+                        first: p,
+                        reason: e.to_string(),
+                    });
                 }
             }
             summary.seconds_pairs += tp.elapsed().as_secs_f64();
@@ -169,19 +167,33 @@ pub fn dense_reconstruct(
             *p = None;
         }
         let tl = Instant::now();
-        let linked = link_depth(&link_views, &pairs, k, &opts.link)?;
+        let linked = link_depth(views, &pairs, k, &opts.link)?;
         summary.seconds_linking += tl.elapsed().as_secs_f64();
         append_fused(&mut cloud, &views[k], &linked, &recent, views, opts);
         recent.retain(|(i, _)| i + links > k);
         recent.push((k, linked.clone()));
-        on_view(
-            &views[k],
-            DenseViewResult {
-                index: k,
-                linked,
-                seconds: t0.elapsed().as_secs_f64(),
+        let confidence = linked.confidence();
+        let LinkedDepth {
+            depth,
+            variance,
+            visibility,
+        } = linked;
+        let v = &views[k];
+        let seconds = t0.elapsed().as_secs_f64();
+        on_view(DenseViewResult {
+            index: k,
+            view: PosedView {
+                name: v.name.clone(),
+                camera: v.camera.clone(),
+                cam_from_world: v.cam_from_world,
+                image: v.image.clone(),
+                depth: Some(depth),
+                variance: Some(variance),
+                confidence: Some(confidence),
+                visibility: Some(visibility),
             },
-        )?;
+            seconds,
+        })?;
         progress.inc(1);
     }
     progress.finish();
@@ -193,10 +205,10 @@ pub fn dense_reconstruct(
 /// already holds (so each surface patch appears about once).
 fn append_fused(
     cloud: &mut PointCloud,
-    view: &DenseInputView,
+    view: &PosedView,
     linked: &LinkedDepth,
     recent: &[(usize, LinkedDepth)],
-    views: &[DenseInputView],
+    views: &[PosedView],
     opts: &DenseOptions,
 ) {
     let world_from_cam = view.cam_from_world.inverse();
@@ -237,16 +249,7 @@ fn append_fused(
             cloud
                 .positions
                 .push([pw.x as f32, pw.y as f32, pw.z as f32]);
-            let img = &view.image;
-            let i = (y * img.width + x) * img.channels;
-            let c = if img.channels >= 3 {
-                [img.data[i], img.data[i + 1], img.data[i + 2]]
-            } else {
-                [img.data[i]; 3]
-            };
-            cloud
-                .colors
-                .push(c.map(|v| v.round().clamp(0.0, 255.0) as u8));
+            cloud.colors.push(view.rgb(x as u32, y as u32));
         }
     }
 }

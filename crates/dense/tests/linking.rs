@@ -1,10 +1,8 @@
 //! Multi-view linking on a synthetic orbit (issue #6, Done-when 2; the paper's Fig. 6): 15 views
 //! around a reference view, depth error and fill against the exact ground-truth depth.
 
-use handheld_core::FloatMap;
-use handheld_dense::{
-    link_depth, match_sequence_pairs, DenseView, LinkOptions, LinkView, LinkedDepth, PairOptions,
-};
+use handheld_core::{FloatMap, PosedView};
+use handheld_dense::{link_depth, match_sequence_pairs, LinkOptions, LinkedDepth, PairOptions};
 use handheld_testkit::render::{render_sequence, SequenceOptions, SyntheticSequence};
 use nalgebra::Point3;
 
@@ -17,10 +15,6 @@ fn sequence(width: u32, height: u32) -> SyntheticSequence {
     };
     opts.path.sweep = 28.0;
     render_sequence(&opts).expect("render")
-}
-
-fn to_map(img: &image::RgbImage) -> FloatMap {
-    FloatMap::from_u8(img.width() as usize, img.height() as usize, 3, img.as_raw())
 }
 
 /// (fill over GT-valid pixels, median relative depth error of the filled ones).
@@ -43,20 +37,14 @@ fn score(linked: &LinkedDepth, gt: &FloatMap) -> (f64, f64) {
 #[test]
 fn linking_fills_the_reference_view_and_gets_better_with_more_views() {
     let seq = sequence(480, 360);
-    let frames: Vec<_> = (0..15).map(|i| seq.frame(i).expect("frame")).collect();
-    let images: Vec<FloatMap> = seq.images.iter().map(to_map).collect();
     let points: Vec<Point3<f64>> = seq.gt.points.values().map(|p| p.xyz).collect();
-    let views: Vec<DenseView> = frames
-        .iter()
-        .zip(&images)
-        .map(|((c, p), img)| DenseView {
-            camera: c,
-            cam_from_world: p,
-            image: img,
+    let link_views: Vec<PosedView> = (0..15)
+        .map(|i| {
+            let (c, p) = seq.frame(i).expect("frame");
+            PosedView::new(format!("{i}"), c.clone(), *p, seq.images[i].clone())
         })
         .collect();
-    let pairs = match_sequence_pairs(&views, &points, &PairOptions::default()).expect("pairs");
-    let link_views: Vec<LinkView> = views.iter().map(DenseView::link_view).collect();
+    let pairs = match_sequence_pairs(&link_views, &points, &PairOptions::default()).expect("pairs");
     let reference = 7;
     let mut curve = Vec::new();
     for half in 1..=5 {

@@ -10,6 +10,7 @@ pub mod atomic;
 pub mod bal;
 pub mod colmap;
 pub mod database;
+pub mod dense_folder;
 pub mod error;
 pub mod features_file;
 pub mod glb;

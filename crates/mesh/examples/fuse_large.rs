@@ -36,7 +36,7 @@ fn main() {
     let voxel: f64 = args.get(3).and_then(|a| a.parse().ok()).unwrap_or(0.01);
     let opts = common::sequence_options(frames, width, width * 2 / 3);
     let t = Instant::now();
-    let seq = match render_sequence(&opts) {
+    let mut seq = match render_sequence(&opts) {
         Ok(s) => s,
         Err(e) => {
             eprintln!("cannot render: {e}");
@@ -49,13 +49,13 @@ fn main() {
         t.elapsed().as_secs_f64(),
         peak_mib().unwrap_or(f64::NAN)
     );
-    let depth = common::depth_views(&seq);
+    let views = common::take_views(&mut seq);
     reset_peak();
     let base = peak_mib().unwrap_or(f64::NAN);
     let mut fopts = FusionOptions::default();
     fopts.tsdf.voxel_size = VoxelSize::Absolute(voxel);
     let t = Instant::now();
-    let (mesh, summary) = match fuse_depth_maps(&depth, &fopts, &NoProgress) {
+    let (mesh, summary) = match fuse_depth_maps(&views, &fopts, &NoProgress) {
         Ok(r) => r,
         Err(e) => {
             eprintln!("fusion failed: {e}");
@@ -67,8 +67,7 @@ fn main() {
         t.elapsed().as_secs_f64(),
         peak_mib().unwrap_or(f64::NAN)
     );
-    let images = common::image_views(&seq);
-    match texture_mesh(&mesh, &images, &TextureOptions::default(), &NoProgress) {
+    match texture_mesh(&mesh, &views, &TextureOptions::default(), &NoProgress) {
         Ok((_, s)) => println!(
             "textured: {} charts, atlas {}x{} at {:.2} texels/pixel, {} untextured faces, {:.1}s; peak {:.0} MiB",
             s.charts,
@@ -83,7 +82,7 @@ fn main() {
     }
     let size = seq.scene.extent();
     let t = Instant::now();
-    let samples = visible_surface_samples(&depth, 16).unwrap_or_default();
+    let samples = visible_surface_samples(&views, 16).unwrap_or_default();
     let eval = EvalOptions {
         accuracy_fraction: 0.9,
         completeness_threshold: 0.01 * size,

@@ -19,7 +19,8 @@ use rayon::prelude::*;
 
 use crate::error::{MeshError, Result};
 use crate::texture::{TextureOptions, TexturedMesh};
-use crate::view::{sample_rgb, ImageView, Projector};
+use crate::view::{sample_rgb, Projector};
+use handheld_core::PosedView;
 
 /// Figures of one atlas build.
 pub(crate) struct AtlasStats {
@@ -182,7 +183,7 @@ pub(crate) fn build_atlas(
     mesh: &TriMesh,
     pos: &[Point3<f64>],
     normals: &[[f32; 3]],
-    views: &[ImageView],
+    views: &[PosedView],
     labels: &[u32],
     neighbours: &[[u32; 3]],
     opts: &TextureOptions,
@@ -190,7 +191,7 @@ pub(crate) fn build_atlas(
     let mut charts = make_charts(labels, neighbours);
     let projectors: Vec<Projector> = views
         .iter()
-        .map(|v| Projector::new(v.camera, &v.cam_from_world))
+        .map(|v| Projector::new(&v.camera, &v.cam_from_world))
         .collect();
     // Chart vertices and their pixels; `slot[v]` marks vertices already listed by the current chart.
     let mut slot = vec![u32::MAX; pos.len()];
@@ -255,7 +256,7 @@ pub(crate) fn build_atlas(
             base.push(if c.view == u32::MAX {
                 [GREY as f64; 3]
             } else {
-                vertex_colour(views[c.view as usize].image, px)
+                vertex_colour(&views[c.view as usize].image, px)
             });
             owner.push((ci as u32, *v));
         }
@@ -282,7 +283,7 @@ pub(crate) fn build_atlas(
             if c.view == u32::MAX {
                 return (ci, vec![[GREY; 3]; w * h], vec![true; w * h]);
             }
-            let img = views[c.view as usize].image;
+            let img = &views[c.view as usize].image;
             let (mut rgb, mut mask) = (vec![[0u8; 3]; w * h], vec![false; w * h]);
             let o = Vector2::new(c.origin.0 as f64, c.origin.1 as f64);
             for k in 0..c.faces.len() {

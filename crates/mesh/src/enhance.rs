@@ -9,15 +9,16 @@
 //! specular reflections and highlights that move with the viewpoint. Texels with fewer than
 //! [`EnhanceOptions::min_samples`] samples keep their colour.
 
-use handheld_core::Progress;
+use handheld_core::{PosedView, Progress};
 use image::RgbImage;
 use rayon::prelude::*;
 
 use crate::error::{in_range, MeshError, Result};
-use crate::view::{sample_depth, DepthView, ImageView, Projector};
+use crate::view::{check_image_view, sample_depth, Depth, Projector};
 
 /// Options of [`enhance_texture`].
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct EnhanceOptions {
     /// Relative depth agreement required for a linked view to see the texel's point:
     /// `|z_projected − z_view| ≤ depth_tolerance · z_view`. Default 0.02.
@@ -49,7 +50,8 @@ impl EnhanceOptions {
 }
 
 /// What [`enhance_texture`] did.
-#[derive(Clone, Debug, Default, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct EnhanceSummary {
     /// Texels replaced by a median.
     pub texels_replaced: usize,
@@ -67,31 +69,28 @@ fn median(v: &mut [f64]) -> f64 {
     }
 }
 
-/// The reference image with each texel replaced by the robust median over the linked views.
+/// The reference view's image with each texel replaced by the robust median over the linked
+/// views (the reference needs a depth map; a linked view's depth map, where present, rejects
+/// occluded samples). Errors number the reference 0 and the linked views from 1.
 pub fn enhance_texture(
-    reference: &DepthView,
-    image: &RgbImage,
-    linked: &[ImageView],
+    reference: &PosedView,
+    linked: &[PosedView],
     opts: &EnhanceOptions,
     progress: &dyn Progress,
 ) -> Result<(RgbImage, EnhanceSummary)> {
     opts.validate()?;
-    reference.validate(0)?;
-    ImageView {
-        camera: reference.camera,
-        cam_from_world: reference.cam_from_world,
-        image,
-        depth: None,
-    }
-    .validate(0)?;
+    let depth = Depth::of(reference, 0)?;
+    check_image_view(0, reference)?;
+    let image = &reference.image;
+    let reference = depth;
     for (i, v) in linked.iter().enumerate() {
-        v.validate(i + 1)?;
+        check_image_view(i + 1, v)?;
     }
     let (w, h) = (image.width() as usize, image.height() as usize);
-    let rp = Projector::new(reference.camera, &reference.cam_from_world);
-    let others: Vec<(Projector, &ImageView)> = linked
+    let rp = Projector::new(reference.camera, reference.cam_from_world);
+    let others: Vec<(Projector, &PosedView)> = linked
         .iter()
-        .map(|v| (Projector::new(v.camera, &v.cam_from_world), v))
+        .map(|v| (Projector::new(&v.camera, &v.cam_from_world), v))
         .collect();
     progress.start("texture enhancement", h as u64);
     let src = image.as_raw();
@@ -119,13 +118,13 @@ pub fn enhance_texture(
                     if !proj.camera.contains(&px) {
                         continue;
                     }
-                    if let Some(dm) = v.depth {
+                    if let Some(dm) = &v.depth {
                         match sample_depth(dm, &px, opts.depth_tolerance) {
                             Some(z) if (pc.z - z).abs() <= opts.depth_tolerance * z => {}
                             _ => continue,
                         }
                     }
-                    let col = crate::view::sample_rgb(v.image, &px);
+                    let col = crate::view::sample_rgb(&v.image, &px);
                     for (ch, value) in chans.iter_mut().zip(col) {
                         ch.push(value);
                     }

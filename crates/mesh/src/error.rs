@@ -24,6 +24,11 @@ pub enum MeshError {
         cam_w: usize,
         cam_h: usize,
     },
+    /// A view lacks a map the stage needs (e.g. fusion needs every view's depth map).
+    #[error(
+        "view {view} has no {what}; this stage needs one per view (run the dense stage first)"
+    )]
+    MissingMap { view: usize, what: &'static str },
     /// A map has the wrong channel count or a data length that does not match its size.
     #[error("view {view}: malformed {what}: {reason}")]
     MalformedMap {

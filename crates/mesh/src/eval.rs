@@ -16,10 +16,12 @@ use rayon::prelude::*;
 
 use crate::bvh::MeshIndex;
 use crate::error::{in_range, positive, MeshError, Result};
-use crate::view::{DepthView, Projector};
+use crate::view::{Depth, Projector};
+use handheld_core::PosedView;
 
 /// Options of [`evaluate`].
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct EvalOptions {
     /// Fraction of the reconstruction the accuracy distance covers. Default 0.9 (Middlebury).
     pub accuracy_fraction: f64,
@@ -49,7 +51,7 @@ impl EvalOptions {
 }
 
 /// Scores of one reconstruction.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct MultiViewScores {
     /// Distance covering `accuracy_fraction` of the reconstruction (world units).
     pub accuracy: f64,
@@ -96,8 +98,9 @@ pub fn sample_surface(mesh: &TriMesh, spacing: f64) -> Vec<Point3<f64>> {
 }
 
 /// World points of every `stride`-th pixel (in x and y) with a valid depth in the given views:
-/// the part of a ground-truth surface the input views saw.
-pub fn visible_surface_samples(views: &[DepthView], stride: usize) -> Result<Vec<Point3<f64>>> {
+/// the part of a ground-truth surface the input views saw. Only depth maps are read (views may
+/// carry an empty image).
+pub fn visible_surface_samples(views: &[PosedView], stride: usize) -> Result<Vec<Point3<f64>>> {
     if stride == 0 {
         return Err(MeshError::InvalidOption {
             option: "stride",
@@ -106,8 +109,8 @@ pub fn visible_surface_samples(views: &[DepthView], stride: usize) -> Result<Vec
     }
     let mut out = Vec::new();
     for (i, v) in views.iter().enumerate() {
-        v.validate(i)?;
-        let proj = Projector::new(v.camera, &v.cam_from_world);
+        let v = Depth::of(v, i)?;
+        let proj = Projector::new(v.camera, v.cam_from_world);
         let (w, h) = (v.depth.width, v.depth.height);
         for y in (0..h).step_by(stride) {
             for x in (0..w).step_by(stride) {

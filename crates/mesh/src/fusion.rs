@@ -12,7 +12,7 @@
 
 use std::time::Instant;
 
-use handheld_core::{Progress, TriMesh};
+use handheld_core::{PosedView, Progress, TriMesh};
 
 use crate::error::{in_range, MeshError, Result};
 use crate::holes::{boundary_loops, fill_holes, remove_non_manifold, HoleFillOptions, HoleReport};
@@ -20,10 +20,11 @@ use crate::marching_cubes::{extract_mesh, ExtractOptions};
 use crate::simplify::{compact, simplify, SimplifyOptions};
 use crate::topology::{edge_report, face_components, remove_small_components};
 use crate::tsdf::{resolve_voxel_size, TsdfOptions, TsdfVolume, BLOCK_VOXELS};
-use crate::view::DepthView;
+use crate::view::Depth;
 
 /// Options of [`fuse_depth_maps`].
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct FusionOptions {
     pub tsdf: TsdfOptions,
     /// Surface extraction; `min_observations` is clamped to the number of views.
@@ -71,6 +72,7 @@ impl Default for FusionOptions {
 
 /// What [`fuse_depth_maps`] did.
 #[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct FusionSummary {
     pub views: usize,
     /// Voxel edge length used (world units).
@@ -110,10 +112,12 @@ pub struct FusionSummary {
     pub simplify_seconds: f64,
 }
 
-/// Fuses depth maps into one mesh in the world (sparse model) frame, counter-clockwise seen
-/// from outside (the free-space side), with vertex normals.
+/// Fuses the views' depth maps (weighted by their confidence maps where present; images are not
+/// read) into one mesh in the world (sparse model) frame, counter-clockwise seen from outside
+/// (the free-space side), with vertex normals. Every view needs a depth map; to hold a view out
+/// of the model, leave it out of `views` (e.g. `Vec::remove` it first).
 pub fn fuse_depth_maps(
-    views: &[DepthView],
+    views: &[PosedView],
     opts: &FusionOptions,
     progress: &dyn Progress,
 ) -> Result<(TriMesh, FusionSummary)> {
@@ -122,7 +126,7 @@ pub fn fuse_depth_maps(
         return Err(MeshError::NoViews { what: "depth maps" });
     }
     for (i, v) in views.iter().enumerate() {
-        v.validate(i)?;
+        let v = Depth::of(v, i)?;
         if !(0..v.depth.data.len()).any(|p| v.weight(p, opts.tsdf.min_confidence) > 0.0) {
             return Err(MeshError::EmptyDepth { view: i });
         }

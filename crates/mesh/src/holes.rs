@@ -31,6 +31,7 @@ use crate::topology::{edge_key, face_components};
 
 /// Options of [`fill_holes`].
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct HoleFillOptions {
     /// Holes whose boundary is longer than this (world units) stay open; 0 fills none.
     pub max_perimeter: f64,
@@ -66,6 +67,7 @@ pub struct BoundaryLoop {
 
 /// What [`fill_holes`] found and did.
 #[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct HoleReport {
     /// Outer boundaries (one per open piece) and holes found.
     pub outer_loops: usize,

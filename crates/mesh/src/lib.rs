@@ -1,7 +1,7 @@
 //! Surface models from calibrated views and depth maps (paper §5.1).
 //!
 //! Split by concept:
-//! * [`view`]: the inputs ([`DepthView`], [`ImageView`]) and their projection helpers;
+//! * `view` (private): the checks of the input [`PosedView`]s and their projection helpers;
 //! * [`single`]: the §5.1 mesh of one depth map (triangle grid over the image, depth smoothing,
 //!   85° discontinuity test) and [`enhance`]: its texture's robust median over the linked views
 //!   (Ofek et al. 1997);
@@ -17,8 +17,10 @@
 //! * [`eval`]: Middlebury multi-view accuracy and completeness against a ground-truth mesh, over a
 //!   triangle hierarchy ([`MeshIndex`]).
 //!
-//! World frame = the sparse model's frame; poses are `cam_from_world`; depth maps are camera-frame
-//! `z` of the original (distorted) images. Nothing here touches a file (`handheld-io` writes OBJ,
+//! Every stage takes its views as [`PosedView`]s (`&PosedView` or `&[PosedView]`), reading only
+//! what it needs. To hold a view out of a fused or textured model, leave it out of the slice
+//! (`Vec::remove` it first). World frame = the sparse model's frame; poses are `cam_from_world`;
+//! depth maps are camera-frame `z` of the original (distorted) images. Nothing here touches a file (`handheld-io` writes OBJ,
 //! glTF and PLY).
 //!
 //! # Measured (issue #7)
@@ -54,17 +56,17 @@ pub mod single;
 pub mod texture;
 pub mod topology;
 pub mod tsdf;
-pub mod view;
+mod view;
 
 pub use bvh::MeshIndex;
 pub use enhance::{enhance_texture, EnhanceOptions, EnhanceSummary};
 pub use error::{MeshError, Result};
 pub use eval::{evaluate, EvalOptions, MultiViewScores};
 pub use fusion::{fuse_depth_maps, FusionOptions, FusionSummary};
+pub use handheld_core::PosedView;
 pub use holes::{fill_holes, HoleFillOptions, HoleReport};
 pub use marching_cubes::{extract_mesh, ExtractOptions};
 pub use simplify::{simplify, SimplifyOptions, SimplifySummary};
 pub use single::{mesh_from_depth_map, SingleMeshOptions, SingleMeshSummary};
 pub use texture::{texture_mesh, TextureOptions, TextureSummary, TexturedMesh};
 pub use tsdf::{TsdfOptions, TsdfVolume, VoxelSize};
-pub use view::{DepthView, ImageView};

@@ -26,6 +26,7 @@ use crate::tsdf::{Block, TsdfVolume, BLOCK};
 
 /// Options of [`extract_mesh`].
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct ExtractOptions {
     /// A voxel is known when its accumulated weight is above this. Default 0.
     pub min_weight: f64,

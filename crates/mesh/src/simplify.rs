@@ -14,6 +14,7 @@ use crate::error::{in_range, MeshError, Result};
 
 /// Options of [`simplify`].
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct SimplifyOptions {
     /// Stop when at most this many triangles remain. Default 500 000.
     pub target_faces: usize,
@@ -47,7 +48,8 @@ impl SimplifyOptions {
 }
 
 /// What [`simplify`] did.
-#[derive(Clone, Debug, Default, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct SimplifySummary {
     pub faces_before: usize,
     pub faces_after: usize,

@@ -14,16 +14,16 @@
 //! drag foreground and background together), and each grid square is split along the diagonal with
 //! the smaller depth difference (or the one that keeps a triangle when one corner is missing).
 
-use handheld_core::{Progress, TriMesh};
-use image::RgbImage;
+use handheld_core::{PosedView, Progress, TriMesh};
 use nalgebra::{Point3, Vector2};
 use rayon::prelude::*;
 
 use crate::error::{in_range, MeshError, Result};
-use crate::view::{sample_rgb, DepthView, Projector};
+use crate::view::{check_image_view, sample_rgb, Depth, Projector};
 
 /// Options of [`mesh_from_depth_map`].
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct SingleMeshOptions {
     /// Grid spacing in pixels (the triangles' leg length). Default 4.
     pub step: usize,
@@ -77,7 +77,8 @@ impl SingleMeshOptions {
 }
 
 /// What [`mesh_from_depth_map`] did.
-#[derive(Clone, Debug, Default, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct SingleMeshSummary {
     /// Grid vertices with a valid (smoothed) depth.
     pub valid_vertices: usize,
@@ -92,7 +93,7 @@ pub struct SingleMeshSummary {
 /// Smoothed depth of the grid vertex at pixel `(x, y)`: the mean of the valid depths in a box of
 /// side `step + 1` around it that lie within `jump` (relative) of the centre; `None` when the
 /// centre itself is missing.
-fn vertex_depth(view: &DepthView, x: usize, y: usize, opts: &SingleMeshOptions) -> Option<f64> {
+fn vertex_depth(view: &Depth, x: usize, y: usize, opts: &SingleMeshOptions) -> Option<f64> {
     let (w, h) = (view.depth.width, view.depth.height);
     let centre = view.weight(y * w + x, opts.min_confidence);
     if centre <= 0.0 {
@@ -120,31 +121,26 @@ fn vertex_depth(view: &DepthView, x: usize, y: usize, opts: &SingleMeshOptions) 
     Some(sum / n.max(1) as f64)
 }
 
-/// The §5.1 mesh of one depth map, in the world frame of `view.cam_from_world`. Texture
-/// coordinates are `((x + ½)/w, (y + ½)/h)` of each vertex's pixel (v = 0 at the top), so the
-/// view's image is the texture; with `image`, vertices also get its colours. Triangles are
-/// counter-clockwise seen from the camera.
+/// The §5.1 mesh of the view's depth map (and confidence map, where present), in the world frame
+/// of `view.cam_from_world`. Texture coordinates are `((x + ½)/w, (y + ½)/h)` of each vertex's
+/// pixel (v = 0 at the top), so the view's image is the texture; vertices also get the image's
+/// colours unless the image is empty (0×0). Triangles are counter-clockwise seen from the camera.
 pub fn mesh_from_depth_map(
-    view: &DepthView,
-    image: Option<&RgbImage>,
+    view: &PosedView,
     opts: &SingleMeshOptions,
     progress: &dyn Progress,
 ) -> Result<(TriMesh, SingleMeshSummary)> {
     opts.validate()?;
-    view.validate(0)?;
-    if let Some(img) = image {
-        crate::view::ImageView {
-            camera: view.camera,
-            cam_from_world: view.cam_from_world,
-            image: img,
-            depth: None,
-        }
-        .validate(0)?;
+    let image = (view.image.width() > 0 || view.image.height() > 0).then_some(&view.image);
+    let depth = Depth::of(view, 0)?;
+    if image.is_some() {
+        check_image_view(0, view)?;
     }
+    let view = depth;
     let (w, h) = (view.depth.width, view.depth.height);
     let step = opts.step;
     let (nx, ny) = ((w - 1) / step + 1, (h - 1) / step + 1);
-    let proj = Projector::new(view.camera, &view.cam_from_world);
+    let proj = Projector::new(view.camera, view.cam_from_world);
     progress.start("single-view mesh", ny as u64);
     // Grid vertices, row by row in parallel.
     let grid: Vec<Option<Point3<f64>>> = (0..ny)
@@ -153,7 +149,7 @@ pub fn mesh_from_depth_map(
             let row: Vec<_> = (0..nx)
                 .map(|i| {
                     let (x, y) = (i * step, j * step);
-                    vertex_depth(view, x, y, opts).map(|d| proj.lift(x as f64, y as f64, d))
+                    vertex_depth(&view, x, y, opts).map(|d| proj.lift(x as f64, y as f64, d))
                 })
                 .collect();
             progress.inc(1);

@@ -17,17 +17,18 @@
 
 use std::time::Instant;
 
-use handheld_core::{Progress, TriMesh};
+use handheld_core::{PosedView, Progress, TriMesh};
 use image::RgbImage;
 use nalgebra::{Point3, Vector2, Vector3};
 use rayon::prelude::*;
 
 use crate::error::{in_range, MeshError, Result};
 use crate::topology::face_neighbours;
-use crate::view::{ImageView, Projector};
+use crate::view::{check_image_view, Projector};
 
 /// Options of [`texture_mesh`].
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct TextureOptions {
     /// Largest atlas side in texels; charts are scaled down uniformly to fit. Default 8192.
     pub max_atlas_size: u32,
@@ -103,6 +104,7 @@ pub struct TexturedMesh {
 
 /// What [`texture_mesh`] did.
 #[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct TextureSummary {
     pub faces: usize,
     /// Faces no view sees (mapped to a grey patch).
@@ -212,10 +214,10 @@ fn view_scores(
     mesh: &TriMesh,
     pos: &[Point3<f64>],
     normals: &[[f32; 3]],
-    view: &ImageView,
+    view: &PosedView,
     opts: &TextureOptions,
 ) -> Vec<f32> {
-    let proj = Projector::new(view.camera, &view.cam_from_world);
+    let proj = Projector::new(&view.camera, &view.cam_from_world);
     let px: Vec<Option<(Vector2<f64>, f64)>> = pos
         .iter()
         .map(|p| {
@@ -239,6 +241,7 @@ fn view_scores(
         let front = max_2x2(&zb, zw, zh, &zq).is_none_or(|d| z <= d * tol);
         let depth_ok = view
             .depth
+            .as_ref()
             .is_none_or(|d| max_2x2(&d.data, d.width, d.height, q).is_none_or(|dd| z <= dd * tol));
         front && depth_ok
     };
@@ -337,10 +340,12 @@ fn select_labels(scores: &[Vec<f32>], neighbours: &[[u32; 3]], opts: &TextureOpt
     labels
 }
 
-/// Textures `mesh` from `views` into one atlas (see the module documentation).
+/// Textures `mesh` from the views' images into one atlas (see the module documentation); a view's
+/// depth map, where present, also marks what it cannot see. To hold a view out of the texture,
+/// leave it out of `views` (e.g. `Vec::remove` it first).
 pub fn texture_mesh(
     mesh: &TriMesh,
-    views: &[ImageView],
+    views: &[PosedView],
     opts: &TextureOptions,
     progress: &dyn Progress,
 ) -> Result<(TexturedMesh, TextureSummary)> {
@@ -354,7 +359,7 @@ pub fn texture_mesh(
         return Err(MeshError::NoViews { what: "images" });
     }
     for (i, v) in views.iter().enumerate() {
-        v.validate(i)?;
+        check_image_view(i, v)?;
     }
     let pos: Vec<Point3<f64>> = mesh
         .vertices

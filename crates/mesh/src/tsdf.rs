@@ -28,7 +28,8 @@ use nalgebra::{Point3, Vector2, Vector3};
 use rayon::prelude::*;
 
 use crate::error::{in_range, positive, MeshError, Result};
-use crate::view::{incidence_map, sample_depth, DepthView, Projector};
+use crate::view::{incidence_map, sample_depth, Depth, Projector};
+use handheld_core::PosedView;
 
 /// Voxels per block edge.
 pub const BLOCK: usize = 8;
@@ -50,6 +51,7 @@ pub enum VoxelSize {
 
 /// Options of [`TsdfVolume`] and of the fusion stage.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct TsdfOptions {
     /// Voxel edge length. Default `PixelFootprint(3.0)`.
     pub voxel_size: VoxelSize,
@@ -137,13 +139,14 @@ pub struct TsdfVolume {
 
 /// The voxel size `opts` asks for, given the views (the median over views of `median depth / f`
 /// for [`VoxelSize::PixelFootprint`]).
-pub fn resolve_voxel_size(views: &[DepthView], opts: &TsdfOptions) -> Result<f64> {
+pub fn resolve_voxel_size(views: &[PosedView], opts: &TsdfOptions) -> Result<f64> {
     match opts.voxel_size {
         VoxelSize::Absolute(v) => Ok(v),
         VoxelSize::PixelFootprint(factor) => {
             let mut per_view: Vec<f64> = Vec::with_capacity(views.len());
             for (i, v) in views.iter().enumerate() {
-                let z = depth_quantile(v, 0.5).ok_or(MeshError::EmptyDepth { view: i })?;
+                let v = Depth::of(v, i)?;
+                let z = depth_quantile(&v, 0.5).ok_or(MeshError::EmptyDepth { view: i })?;
                 per_view.push(z / v.camera.intrinsics.f);
             }
             per_view.sort_by(f64::total_cmp);
@@ -157,7 +160,7 @@ pub fn resolve_voxel_size(views: &[DepthView], opts: &TsdfOptions) -> Result<f64
 }
 
 /// A quantile of the valid depths of a view, from a strided sample of its pixels.
-fn depth_quantile(view: &DepthView, q: f64) -> Option<f64> {
+fn depth_quantile(view: &Depth, q: f64) -> Option<f64> {
     let n = view.depth.data.len();
     let stride = (n / 20_000).max(1);
     let mut d: Vec<f64> = (0..n)
@@ -212,25 +215,25 @@ impl TsdfVolume {
     /// [`Self::update`]. Blocks created by later views miss this view's free-space evidence;
     /// allocate every view first for an order-independent result (as [`crate::fuse_depth_maps`]
     /// does).
-    pub fn integrate(&mut self, view: &DepthView, view_index: usize) -> Result<()> {
+    pub fn integrate(&mut self, view: &PosedView, view_index: usize) -> Result<()> {
         self.allocate(view, view_index)?;
         self.update(view, view_index)
     }
 
     /// Creates the blocks within the truncation band around one view's depths.
-    pub fn allocate(&mut self, view: &DepthView, view_index: usize) -> Result<()> {
-        view.validate(view_index)?;
-        let proj = Projector::new(view.camera, &view.cam_from_world);
-        self.allocate_blocks(view, &proj, view_index)
+    pub fn allocate(&mut self, view: &PosedView, view_index: usize) -> Result<()> {
+        let view = Depth::of(view, view_index)?;
+        let proj = Projector::new(view.camera, view.cam_from_world);
+        self.allocate_blocks(&view, &proj, view_index)
     }
 
     /// The update pass of one view over every allocated block (see the module documentation).
-    pub fn update(&mut self, view: &DepthView, view_index: usize) -> Result<()> {
-        view.validate(view_index)?;
-        let proj = Projector::new(view.camera, &view.cam_from_world);
-        let cos = incidence_map(view);
+    pub fn update(&mut self, view: &PosedView, view_index: usize) -> Result<()> {
+        let view = Depth::of(view, view_index)?;
+        let proj = Projector::new(view.camera, view.cam_from_world);
+        let cos = incidence_map(&view);
         let ctx = UpdateContext {
-            view,
+            view: &view,
             proj: &proj,
             cos: &cos,
             vs: self.voxel_size,
@@ -244,12 +247,7 @@ impl TsdfVolume {
         Ok(())
     }
 
-    fn allocate_blocks(
-        &mut self,
-        view: &DepthView,
-        proj: &Projector,
-        view_index: usize,
-    ) -> Result<()> {
+    fn allocate_blocks(&mut self, view: &Depth, proj: &Projector, view_index: usize) -> Result<()> {
         let z95 = depth_quantile(view, 0.95).ok_or(MeshError::EmptyDepth { view: view_index })?;
         let block_side = self.voxel_size * BLOCK as f64;
         let footprint = z95 / view.camera.intrinsics.f;
@@ -411,7 +409,7 @@ fn merge_sets(mut a: HashSet<[i32; 3]>, b: HashSet<[i32; 3]>) -> HashSet<[i32; 3
 
 /// What the update pass needs of one view.
 struct UpdateContext<'a> {
-    view: &'a DepthView<'a>,
+    view: &'a Depth<'a>,
     proj: &'a Projector,
     /// Per-pixel incidence cosine ([`incidence_map`]).
     cos: &'a [f32],

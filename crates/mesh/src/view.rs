@@ -1,5 +1,6 @@
-//! The inputs every surface stage shares: a posed camera with its depth map (and optional
-//! confidence), or with its colour image, plus the projection helpers on top of them.
+//! The surface stages read [`PosedView`]s: fusion, single-view meshes and evaluation their depth
+//! map (and optional confidence), texturing their image (and depth, for occlusion tests). This
+//! module checks those inputs and holds the projection helpers on top of them.
 //!
 //! Depth maps hold the camera-frame `z` of the surface seen through each pixel centre of the
 //! *original* (distorted) image; non-finite or non-positive values are missing. Pixels are lifted
@@ -7,35 +8,11 @@
 //! projected with its distortion, so no rectified or undistorted copy is ever made.
 
 use handheld_core::pose::center_of;
-use handheld_core::{Camera, FloatMap, Rigid3};
+use handheld_core::{Camera, FloatMap, PosedView, Rigid3};
 use image::RgbImage;
 use nalgebra::{Matrix3, Point3, Vector2, Vector3};
 
 use crate::error::{MeshError, Result};
-
-/// One depth map with the camera that took it. World frame = the sparse model's frame.
-#[derive(Clone, Copy, Debug)]
-pub struct DepthView<'a> {
-    pub camera: &'a Camera,
-    /// Pose of the camera, `p_in_cam = cam_from_world · p_in_world`.
-    pub cam_from_world: Rigid3,
-    /// Camera-frame `z` per pixel, one channel, at the camera's resolution.
-    pub depth: &'a FloatMap,
-    /// Optional per-pixel confidence (e.g. the multi-view linking count or inverse variance), one
-    /// channel at the camera's resolution; used as the fusion weight. `None` weighs every pixel 1.
-    pub confidence: Option<&'a FloatMap>,
-}
-
-/// One colour image with the camera that took it, and optionally its depth map for occlusion tests.
-#[derive(Clone, Copy, Debug)]
-pub struct ImageView<'a> {
-    pub camera: &'a Camera,
-    pub cam_from_world: Rigid3,
-    /// The original (distorted) image, at the camera's resolution.
-    pub image: &'a RgbImage,
-    /// Optional depth map of this view (same convention as [`DepthView::depth`]).
-    pub depth: Option<&'a FloatMap>,
-}
 
 /// Checks a camera and pose for finiteness and a usable focal length.
 pub(crate) fn check_camera(view: usize, camera: &Camera, pose: &Rigid3) -> Result<()> {
@@ -99,20 +76,39 @@ pub(crate) fn check_map(
     Ok(())
 }
 
-impl DepthView<'_> {
-    /// Checks camera, pose, the depth and confidence maps' sizes, and that some depth is valid.
-    pub fn validate(&self, view: usize) -> Result<()> {
-        check_camera(view, self.camera, &self.cam_from_world)?;
-        check_map(view, "depth map", self.depth, self.camera)?;
-        if let Some(c) = self.confidence {
-            check_map(view, "confidence map", c, self.camera)?;
+/// A view's depth map and optional confidence map (the fusion weight; `None` weighs every pixel
+/// 1), checked against its camera: what fusion, single-view meshes and evaluation read.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Depth<'a> {
+    pub camera: &'a Camera,
+    pub cam_from_world: &'a Rigid3,
+    pub depth: &'a FloatMap,
+    pub confidence: Option<&'a FloatMap>,
+}
+
+impl<'a> Depth<'a> {
+    /// Checks camera, pose, and the depth and confidence maps' sizes of view number `index`.
+    pub fn of(view: &'a PosedView, index: usize) -> Result<Self> {
+        check_camera(index, &view.camera, &view.cam_from_world)?;
+        let depth = view.depth.as_ref().ok_or(MeshError::MissingMap {
+            view: index,
+            what: "depth map",
+        })?;
+        check_map(index, "depth map", depth, &view.camera)?;
+        if let Some(c) = &view.confidence {
+            check_map(index, "confidence map", c, &view.camera)?;
         }
-        Ok(())
+        Ok(Self {
+            camera: &view.camera,
+            cam_from_world: &view.cam_from_world,
+            depth,
+            confidence: view.confidence.as_ref(),
+        })
     }
 
     /// Weight of pixel `i` (row-major): `0` when the depth is missing or the confidence is not
     /// above `min_confidence`, else the confidence (1 without a confidence map).
-    pub(crate) fn weight(&self, i: usize, min_confidence: f64) -> f64 {
+    pub fn weight(&self, i: usize, min_confidence: f64) -> f64 {
         let d = self.depth.data[i];
         if !(d.is_finite() && d > 0.0) {
             return 0.0;
@@ -131,26 +127,25 @@ impl DepthView<'_> {
     }
 }
 
-impl ImageView<'_> {
-    /// Checks camera, pose, and the image's and optional depth map's sizes.
-    pub fn validate(&self, view: usize) -> Result<()> {
-        check_camera(view, self.camera, &self.cam_from_world)?;
-        let (w, h) = self.image.dimensions();
-        if w != self.camera.width || h != self.camera.height {
-            return Err(MeshError::SizeMismatch {
-                view,
-                what: "image",
-                got_w: w as usize,
-                got_h: h as usize,
-                cam_w: self.camera.width as usize,
-                cam_h: self.camera.height as usize,
-            });
-        }
-        if let Some(d) = self.depth {
-            check_map(view, "depth map", d, self.camera)?;
-        }
-        Ok(())
+/// Checks camera, pose, and the image's and optional depth map's sizes of view number `index`
+/// (what texturing reads).
+pub(crate) fn check_image_view(index: usize, v: &PosedView) -> Result<()> {
+    check_camera(index, &v.camera, &v.cam_from_world)?;
+    let (w, h) = v.image.dimensions();
+    if w != v.camera.width || h != v.camera.height {
+        return Err(MeshError::SizeMismatch {
+            view: index,
+            what: "image",
+            got_w: w as usize,
+            got_h: h as usize,
+            cam_w: v.camera.width as usize,
+            cam_h: v.camera.height as usize,
+        });
     }
+    if let Some(d) = &v.depth {
+        check_map(index, "depth map", d, &v.camera)?;
+    }
+    Ok(())
 }
 
 /// Precomputed projection of one view: rotation, translation, centre, and the largest normalised
@@ -270,7 +265,7 @@ impl Projector {
 /// neighbour farther than 10% in depth is a discontinuity, not surface). Pixels without a usable
 /// neighbourhood get 1. Curless & Levoy 1996 weigh samples by this cosine; the fusion also uses it
 /// to turn distances along the line of sight into distances to the surface.
-pub(crate) fn incidence_map(view: &DepthView) -> Vec<f32> {
+pub(crate) fn incidence_map(view: &Depth) -> Vec<f32> {
     use rayon::prelude::*;
     let (w, h) = (view.depth.width, view.depth.height);
     let k = &view.camera.intrinsics;

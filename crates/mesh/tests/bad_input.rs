@@ -4,8 +4,8 @@ mod common;
 
 use handheld_core::{FloatMap, NoProgress, Rigid3};
 use handheld_mesh::{
-    fuse_depth_maps, mesh_from_depth_map, texture_mesh, DepthView, FusionOptions, ImageView,
-    MeshError, SingleMeshOptions, TextureOptions, VoxelSize,
+    fuse_depth_maps, mesh_from_depth_map, texture_mesh, FusionOptions, MeshError, PosedView,
+    SingleMeshOptions, TextureOptions, VoxelSize,
 };
 use nalgebra::Vector3;
 
@@ -18,10 +18,10 @@ fn opts() -> FusionOptions {
 #[test]
 fn wrong_sizes_and_empty_maps_are_named() {
     let seq = common::sequence(3, 160);
-    let views = common::depth_views(&seq);
+    let views = common::views(&seq);
     let small = FloatMap::filled(80, 60, 1, 3.0);
     let mut bad = views.clone();
-    bad[1].depth = &small;
+    bad[1].depth = Some(small.clone());
     let err = fuse_depth_maps(&bad, &opts(), &NoProgress).unwrap_err();
     assert!(
         matches!(
@@ -38,7 +38,7 @@ fn wrong_sizes_and_empty_maps_are_named() {
     );
     println!("{err}");
     let mut bad = views.clone();
-    bad[2].confidence = Some(&small);
+    bad[2].confidence = Some(small.clone());
     let err = fuse_depth_maps(&bad, &opts(), &NoProgress).unwrap_err();
     assert!(
         matches!(
@@ -53,17 +53,26 @@ fn wrong_sizes_and_empty_maps_are_named() {
     );
     let empty = FloatMap::filled(160, 120, 1, f32::NAN);
     let mut bad = views.clone();
-    bad[0].depth = &empty;
+    bad[0].depth = Some(empty);
     let err = fuse_depth_maps(&bad, &opts(), &NoProgress).unwrap_err();
     assert_eq!(err, MeshError::EmptyDepth { view: 0 });
-    let err =
-        mesh_from_depth_map(&bad[0], None, &SingleMeshOptions::default(), &NoProgress).unwrap_err();
+    let err = mesh_from_depth_map(&bad[0], &SingleMeshOptions::default(), &NoProgress).unwrap_err();
     assert_eq!(err, MeshError::EmptyDepth { view: 0 });
     let err = fuse_depth_maps(&[], &opts(), &NoProgress).unwrap_err();
     assert!(matches!(err, MeshError::NoViews { .. }));
+    let mut bad = views.clone();
+    bad[1].depth = None;
+    let err = fuse_depth_maps(&bad, &opts(), &NoProgress).unwrap_err();
+    assert_eq!(
+        err,
+        MeshError::MissingMap {
+            view: 1,
+            what: "depth map"
+        }
+    );
     let two_channels = FloatMap::filled(160, 120, 2, 1.0);
     let mut bad = views.clone();
-    bad[0].depth = &two_channels;
+    bad[0].depth = Some(two_channels);
     let err = fuse_depth_maps(&bad, &opts(), &NoProgress).unwrap_err();
     assert!(
         matches!(err, MeshError::MalformedMap { view: 0, .. }),
@@ -74,15 +83,15 @@ fn wrong_sizes_and_empty_maps_are_named() {
 #[test]
 fn depth_maps_that_do_not_overlap_are_an_error() {
     let seq = common::sequence(3, 160);
-    let views = common::depth_views(&seq);
+    let views = common::views(&seq);
     // The second camera moved 50 m back along its optical axis: its depths describe a surface far
     // from the first one's, so no voxel is seen near a surface by both.
     let back = Rigid3::translation(0.0, 0.0, 50.0) * views[1].cam_from_world;
     let moved = vec![
-        views[0],
-        DepthView {
+        views[0].clone(),
+        PosedView {
             cam_from_world: back,
-            ..views[1]
+            ..views[1].clone()
         },
     ];
     let err = fuse_depth_maps(&moved, &opts(), &NoProgress).unwrap_err();
@@ -96,9 +105,9 @@ fn depth_maps_that_do_not_overlap_are_an_error() {
     );
     // Non-finite poses and invalid options are named too.
     let nan = Rigid3::new(Vector3::new(f64::NAN, 0.0, 0.0), Vector3::zeros());
-    let bad = vec![DepthView {
+    let bad = vec![PosedView {
         cam_from_world: nan,
-        ..views[0]
+        ..views[0].clone()
     }];
     assert!(matches!(
         fuse_depth_maps(&bad, &opts(), &NoProgress),
@@ -131,13 +140,12 @@ fn depth_maps_that_do_not_overlap_are_an_error() {
 #[test]
 fn texturing_rejects_mismatched_images_and_foreign_views() {
     let seq = common::sequence(3, 160);
-    let views = common::depth_views(&seq);
+    let views = common::views(&seq);
     let (mesh, _) = fuse_depth_maps(&views, &opts(), &NoProgress).unwrap();
-    let images = common::image_views(&seq);
-    let small = image::RgbImage::new(10, 10);
-    let bad = vec![ImageView {
-        image: &small,
-        ..images[0]
+    let images = views;
+    let bad = vec![PosedView {
+        image: image::RgbImage::new(10, 10),
+        ..images[0].clone()
     }];
     let err = texture_mesh(&mesh, &bad, &TextureOptions::default(), &NoProgress).unwrap_err();
     assert!(
@@ -147,10 +155,10 @@ fn texturing_rejects_mismatched_images_and_foreign_views() {
     // Cameras looking away from the mesh see none of it.
     let turned =
         Rigid3::rotation(Vector3::new(0.0, std::f64::consts::PI, 0.0)) * images[0].cam_from_world;
-    let away = vec![ImageView {
+    let away = vec![PosedView {
         cam_from_world: turned,
         depth: None,
-        ..images[0]
+        ..images[0].clone()
     }];
     let err = texture_mesh(&mesh, &away, &TextureOptions::default(), &NoProgress).unwrap_err();
     assert!(

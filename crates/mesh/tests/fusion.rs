@@ -12,7 +12,7 @@ use handheld_mesh::{topology::edge_report, VoxelSize};
 #[test]
 fn fused_mesh_meets_the_middlebury_bounds() {
     let seq = common::sequence(10, 320);
-    let views = common::depth_views(&seq);
+    let views = common::views(&seq);
     let size = seq.scene.extent();
     let mut opts = FusionOptions::default();
     opts.tsdf.voxel_size = VoxelSize::Absolute(0.02);
@@ -130,12 +130,12 @@ fn noisy_depth_with_outliers_is_cleaned_by_confidence_and_views() {
         }
         conf.push(c);
     }
-    let views: Vec<_> = common::depth_views(&seq)
+    let views: Vec<_> = common::views(&seq)
         .into_iter()
         .enumerate()
-        .map(|(i, v)| handheld_mesh::DepthView {
-            depth: &noisy[i],
-            confidence: Some(&conf[i]),
+        .map(|(i, v)| handheld_mesh::PosedView {
+            depth: Some(noisy[i].clone()),
+            confidence: Some(conf[i].clone()),
             ..v
         })
         .collect();
@@ -145,7 +145,7 @@ fn noisy_depth_with_outliers_is_cleaned_by_confidence_and_views() {
     opts.min_component_faces = 50;
     opts.simplify = None;
     let (mesh, summary) = fuse_depth_maps(&views, &opts, &NoProgress).unwrap();
-    let gt_samples = visible_surface_samples(&common::depth_views(&seq), 3).unwrap();
+    let gt_samples = visible_surface_samples(&common::views(&seq), 3).unwrap();
     let eval = EvalOptions {
         accuracy_fraction: 0.9,
         completeness_threshold: 0.01 * size,

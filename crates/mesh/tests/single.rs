@@ -15,7 +15,7 @@ fn p64(q: [f32; 3]) -> Point3<f64> {
 #[test]
 fn single_view_mesh_is_accurate_oriented_and_textured_by_its_image() {
     let seq = common::sequence(9, 320);
-    let views = common::depth_views(&seq);
+    let views = common::views(&seq);
     let reference = 4;
     let size = seq.scene.extent();
     let gt = MeshIndex::new(&seq.mesh);
@@ -27,13 +27,7 @@ fn single_view_mesh_is_accurate_oriented_and_textured_by_its_image() {
             max_angle_deg: max_angle,
             ..Default::default()
         };
-        let (mesh, summary) = mesh_from_depth_map(
-            &views[reference],
-            Some(&seq.images[reference]),
-            &opts,
-            &NoProgress,
-        )
-        .unwrap();
+        let (mesh, summary) = mesh_from_depth_map(&views[reference], &opts, &NoProgress).unwrap();
         mesh.validate().unwrap();
         assert_eq!(mesh.vertices.colors.len(), mesh.vertices.len());
         assert!(mesh.uvs.iter().flatten().all(|u| (0.0..=1.0).contains(u)));
@@ -89,27 +83,20 @@ fn single_view_mesh_is_accurate_oriented_and_textured_by_its_image() {
 fn enhancement_removes_a_highlight_seen_in_one_view_only() {
     let seq = common::sequence(9, 320);
     let reference = 4;
-    let depth = common::depth_views(&seq);
-    let images = common::image_views(&seq);
+    let views = common::views(&seq);
     let clean = &seq.images[reference];
-    let mut spotted = clean.clone();
+    let mut spotted = views[reference].clone();
     // A specular highlight: a saturated disk on the surface in the reference image only.
     let (cx, cy, r) = (150i64, 150i64, 12i64);
     let in_spot = |x: i64, y: i64| (x - cx).pow(2) + (y - cy).pow(2) <= r * r;
-    for (x, y, p) in spotted.enumerate_pixels_mut() {
+    for (x, y, p) in spotted.image.enumerate_pixels_mut() {
         if in_spot(x as i64, y as i64) {
             *p = image::Rgb([255, 255, 255]);
         }
     }
-    let linked: Vec<_> = [2, 3, 5, 6].iter().map(|&i| images[i]).collect();
-    let (enhanced, summary) = enhance_texture(
-        &depth[reference],
-        &spotted,
-        &linked,
-        &EnhanceOptions::default(),
-        &NoProgress,
-    )
-    .unwrap();
+    let linked: Vec<_> = [2, 3, 5, 6].iter().map(|&i| views[i].clone()).collect();
+    let (enhanced, summary) =
+        enhance_texture(&spotted, &linked, &EnhanceOptions::default(), &NoProgress).unwrap();
     let mad = |a: &image::RgbImage, spot: bool| {
         let (mut s, mut n) = (0.0, 0usize);
         for (x, y, p) in a.enumerate_pixels() {
@@ -127,11 +114,11 @@ fn enhancement_removes_a_highlight_seen_in_one_view_only() {
     };
     println!(
         "{summary:?}; highlight error {:.1} -> {:.1}; elsewhere {:.1}",
-        mad(&spotted, true),
+        mad(&spotted.image, true),
         mad(&enhanced, true),
         mad(&enhanced, false)
     );
     assert!(summary.texels_replaced > 10_000);
-    assert!(mad(&enhanced, true) < 0.25 * mad(&spotted, true));
+    assert!(mad(&enhanced, true) < 0.25 * mad(&spotted.image, true));
     assert!(mad(&enhanced, false) < 20.0);
 }

@@ -4,7 +4,6 @@
 mod common;
 
 use handheld_core::NoProgress;
-use handheld_mesh::view::ImageView;
 use handheld_mesh::{fuse_depth_maps, texture_mesh, FusionOptions, TextureOptions, VoxelSize};
 use nalgebra::Point3;
 
@@ -28,27 +27,16 @@ fn bilinear(img: &image::RgbImage, x: f64, y: f64) -> [f64; 3] {
 fn textured_mesh_reproduces_a_held_out_view() {
     let seq = common::sequence(11, 320);
     let held_out = 5;
-    let all_depth = common::depth_views(&seq);
-    let depth: Vec<_> = all_depth
-        .iter()
-        .enumerate()
-        .filter(|(i, _)| *i != held_out)
-        .map(|(_, v)| *v)
-        .collect();
+    // The held-out view is removed from the views the model is fused and textured from.
+    let mut views = common::views(&seq);
+    let held = views.remove(held_out);
     let mut opts = FusionOptions::default();
     opts.tsdf.voxel_size = VoxelSize::Absolute(0.02);
     opts.simplify.as_mut().unwrap().target_faces = 40_000;
-    let (mesh, _) = fuse_depth_maps(&depth, &opts, &NoProgress).unwrap();
-    let all_images = common::image_views(&seq);
-    let images: Vec<ImageView> = all_images
-        .iter()
-        .enumerate()
-        .filter(|(i, _)| *i != held_out)
-        .map(|(_, v)| *v)
-        .collect();
+    let (mesh, _) = fuse_depth_maps(&views, &opts, &NoProgress).unwrap();
     let t = std::time::Instant::now();
     let (tm, summary) =
-        texture_mesh(&mesh, &images, &TextureOptions::default(), &NoProgress).unwrap();
+        texture_mesh(&mesh, &views, &TextureOptions::default(), &NoProgress).unwrap();
     println!("{summary:?}; {:.2}s", t.elapsed().as_secs_f64());
     tm.mesh.validate().unwrap();
     assert_eq!(tm.mesh.faces.len(), mesh.faces.len());
@@ -62,8 +50,8 @@ fn textured_mesh_reproduces_a_held_out_view() {
     assert!(summary.untextured_faces * 20 < summary.faces, "{summary:?}");
     assert!(summary.atlas_width <= 8192 && summary.atlas_height <= 8192);
     // Colour check against the held-out view, at face centroids it sees (GT depth agrees).
-    let (cam, pose) = seq.frame(held_out).unwrap();
-    let gt_depth = &seq.depths[held_out];
+    let (cam, pose) = (&held.camera, &held.cam_from_world);
+    let gt_depth = held.depth.as_ref().unwrap();
     let (aw, ah) = (tm.texture.width() as f64, tm.texture.height() as f64);
     let (mut sum, mut floor, mut n) = (0.0, 0.0, 0usize);
     for f in &tm.mesh.faces {
@@ -87,7 +75,7 @@ fn textured_mesh_reproduces_a_held_out_view() {
         let u = (uv[0][0] + uv[1][0] + uv[2][0]) as f64 / 3.0;
         let v = (uv[0][1] + uv[1][1] + uv[2][1]) as f64 / 3.0;
         let a = bilinear(&tm.texture, u * aw - 0.5, v * ah - 0.5);
-        let b = bilinear(&seq.images[held_out], px.x, px.y);
+        let b = bilinear(&held.image, px.x, px.y);
         // Floor: the same comparison between two real neighbouring images.
         let (cam4, pose4) = seq.frame(held_out - 1).unwrap();
         let Some(q) = cam4.project(pose4, &c).filter(|q| cam4.contains(q)) else {

@@ -35,6 +35,7 @@ pub enum RectifyMethod {
 
 /// Options of [`rectify_pair`].
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct RectifyOptions {
     pub method: RectifyMethod,
     /// In diagonals; planar rectification is used in `Auto` mode beyond this epipole distance.
@@ -54,6 +55,7 @@ impl Default for RectifyOptions {
 }
 
 impl RectifyOptions {
+    /// Checks every option; the error names the first offending one.
     pub fn validate(&self) -> Result<()> {
         if !(self.planar_epipole_distance.is_finite() && self.planar_epipole_distance > 0.0) {
             return Err(DenseError::InvalidOption {

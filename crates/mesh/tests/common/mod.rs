@@ -2,7 +2,7 @@
 
 #![allow(dead_code)]
 
-use handheld_mesh::{DepthView, ImageView};
+use handheld_mesh::PosedView;
 use handheld_testkit::{render_sequence, SequenceOptions, SyntheticSequence};
 
 /// Options of `n` frames of the default orbit (seed 7) at `width`×`height`, exact depth, no image
@@ -24,30 +24,36 @@ pub fn sequence(n: usize, width: u32) -> SyntheticSequence {
     render_sequence(&sequence_options(n, width, width * 3 / 4)).expect("valid sequence options")
 }
 
-pub fn depth_views(seq: &SyntheticSequence) -> Vec<DepthView<'_>> {
+/// Every frame as a posed view with its image and exact depth map (no confidence).
+pub fn views(seq: &SyntheticSequence) -> Vec<PosedView> {
     (0..seq.depths.len())
         .filter_map(|i| {
             let (camera, pose) = seq.frame(i)?;
-            Some(DepthView {
-                camera,
-                cam_from_world: *pose,
-                depth: &seq.depths[i],
-                confidence: None,
-            })
+            let mut v = PosedView::new(
+                format!("frame{i}"),
+                camera.clone(),
+                *pose,
+                seq.images[i].clone(),
+            );
+            v.depth = Some(seq.depths[i].clone());
+            Some(v)
         })
         .collect()
 }
 
-pub fn image_views(seq: &SyntheticSequence) -> Vec<ImageView<'_>> {
-    (0..seq.images.len())
-        .filter_map(|i| {
+/// [`views`] without copies: the images and depth maps are moved out of `seq`.
+pub fn take_views(seq: &mut SyntheticSequence) -> Vec<PosedView> {
+    let images = std::mem::take(&mut seq.images);
+    let depths = std::mem::take(&mut seq.depths);
+    images
+        .into_iter()
+        .zip(depths)
+        .enumerate()
+        .filter_map(|(i, (image, depth))| {
             let (camera, pose) = seq.frame(i)?;
-            Some(ImageView {
-                camera,
-                cam_from_world: *pose,
-                image: &seq.images[i],
-                depth: Some(&seq.depths[i]),
-            })
+            let mut v = PosedView::new(format!("frame{i}"), camera.clone(), *pose, image);
+            v.depth = Some(depth);
+            Some(v)
         })
         .collect()
 }

@@ -4,7 +4,8 @@
 //!   where nothing was kept (full-resolution maps unless `max_size` downscaled the view;
 //!   `cameras.json` holds the camera each map belongs to);
 //! - `variance/<image>.pfm`: the Kalman-fused depth variance (model units²);
-//! - `confidence/<image>.pfm`: `1 / (1 + σ/(0.005·z))`, 0.5 where the 1σ error is 0.5% of depth;
+//! - `confidence/<image>.pfm`: `1 / (1 + σ/(0.005·z))` (`LinkedDepth::confidence`), 0.5 where the 1σ
+//!   error is 0.5% of depth;
 //! - `visibility/<image>.pfm`: V, the number of views linked (reference included);
 //! - `preview/<image>.depth.png` and `preview/<image>.visibility.png`;
 //! - `fused.ply`, the coloured point cloud; `summary.json`.
@@ -14,10 +15,9 @@
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
-use handheld_core::{FloatMap, ImageId, MetricReconstruction, Progress};
-use handheld_dense::{
-    dense_reconstruct, scale_camera, DenseInputView, DenseOptions, StereoMethod, StereoOptions,
-};
+use handheld_core::{ImageId, MetricReconstruction, PosedView, Progress};
+use handheld_dense::{dense_reconstruct, scale_camera, DenseOptions, StereoMethod, StereoOptions};
+use handheld_io::dense_folder::{write_cameras, write_view, MapKind, CAMERAS_FILE};
 use handheld_io::images::{load_image, ImageIngestOptions};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -182,7 +182,7 @@ fn load_views(
     rec: &MetricReconstruction,
     ids: &[ImageId],
     max_size: u32,
-) -> Result<Vec<DenseInputView>> {
+) -> Result<Vec<PosedView>> {
     let opts = ImageIngestOptions {
         min_dimension: 1,
         ..Default::default()
@@ -229,26 +229,14 @@ fn load_views(
             } else {
                 (img, camera.clone())
             };
-            Ok(DenseInputView {
-                name: view.name.clone(),
+            Ok(PosedView::new(
+                view.name.clone(),
                 camera,
-                cam_from_world: view.cam_from_world,
-                image: FloatMap::from_u8(
-                    img.width() as usize,
-                    img.height() as usize,
-                    3,
-                    img.as_raw(),
-                ),
-            })
+                view.cam_from_world,
+                img,
+            ))
         })
         .collect()
-}
-
-#[derive(Serialize)]
-struct CameraEntry<'a> {
-    image: &'a str,
-    camera: &'a handheld_core::Camera,
-    cam_from_world: &'a handheld_core::Rigid3,
 }
 
 /// Densifies the views `ids` of `rec` (images found through `paths`, by view name) into `dir`.
@@ -262,76 +250,50 @@ pub fn densify(
 ) -> Result<Produced<DenseStageSummary>> {
     let views = load_views(paths, rec, ids, opts.max_size)?;
     let points: Vec<_> = rec.points.values().map(|p| p.xyz).collect();
-    for sub in ["depth", "variance", "confidence", "visibility", PREVIEW_DIR] {
+    for sub in MapKind::ALL
+        .iter()
+        .map(|k| k.dir_name())
+        .chain([PREVIEW_DIR])
+    {
         std::fs::create_dir_all(dir.join(sub))
             .map_err(|e| handheld_io::IoError::io(dir.join(sub), e))?;
     }
     let mut per_view = Vec::new();
     let mut outputs = Vec::new();
-    let (cloud, summary) = dense_reconstruct(&views, &points, &opts.dense, progress, |v, r| {
+    let (cloud, summary) = dense_reconstruct(&views, &points, &opts.dense, progress, |r| {
+        let v = &r.view;
         let name = &v.name;
-        let l = &r.linked;
-        let conf = FloatMap {
-            data: l
-                .depth
-                .data
-                .iter()
-                .zip(&l.variance.data)
-                .map(|(z, var)| {
-                    if z.is_finite() {
-                        1.0 / (1.0 + var.sqrt() / (0.005 * z))
-                    } else {
-                        0.0
-                    }
-                })
-                .collect(),
-            ..l.depth.clone()
-        };
-        let write = || -> Result<()> {
-            for (sub, map) in [
-                ("depth", &l.depth),
-                ("variance", &l.variance),
-                ("confidence", &conf),
-                ("visibility", &l.visibility),
-            ] {
-                handheld_io::pfm::write_pfm(&dir.join(sub).join(format!("{name}.pfm")), map)?;
-            }
+        let write = || -> Result<Vec<String>> {
+            let written = write_view(dir, v)?;
             let pdir = dir.join(PREVIEW_DIR);
-            write_preview(&l.depth, &pdir.join(format!("{name}.depth.png")))?;
-            write_preview(&l.visibility, &pdir.join(format!("{name}.visibility.png")))?;
-            Ok(())
+            for (map, kind) in [(&v.depth, "depth"), (&v.visibility, "visibility")] {
+                if let Some(map) = map {
+                    write_preview(map, &pdir.join(format!("{name}.{kind}.png")))?;
+                }
+            }
+            Ok(written)
         };
-        write().map_err(|e| handheld_dense::DenseError::Linking {
+        let written = write().map_err(|e| handheld_dense::DenseError::Linking {
             reason: format!("{name}: cannot write the maps: {e}"),
         })?;
-        for sub in ["depth", "variance", "confidence", "visibility"] {
-            outputs.push(format!("{sub}/{name}.pfm"));
-        }
+        outputs.extend(written);
         tracing::info!(
             "dense: {name}: {:.1} % filled in {:.2} s",
-            l.fill() * 100.0,
+            v.fill() * 100.0,
             r.seconds
         );
         per_view.push(ViewFill {
             image: name.clone(),
             width: v.camera.width,
             height: v.camera.height,
-            fill: l.fill(),
+            fill: v.fill(),
             seconds: r.seconds,
         });
         Ok(())
     })
     .context("dense matching")?;
     handheld_io::ply::write_point_cloud(&dir.join(FUSED_PLY), &cloud, Default::default())?;
-    let cameras: Vec<CameraEntry> = views
-        .iter()
-        .map(|v| CameraEntry {
-            image: &v.name,
-            camera: &v.camera,
-            cam_from_world: &v.cam_from_world,
-        })
-        .collect();
-    write_json(&dir.join("cameras.json"), &cameras)?;
+    write_cameras(dir, &views)?;
     let mut s = DenseStageSummary {
         views: summary.views,
         pairs_matched: summary.pairs_matched,
@@ -339,9 +301,9 @@ pub fn densify(
         pairs_failed: summary
             .pairs_failed
             .iter()
-            .map(|(p, why)| FailedPair {
-                pair: [views[*p].name.clone(), views[*p + 1].name.clone()],
-                reason: why.clone(),
+            .map(|f| FailedPair {
+                pair: [views[f.first].name.clone(), views[f.first + 1].name.clone()],
+                reason: f.reason.clone(),
             })
             .collect(),
         fused_points: summary.fused_points,
@@ -352,7 +314,7 @@ pub fn densify(
         per_view: Some(per_view),
     };
     write_json(&dir.join(SUMMARY_JSON), &s)?;
-    outputs.extend([FUSED_PLY.into(), "cameras.json".into(), SUMMARY_JSON.into()]);
+    outputs.extend([FUSED_PLY.into(), CAMERAS_FILE.into(), SUMMARY_JSON.into()]);
     s.per_view = None;
     Ok(Produced::new(outputs, s))
 }

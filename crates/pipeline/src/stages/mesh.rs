@@ -11,20 +11,18 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use handheld_core::{Camera, FloatMap, Progress, Rigid3};
-use handheld_io::images::{load_image, ImageIngestOptions};
+use handheld_core::{PosedView, Progress};
+use handheld_io::dense_folder::{read_cameras, read_views, MapKind};
 use handheld_mesh::{
-    fuse_depth_maps, mesh_from_depth_map, texture_mesh, DepthView, FusionOptions, FusionSummary,
-    ImageView, SingleMeshOptions, TextureOptions, TextureSummary, TexturedMesh, VoxelSize,
+    fuse_depth_maps, mesh_from_depth_map, texture_mesh, FusionOptions, FusionSummary,
+    SingleMeshOptions, TextureOptions, TextureSummary, TexturedMesh, VoxelSize,
 };
 use image::RgbImage;
-use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Context, PipelineError, Result};
 use crate::files::{
-    read_json, stage, write_json, HOLDOUT_PNG, MODEL_GLB, MODEL_OBJ, MODEL_PLY, SUMMARY_JSON,
-    VIEWS_DIR,
+    stage, write_json, HOLDOUT_PNG, MODEL_GLB, MODEL_OBJ, MODEL_PLY, SUMMARY_JSON, VIEWS_DIR,
 };
 use crate::stage::{Produced, Stage, StageContext};
 
@@ -172,96 +170,6 @@ impl Stage for Mesh {
     }
 }
 
-/// One key view read back from `dense/`.
-struct KeyView {
-    name: String,
-    camera: Camera,
-    cam_from_world: Rigid3,
-    depth: FloatMap,
-    confidence: Option<FloatMap>,
-    image: RgbImage,
-}
-
-impl KeyView {
-    fn depth_view(&self) -> DepthView<'_> {
-        DepthView {
-            camera: &self.camera,
-            cam_from_world: self.cam_from_world,
-            depth: &self.depth,
-            confidence: self.confidence.as_ref(),
-        }
-    }
-
-    fn image_view(&self) -> ImageView<'_> {
-        ImageView {
-            camera: &self.camera,
-            cam_from_world: self.cam_from_world,
-            image: &self.image,
-            depth: Some(&self.depth),
-        }
-    }
-}
-
-#[derive(Deserialize)]
-struct CameraEntry {
-    image: String,
-    camera: Camera,
-    cam_from_world: Rigid3,
-}
-
-fn load_key_views(dense: &Path, paths: &BTreeMap<String, PathBuf>) -> Result<Vec<KeyView>> {
-    let entries: Vec<CameraEntry> = read_json(&dense.join("cameras.json"), stage::DENSE)?;
-    let opts = ImageIngestOptions {
-        min_dimension: 1,
-        ..Default::default()
-    };
-    entries
-        .into_par_iter()
-        .map(|e| {
-            let dpath = dense.join("depth").join(format!("{}.pfm", e.image));
-            let depth = handheld_io::pfm::read_pfm(&dpath)?;
-            if (depth.width, depth.height) != (e.camera.width as usize, e.camera.height as usize) {
-                return Err(PipelineError::workspace(
-                    &dpath,
-                    format!(
-                        "depth map is {}x{} but its camera is {}x{}; rerun the dense stage",
-                        depth.width, depth.height, e.camera.width, e.camera.height
-                    ),
-                ));
-            }
-            let cpath = dense.join("confidence").join(format!("{}.pfm", e.image));
-            let confidence = if cpath.exists() {
-                Some(handheld_io::pfm::read_pfm(&cpath)?)
-            } else {
-                None
-            };
-            let path = paths.get(&e.image).ok_or_else(|| PipelineError::Input {
-                path: e.image.clone().into(),
-                reason: "no such image among the inputs".into(),
-            })?;
-            let img = load_image(path, &opts)?.image.to_rgb8();
-            let image = if (img.width(), img.height()) == (e.camera.width, e.camera.height) {
-                img
-            } else {
-                image::imageops::resize(
-                    &img,
-                    e.camera.width,
-                    e.camera.height,
-                    image::imageops::FilterType::Triangle,
-                )
-            };
-            Ok(KeyView {
-                name: e.image,
-                camera: e.camera,
-                cam_from_world: e.cam_from_world,
-                depth,
-                confidence,
-                image,
-            })
-        })
-        .collect()
-}
-
 /// Builds the meshes of the dense folder `dense` into `dir`.
 pub fn build(
     dense: &Path,
@@ -270,7 +178,7 @@ pub fn build(
     dir: &Path,
     bars: &dyn Progress,
 ) -> Result<Produced<MeshStageSummary>> {
-    let views = load_key_views(dense, paths)?;
+    let mut views = read_views(dense, |n| paths.get(n).cloned(), &[MapKind::Confidence])?;
     if views.is_empty() {
         return Err(PipelineError::workspace(
             dense,
@@ -292,9 +200,8 @@ pub fn build(
         std::fs::create_dir_all(&vdir).map_err(|e| handheld_io::IoError::io(&vdir, e))?;
         let mut list = Vec::new();
         for v in &views {
-            let dv = v.depth_view();
             // A view whose depth map gives no triangle is skipped with a warning, not fatal.
-            let (mesh, s) = match mesh_from_depth_map(&dv, Some(&v.image), &opts.single, bars) {
+            let (mesh, s) = match mesh_from_depth_map(v, &opts.single, bars) {
                 Ok(r) if !r.0.faces.is_empty() => r,
                 Ok(_) => {
                     warnings.push(format!("{}: the depth map gives no triangles", v.name));
@@ -324,22 +231,12 @@ pub fn build(
         None => None,
     };
     if opts.mode == MeshMode::Fused {
-        let depth_views: Vec<DepthView> = views
-            .iter()
-            .enumerate()
-            .filter(|(i, _)| Some(*i) != held)
-            .map(|(_, v)| v.depth_view())
-            .collect();
+        // The held-out view leaves the set: neither its depth nor its colours reach the model.
+        let held = held.map(|h| views.remove(h));
         let (mesh, fs) =
-            fuse_depth_maps(&depth_views, &opts.fusion, bars).context("volumetric fusion")?;
-        let image_views: Vec<ImageView> = views
-            .iter()
-            .enumerate()
-            .filter(|(i, _)| Some(*i) != held)
-            .map(|(_, v)| v.image_view())
-            .collect();
+            fuse_depth_maps(&views, &opts.fusion, bars).context("volumetric fusion")?;
         let (textured, ts) =
-            texture_mesh(&mesh, &image_views, &opts.texture, bars).context("texturing")?;
+            texture_mesh(&mesh, &views, &opts.texture, bars).context("texturing")?;
         let files = handheld_io::obj::write_obj(
             &dir.join(MODEL_OBJ),
             &textured.mesh,
@@ -364,8 +261,8 @@ pub fn build(
             handheld_io::ply::PlyFormat::BinaryLittleEndian,
         )?;
         outputs.extend([MODEL_GLB.into(), MODEL_PLY.into()]);
-        if let Some(h) = held {
-            summary.hold_out = Some(hold_out_check(&views[h], &textured, dir)?);
+        if let Some(h) = &held {
+            summary.hold_out = Some(hold_out_check(h, &textured, dir)?);
             outputs.push(HOLDOUT_PNG.into());
         }
         summary.texture = Some(TextureReport {
@@ -386,7 +283,7 @@ pub fn build(
 
 /// Renders the textured model from a view left out of it and compares with the photo; writes
 /// `holdout.png` (rendering | photo | 4× absolute difference).
-fn hold_out_check(v: &KeyView, textured: &TexturedMesh, dir: &Path) -> Result<HoldOut> {
+fn hold_out_check(v: &PosedView, textured: &TexturedMesh, dir: &Path) -> Result<HoldOut> {
     let r = handheld_render::render_mesh(
         &textured.mesh,
         Some(&textured.texture),
@@ -436,10 +333,10 @@ pub fn mesh_dense_folder(
     progress: &dyn Progress,
 ) -> Result<MeshStageSummary> {
     opts.validate()?;
-    let entries: Vec<CameraEntry> = read_json(&dense.join("cameras.json"), stage::DENSE)?;
-    let paths = entries
-        .iter()
-        .map(|e| (e.image.clone(), images.join(&e.image)))
+    let paths = read_cameras(dense)?
+        .into_iter()
+        .map(|e| (images.join(&e.image), e.image))
+        .map(|(path, image)| (image, path))
         .collect();
     std::fs::create_dir_all(out).map_err(|e| handheld_io::IoError::io(out, e))?;
     Ok(build(dense, &paths, opts, out, progress)?.summary)
