@@ -20,12 +20,16 @@ pub enum EvalError {
         context: String,
         cause: Box<dyn std::error::Error + Send + Sync>,
     },
+    /// Reading or writing a file.
     #[error(transparent)]
     Io(#[from] handheld_io::IoError),
+    /// The pipeline stopped.
     #[error(transparent)]
     Pipeline(#[from] handheld_pipeline::PipelineError),
+    /// Stereo, rectification or linking failed.
     #[error(transparent)]
     Dense(#[from] handheld_dense::DenseError),
+    /// Mesh evaluation failed.
     #[error(transparent)]
     Mesh(#[from] handheld_mesh::MeshError),
 }

@@ -63,7 +63,9 @@ pub enum BenchLoss {
     /// Plain least squares.
     #[default]
     None,
+    /// Huber's loss with the robust scale.
     Huber,
+    /// Cauchy's loss with the robust scale.
     Cauchy,
 }
 
@@ -74,7 +76,9 @@ pub enum BenchSolver {
     /// Dense up to the library's size limit, else sparse.
     #[default]
     Auto,
+    /// Dense Schur complement.
     Dense,
+    /// Sparse Schur complement.
     Sparse,
 }
 
