@@ -53,7 +53,7 @@ pub enum Command {
     /// The mesh stage alone (§5.1) on a dense folder: fused textured model and per-view meshes.
     Mesh(MeshStageArgs),
     /// Dense matching of one already-rectified pair (§4.2): the left view's disparity as PFM.
-    Stereo(crate::stereo::StereoArgs),
+    Stereo(crate::bench::StereoArgs),
     /// Benchmarks; each prints one JSON object (use with --json).
     Bench(BenchArgs),
 }
@@ -67,51 +67,45 @@ pub struct BenchArgs {
 #[derive(Debug, Subcommand)]
 pub enum BenchCommand {
     /// Bundle adjustment on a BAL problem (compare with Ceres' bundle_adjuster).
-    Bundle(crate::bench_bundle::BenchBundleArgs),
+    Bundle(crate::bench::BenchBundleArgs),
     /// Feature extraction and matching on a folder of images (compare with COLMAP).
-    Matching(crate::bench_matching::BenchMatchingArgs),
+    Matching(crate::bench::BenchMatchingArgs),
     /// SGM and DP stereo on the Middlebury pairs, scored against GT (compare with OpenCV SGBM).
-    Stereo(crate::stereo::BenchStereoArgs),
+    Stereo(crate::bench::BenchStereoArgs),
     /// Dense targets: multi-view linking curve, polar rectification, pair speed.
-    Dense(crate::bench_dense::BenchDenseArgs),
+    Dense(crate::bench::BenchDenseArgs),
 }
 
-/// Camera path of the synthetic sequence.
-#[derive(Debug, Clone, Copy, ValueEnum, PartialEq, Eq)]
-pub enum PathKind {
-    /// Walk around the object.
-    Orbit,
-    /// Walk sideways past the scene.
-    Walk,
-    /// Move forwards into the scene.
-    Forward,
+/// The demo's defaults, from the library.
+fn demo_defaults() -> handheld_eval::DemoOptions {
+    handheld_eval::DemoOptions::default()
 }
 
 #[derive(Debug, Args)]
 pub struct DemoArgs {
     /// Output folder: input images, ground truth and the workspace go inside.
-    #[arg(long, short, default_value = "handheld-demo")]
+    #[arg(long, short, default_value_os_t = demo_defaults().output)]
     pub output: PathBuf,
     /// Number of frames to render.
-    #[arg(long, default_value_t = 20, value_parser = clap::value_parser!(u32).range(2..=1000))]
+    #[arg(long, default_value_t = demo_defaults().frames, value_parser = clap::value_parser!(u32).range(2..=1000))]
     pub frames: u32,
     /// Image width in pixels.
-    #[arg(long, default_value_t = 640, value_parser = clap::value_parser!(u32).range(64..=8192))]
+    #[arg(long, default_value_t = demo_defaults().width, value_parser = clap::value_parser!(u32).range(64..=8192))]
     pub width: u32,
     /// Image height in pixels.
-    #[arg(long, default_value_t = 480, value_parser = clap::value_parser!(u32).range(48..=8192))]
+    #[arg(long, default_value_t = demo_defaults().height, value_parser = clap::value_parser!(u32).range(48..=8192))]
     pub height: u32,
     /// Seed of the scene, the path and the noise.
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = demo_defaults().seed)]
     pub seed: u64,
     /// Camera path.
-    #[arg(long, value_enum, default_value_t = PathKind::Orbit)]
-    pub path: PathKind,
+    #[arg(long, default_value = choice_name(&demo_defaults().path), value_parser = choice::<handheld_eval::CameraPath>)]
+    pub path: handheld_eval::CameraPath,
     /// Redo every stage even when its outputs are up to date.
     #[arg(long)]
     pub force: bool,
     /// Pixel aspect ratio f_y / f_x of the synthetic camera (e.g. 1.09, the paper's camcorder; §3.4).
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = demo_defaults().aspect_ratio)]
     pub aspect_ratio: f64,
     /// Encode the frames as an H.264 video (needs ffmpeg) and reconstruct that in video mode: KLT
     /// tracks, GRIC key-frames, a pose for every frame.

@@ -2,12 +2,8 @@
 //! writes results; all the work lives in the stage crates.
 
 mod args;
-mod bench_bundle;
-mod bench_dense;
-mod bench_matching;
+mod bench;
 mod demo;
-mod demo_dense;
-mod stereo;
 mod ui;
 
 use std::process::ExitCode;
@@ -65,12 +61,12 @@ fn run(cmd: &Command, g: &GlobalArgs) -> anyhow::Result<()> {
         Command::Features(a) => run_until(g, &a.input, Some(files::stage::FEATURES), &bars),
         Command::Match(a) => run_until(g, &a.input, Some(files::stage::MATCHES), &bars),
         Command::Bench(b) => match &b.which {
-            BenchCommand::Bundle(a) => bench_bundle::run(a, g, &bars),
-            BenchCommand::Matching(a) => bench_matching::run(a, g, &bars),
-            BenchCommand::Stereo(a) => stereo::bench(a, g),
-            BenchCommand::Dense(a) => bench_dense::run(a, g),
+            BenchCommand::Bundle(a) => bench::bundle(a, g, &bars),
+            BenchCommand::Matching(a) => bench::matching(a, g, &bars),
+            BenchCommand::Stereo(a) => bench::bench_stereo(a, g),
+            BenchCommand::Dense(a) => bench::dense(a, g),
         },
-        Command::Stereo(a) => stereo::run(a, g),
+        Command::Stereo(a) => bench::stereo(a, g),
         Command::Mesh(a) => {
             let summary = handheld_pipeline::stages::mesh::mesh_dense_folder(
                 &a.depth_maps,

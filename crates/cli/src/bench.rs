@@ -1,0 +1,250 @@
+//! `handheld bench …` and `handheld stereo`: the arguments of each benchmark, mapped onto
+//! `handheld_eval::bench`'s options; the library runs them and the report is printed.
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+use clap::Args;
+use handheld_dense::StereoMethod;
+use handheld_eval::bench::{self, BenchLoss, BenchSolver, BundleProblem};
+
+use crate::args::{choice, choice_name, GlobalArgs};
+use crate::ui::{print_result, Bars};
+
+/// Prints a report: `human` gets the report's JSON.
+fn print<T: serde::Serialize>(
+    g: &GlobalArgs,
+    report: &T,
+    human: impl FnOnce(&serde_json::Value) -> String,
+) -> Result<()> {
+    let value = serde_json::to_value(report)?;
+    print_result(g, &value, &human(&value));
+    Ok(())
+}
+
+fn pretty(v: &serde_json::Value) -> String {
+    serde_json::to_string_pretty(v).unwrap_or_default()
+}
+
+fn bundle_defaults() -> bench::BundleBenchOptions {
+    bench::BundleBenchOptions::default()
+}
+
+#[derive(Debug, Args)]
+pub struct BenchBundleArgs {
+    /// A BAL problem file (`problem-49-7776-pre.txt`).
+    #[arg(
+        long,
+        required_unless_present = "synthetic",
+        conflicts_with = "synthetic"
+    )]
+    pub bal: Option<PathBuf>,
+    /// A synthetic problem `CAMERASxPOINTS` instead, e.g. `1000x200000`.
+    #[arg(long)]
+    pub synthetic: Option<String>,
+    /// Maximum Levenberg–Marquardt iterations.
+    #[arg(long, default_value_t = bundle_defaults().iterations)]
+    pub iterations: usize,
+    /// Robust loss.
+    #[arg(long, default_value = choice_name(&bundle_defaults().robust), value_parser = choice::<BenchLoss>)]
+    pub robust: BenchLoss,
+    /// Scale of the robust loss in pixels.
+    #[arg(long, default_value_t = bundle_defaults().robust_scale)]
+    pub robust_scale: f64,
+    /// Worker threads (0: all cores).
+    #[arg(long, default_value_t = bundle_defaults().threads)]
+    pub threads: usize,
+    /// Linear solver for the reduced camera system.
+    #[arg(long, default_value = choice_name(&bundle_defaults().linear_solver), value_parser = choice::<BenchSolver>)]
+    pub linear_solver: BenchSolver,
+    /// Seed of the synthetic problem.
+    #[arg(long, default_value_t = bundle_defaults().seed)]
+    pub seed: u64,
+}
+
+pub fn bundle(a: &BenchBundleArgs, g: &GlobalArgs, bars: &Bars) -> Result<()> {
+    let problem = match &a.bal {
+        Some(path) => BundleProblem::Bal(path.clone()),
+        None => a.synthetic.as_deref().unwrap_or_default().parse()?,
+    };
+    let o = bench::BundleBenchOptions {
+        problem,
+        iterations: a.iterations,
+        robust: a.robust,
+        robust_scale: a.robust_scale,
+        threads: a.threads,
+        linear_solver: a.linear_solver,
+        seed: a.seed,
+    };
+    let s = bench::bench_bundle(&o, bars)?;
+    print(g, &s, |_| {
+        format!(
+            "{}: {} cameras, {} points, {} observations\ncost {:.6e} -> {:.6e} (rms {:.3} -> {:.3} px) in {} iterations ({}), \
+             {:.3} s ({:.4} s/iteration, {} solver)",
+            s.problem, s.cameras, s.points, s.observations,
+            s.initial_cost, s.final_cost, s.initial_rms_px, s.final_rms_px, s.iterations,
+            s.termination, s.total_seconds, s.seconds_per_iteration, s.linear_solver
+        )
+    })
+}
+
+#[derive(Debug, Args)]
+pub struct BenchMatchingArgs {
+    /// Folder of images.
+    #[arg(long)]
+    pub images: PathBuf,
+    /// Data set folder with ground-truth cameras in `gt/` (Strecha `.camera` or Middlebury `*_par.txt`).
+    #[arg(long)]
+    pub gt_cameras: Option<PathBuf>,
+    /// Match every pair (as COLMAP's exhaustive_matcher) instead of only adjacent ones.
+    #[arg(long)]
+    pub exhaustive: bool,
+    /// Also run COLMAP (feature_extractor + exhaustive_matcher, CPU) on the same images.
+    #[arg(long)]
+    pub colmap: bool,
+    /// Threads for Handheld and COLMAP (default: all cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// Downscale images whose longer side exceeds this (pixels).
+    #[arg(long)]
+    pub max_image_size: Option<u32>,
+    /// SIFT contrast threshold (OpenCV convention; default: the library default).
+    #[arg(long)]
+    pub contrast_threshold: Option<f32>,
+    /// SIFT: keep at most this many features per image. Default 13 312, COLMAP's budget here (its
+    /// extractor gives 10.5–13.2 k per fountain-P11 image); `reconstruct` keeps 8192.
+    #[arg(long, default_value_t = bench::MatchingBenchOptions::default().max_features)]
+    pub max_features: usize,
+    /// SIFT: upsample the image first (octave −1), as COLMAP does by default.
+    #[arg(long)]
+    pub upsample: bool,
+    /// Brute force only over this many strongest keypoints per image, then guided matching over
+    /// all (0: brute force over all; default: the library default).
+    #[arg(long)]
+    pub seed_features: Option<usize>,
+}
+
+pub fn matching(a: &BenchMatchingArgs, g: &GlobalArgs, bars: &Bars) -> Result<()> {
+    let o = bench::MatchingBenchOptions {
+        images: a.images.clone(),
+        gt_cameras: a.gt_cameras.clone(),
+        exhaustive: a.exhaustive,
+        colmap: a.colmap,
+        threads: a.threads,
+        max_image_size: a.max_image_size,
+        contrast_threshold: a.contrast_threshold,
+        max_features: a.max_features,
+        upsample: a.upsample,
+        seed_features: a.seed_features,
+    };
+    print(g, &bench::bench_matching(&o, bars)?, pretty)
+}
+
+#[derive(Debug, Args)]
+pub struct BenchDenseArgs {
+    /// Width of the synthetic images (height is 3/4 of it).
+    #[arg(long, default_value_t = bench::DenseBenchOptions::default().width)]
+    pub width: u32,
+    /// A COLMAP model and its images for the full-resolution timing (first two views).
+    #[arg(long, requires = "images")]
+    pub model: Option<PathBuf>,
+    #[arg(long)]
+    pub images: Option<PathBuf>,
+    /// Timed runs (median reported).
+    #[arg(long, default_value_t = bench::DenseBenchOptions::default().runs)]
+    pub runs: u32,
+}
+
+pub fn dense(a: &BenchDenseArgs, g: &GlobalArgs) -> Result<()> {
+    let o = bench::DenseBenchOptions {
+        width: a.width,
+        model: a.model.clone(),
+        images: a.images.clone(),
+        runs: a.runs,
+    };
+    print(g, &bench::bench_dense(&o)?, pretty)
+}
+
+#[derive(Debug, Args)]
+pub struct StereoArgs {
+    /// Left image of a rectified pair.
+    #[arg(long)]
+    pub left: PathBuf,
+    /// Right image (left x matches right x − d).
+    #[arg(long)]
+    pub right: PathBuf,
+    /// Largest disparity searched (inclusive).
+    #[arg(long, allow_negative_numbers = true)]
+    pub max_disparity: i32,
+    /// Smallest disparity searched.
+    #[arg(long, default_value_t = 0, allow_negative_numbers = true)]
+    pub min_disparity: i32,
+    /// `sgm` (semi-global matching, census cost) or `dp` (dynamic programming along each
+    /// scanline, §4.2).
+    #[arg(long, default_value = choice_name(&handheld_dense::StereoOptions::default().method), value_parser = choice::<StereoMethod>)]
+    pub method: StereoMethod,
+    /// Output PFM (left view's disparity; missing = NaN).
+    #[arg(long, short)]
+    pub output: PathBuf,
+    /// Write only measured pixels (no hole filling of occlusions and mismatches).
+    #[arg(long)]
+    pub valid_only: bool,
+}
+
+pub fn stereo(a: &StereoArgs, g: &GlobalArgs) -> Result<()> {
+    let o = bench::StereoPairOptions {
+        left: a.left.clone(),
+        right: a.right.clone(),
+        min_disparity: a.min_disparity,
+        max_disparity: a.max_disparity,
+        method: a.method,
+        output: a.output.clone(),
+        valid_only: a.valid_only,
+    };
+    let r = bench::stereo_pair(&o)?;
+    print(g, &r, |_| {
+        format!(
+            "{}: {}×{} in {:.3} s, density {:.1} % ({:.1} % measured, the rest filled)",
+            r.output.display(),
+            r.width,
+            r.height,
+            r.seconds,
+            100.0 * r.density,
+            100.0 * r.measured_fraction
+        )
+    })
+}
+
+#[derive(Debug, Args)]
+pub struct BenchStereoArgs {
+    /// Middlebury pair folders (`im2.png`, `im6.png`, `disp2.pgm` at GT scale 4).
+    #[arg(long, num_args = 1.., default_values = ["../shared/datasets/stereo-teddy", "../shared/datasets/stereo-cones"])]
+    pub pairs: Vec<PathBuf>,
+    /// Largest disparity (inclusive); 63 gives OpenCV's 64 disparities.
+    #[arg(long, default_value_t = bench::StereoBenchOptions::default().max_disparity)]
+    pub max_disparity: i32,
+    /// Timed runs per method (the median is reported; one matcher is reused, as OpenCV reuses its
+    /// StereoSGBM object).
+    #[arg(long, default_value_t = bench::StereoBenchOptions::default().runs, value_parser = clap::value_parser!(u32).range(1..=100))]
+    pub runs: u32,
+    /// Also run OpenCV's StereoSGBM (python3 with opencv-python-headless) in the same run.
+    #[arg(long)]
+    pub opencv: bool,
+}
+
+pub fn bench_stereo(a: &BenchStereoArgs, g: &GlobalArgs) -> Result<()> {
+    let o = bench::StereoBenchOptions {
+        pairs: a.pairs.clone(),
+        max_disparity: a.max_disparity,
+        runs: a.runs,
+        opencv: a.opencv,
+    };
+    print(g, &bench::bench_stereo(&o)?, |v| {
+        let pairs = v["pairs"].as_array().map(Vec::as_slice).unwrap_or_default();
+        let lines: Vec<String> = pairs
+            .iter()
+            .map(|p| format!("{}: {p}", p["pair"].as_str().unwrap_or_default()))
+            .collect();
+        lines.join("\n")
+    })
+}

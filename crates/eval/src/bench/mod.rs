@@ -1,0 +1,19 @@
+//! The benchmarks: each takes a typed options struct and returns a typed report, the reference
+//! programs (COLMAP, OpenCV) run in the same process tree so the timings compare.
+
+pub mod bundle;
+pub mod colmap;
+pub mod dense;
+pub mod matching;
+pub mod stereo;
+
+pub use bundle::{
+    bench_bundle, BenchLoss, BenchSolver, BundleBenchOptions, BundleBenchReport, BundleProblem,
+};
+pub use colmap::{run_colmap, ColmapReport};
+pub use dense::{bench_dense, DenseBenchOptions, DenseBenchReport};
+pub use matching::{bench_matching, MatchingBenchOptions, MatchingBenchReport};
+pub use stereo::{
+    bench_stereo, stereo_pair, StereoBenchOptions, StereoBenchReport, StereoPairOptions,
+    StereoPairReport,
+};

@@ -1,0 +1,142 @@
+//! The demo's synthetic sequence on disk: the rendered frames, every ground truth in the field's
+//! formats (COLMAP model, PFM depth, PLY mesh), the freshness stamp, and the H.264 encoding.
+
+use std::path::{Path, PathBuf};
+
+use handheld_core::Progress;
+use handheld_io::atomic::write_bytes_atomic;
+use handheld_io::ingest::write_png;
+use handheld_testkit::path::PathOptions;
+use handheld_testkit::render::{SequenceOptions, SyntheticSequence};
+use serde::{Deserialize, Serialize};
+
+use super::{CameraPath, DemoOptions};
+use crate::error::{Context, Result};
+
+/// The demo folder's sub-folder of rendered frames.
+pub const IMAGES_DIR: &str = "images";
+/// The demo folder's sub-folder of ground truth.
+pub const GROUND_TRUTH_DIR: &str = "ground_truth";
+
+/// The testkit sequence a demo renders.
+pub fn sequence_options(o: &DemoOptions) -> SequenceOptions {
+    let n = o.frames as usize;
+    let path = match o.path {
+        CameraPath::Orbit => PathOptions::orbit(n),
+        CameraPath::Walk => PathOptions::walk_through(n),
+        CameraPath::Forward => PathOptions::forward(n),
+    };
+    let path = PathOptions {
+        seed: o.seed,
+        ..path
+    };
+    SequenceOptions {
+        seed: o.seed,
+        width: o.width,
+        height: o.height,
+        num_frames: n,
+        path,
+        aspect: o.aspect_ratio,
+        ..Default::default()
+    }
+}
+
+/// `ground_truth/demo.json`: what the sequence on disk was rendered with. A demo whose stamp
+/// matches its options reuses the sequence.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DemoStamp {
+    pub version: String,
+    pub frames: u32,
+    pub width: u32,
+    pub height: u32,
+    pub seed: u64,
+    /// The camera path's name (`Orbit`, `Walk`, `Forward`).
+    pub path: String,
+    pub aspect: f64,
+}
+
+impl DemoStamp {
+    /// The stamp of a demo's options.
+    pub fn of(o: &DemoOptions) -> Self {
+        Self {
+            version: handheld_pipeline::HANDHELD_VERSION.to_string(),
+            frames: o.frames,
+            width: o.width,
+            height: o.height,
+            seed: o.seed,
+            path: format!("{:?}", o.path),
+            aspect: o.aspect_ratio,
+        }
+    }
+
+    /// Where the stamp of the demo folder `out` lives.
+    pub fn path(out: &Path) -> PathBuf {
+        out.join(GROUND_TRUTH_DIR).join("demo.json")
+    }
+
+    /// Whether the demo folder `out` holds a sequence with this stamp.
+    pub fn matches(&self, out: &Path) -> bool {
+        std::fs::read_to_string(Self::path(out))
+            .ok()
+            .and_then(|t| serde_json::from_str::<DemoStamp>(&t).ok())
+            .is_some_and(|s| s == *self)
+    }
+
+    /// Writes the stamp (atomically).
+    pub fn write(&self, out: &Path) -> Result<()> {
+        let text = serde_json::to_string_pretty(self).context("serialising the demo stamp")?;
+        write_bytes_atomic(&Self::path(out), text.as_bytes())?;
+        Ok(())
+    }
+}
+
+/// The file stem of a view's name (`frame_0003.png` → `frame_0003`).
+pub fn stem(name: &str) -> String {
+    Path::new(name)
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default()
+}
+
+/// The ground-truth depth map of the view named `name` in the demo folder `out`.
+pub fn gt_depth_path(out: &Path, name: &str) -> PathBuf {
+    out.join(GROUND_TRUTH_DIR)
+        .join("depth")
+        .join(format!("{}.pfm", stem(name)))
+}
+
+/// Writes the rendered images and all ground truth into the demo folder `dir`.
+pub fn write_sequence(dir: &Path, seq: &SyntheticSequence, progress: &dyn Progress) -> Result<()> {
+    let images = dir.join(IMAGES_DIR);
+    let gt = dir.join(GROUND_TRUTH_DIR);
+    progress.start("writing frames", seq.images.len() as u64);
+    for (view, (img, depth)) in seq
+        .gt
+        .views
+        .values()
+        .zip(seq.images.iter().zip(&seq.depths))
+    {
+        write_png(&images.join(&view.name), img)?;
+        handheld_io::pfm::write_pfm(&gt_depth_path(dir, &view.name), depth)?;
+        progress.inc(1);
+    }
+    progress.finish();
+    handheld_io::colmap::write_reconstruction(&gt.join("sparse"), &seq.gt, true, true)?;
+    handheld_io::ply::write_mesh(
+        &gt.join("mesh.ply"),
+        &seq.mesh,
+        handheld_io::ply::PlyFormat::BinaryLittleEndian,
+    )?;
+    Ok(())
+}
+
+/// Encodes the rendered frames as an H.264 video (`ffmpeg`), as a camcorder or phone would.
+pub(crate) fn encode_video(out: &Path) -> Result<PathBuf> {
+    let video = out.join("video.mp4");
+    handheld_io::video::encode_h264(
+        &out.join(IMAGES_DIR).join("frame_%04d.png"),
+        &video,
+        &handheld_io::video::EncodeOptions::default(),
+    )?;
+    Ok(video)
+}

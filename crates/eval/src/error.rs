@@ -1,0 +1,90 @@
+//! The crate's one error type. Every message names the option, file or tool it concerns.
+
+use thiserror::Error;
+
+/// Everything that can stop a demo or a benchmark.
+#[derive(Debug, Error)]
+pub enum EvalError {
+    /// An option is out of its range (named as the command line spells it).
+    #[error("{option}: {reason}")]
+    InvalidOption { option: String, reason: String },
+    /// An external program (ffmpeg, COLMAP, python3 with OpenCV) is missing or failed.
+    #[error("{program}: {reason}")]
+    Tool { program: String, reason: String },
+    /// The data cannot be evaluated (too little was reconstructed, a file is missing).
+    #[error("{0}")]
+    Data(String),
+    /// A library step failed; `context` says which.
+    #[error("{context}: {cause}")]
+    Step {
+        context: String,
+        cause: Box<dyn std::error::Error + Send + Sync>,
+    },
+    /// Reading or writing a file.
+    #[error(transparent)]
+    Io(#[from] handheld_io::IoError),
+    /// The pipeline stopped.
+    #[error(transparent)]
+    Pipeline(#[from] handheld_pipeline::PipelineError),
+    /// Stereo, rectification or linking failed.
+    #[error(transparent)]
+    Dense(#[from] handheld_dense::DenseError),
+    /// Mesh evaluation failed.
+    #[error(transparent)]
+    Mesh(#[from] handheld_mesh::MeshError),
+}
+
+/// Shorthand for results of this crate.
+pub type Result<T, E = EvalError> = std::result::Result<T, E>;
+
+impl EvalError {
+    /// An out-of-range option.
+    pub fn option(option: impl Into<String>, reason: impl Into<String>) -> Self {
+        Self::InvalidOption {
+            option: option.into(),
+            reason: reason.into(),
+        }
+    }
+
+    /// An external program that failed.
+    pub fn tool(program: impl Into<String>, reason: impl Into<String>) -> Self {
+        Self::Tool {
+            program: program.into(),
+            reason: reason.into(),
+        }
+    }
+
+    /// The name of the invalid option, when this is one.
+    pub fn invalid_option(&self) -> Option<&str> {
+        match self {
+            Self::InvalidOption { option, .. } => Some(option),
+            _ => None,
+        }
+    }
+}
+
+/// Adds what was being done to a library error (or a library's `String` error).
+pub trait Context<T> {
+    /// Wraps the error as [`EvalError::Step`] with `what` as its context.
+    fn context(self, what: impl Into<String>) -> Result<T>;
+    /// As [`Context::context`], the context built only on failure.
+    fn with_context<S: Into<String>>(self, what: impl FnOnce() -> S) -> Result<T>;
+}
+
+impl<T, E: Into<Box<dyn std::error::Error + Send + Sync>>> Context<T>
+    for std::result::Result<T, E>
+{
+    fn context(self, what: impl Into<String>) -> Result<T> {
+        self.map_err(|e| EvalError::Step {
+            context: what.into(),
+            cause: e.into(),
+        })
+    }
+
+    fn with_context<S: Into<String>>(self, what: impl FnOnce() -> S) -> Result<T> {
+        self.map_err(|e| EvalError::Step {
+            context: what().into(),
+            cause: e.into(),
+        })
+    }
+}
