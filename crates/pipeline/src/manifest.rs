@@ -158,14 +158,17 @@ impl Workspace {
             && m.outputs.iter().all(|o| dir.join(o).exists())
     }
 
-    /// Marks a stage as in progress by removing its manifest.
+    /// Marks a stage as in progress: its manifest goes first (so an interrupted run never looks
+    /// finished), then everything else in its folder, so a run that fails leaves no outputs of an
+    /// earlier run that could pass for its own.
     pub fn begin(&self, stage: &str) -> Result<PathBuf> {
         let dir = self.stage_dir(stage)?;
         let m = self.manifest_path(stage);
         if m.exists() {
             fs::remove_file(&m).map_err(|e| IoError::io(&m, e))?;
         }
-        Ok(dir)
+        fs::remove_dir_all(&dir).map_err(|e| IoError::io(&dir, e))?;
+        self.stage_dir(stage)
     }
 
     /// Marks a stage as finished by writing its manifest, and records its time in `timings.json`.
@@ -240,8 +243,13 @@ mod tests {
         assert_eq!(ws.timings()["ingest"], serde_json::json!(1.5));
         fs::remove_file(stage.join("images.json")).unwrap();
         assert!(!ws.is_up_to_date("ingest", &h), "missing output");
+        fs::write(stage.join("images.json"), "[]").unwrap();
         ws.begin("ingest").unwrap();
         assert!(ws.manifest("ingest").is_none());
+        assert!(
+            !stage.join("images.json").exists(),
+            "a rerun leaves no outputs of the earlier run"
+        );
     }
 
     #[test]

@@ -238,3 +238,36 @@ fn options_round_trip_through_json() {
     assert_eq!(partial.dense.max_size, 800);
     assert_eq!(partial.mesh.view_meshes, o.mesh.view_meshes);
 }
+
+#[test]
+fn a_collapsed_metric_frame_fails_the_run_and_leaves_no_model() {
+    // A calibration 100× too short: every metric frame collapses in its bundle adjustment (the
+    // outlier filter removes nearly every observation). The run must fail, saying what was tried,
+    // and the sparse folder must hold nothing that could pass for a model.
+    let dir = tempfile::tempdir().expect("temp dir");
+    let seq = scene(dir.path());
+    let k = &seq.gt.cameras.values().next().expect("a camera").intrinsics;
+    let ws = dir.path().join("ws");
+    let mut options = PipelineOptions::default();
+    options.sparse.sfm.known_intrinsics = Some(handheld_sfm::KnownIntrinsics {
+        fx: k.f / 100.0,
+        fy: k.f / 100.0,
+        cx: k.pp.x,
+        cy: k.pp.y,
+    });
+    let err = handheld_pipeline::reconstruct(
+        &dir.path().join("images"),
+        &ws,
+        &options,
+        Some(stage::SPARSE),
+        false,
+        &NoProgress,
+    )
+    .expect_err("a collapsed model is not a success");
+    let text = err.to_string();
+    assert!(text.contains("no metric frame survived"), "{text}");
+    assert!(text.contains("--intrinsics"), "{text}");
+    let sparse = ws.join(stage::SPARSE);
+    assert!(!sparse.join("manifest.json").exists());
+    assert!(!sparse.join("cameras.bin").exists() && !sparse.join("summary.json").exists());
+}

@@ -9,6 +9,7 @@
 
 mod context;
 pub mod graph;
+pub mod guard;
 mod hypotheses;
 mod init;
 pub mod input;
@@ -33,6 +34,7 @@ use std::collections::BTreeMap;
 use handheld_core::{MetricReconstruction, Progress};
 use serde::Serialize;
 
+pub use guard::CandidateRecord;
 pub use input::{SfmImage, SfmInput, SfmPair};
 pub use metric::SelfCalibrationReport;
 pub use metric_ba::MetricBaRecord;

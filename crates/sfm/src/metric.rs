@@ -33,6 +33,9 @@ pub struct SelfCalibrationReport {
     pub focal_before_ba_px: BTreeMap<u32, f64>,
     /// Same for the aspect ratio.
     pub aspect_before_ba: BTreeMap<u32, f64>,
+    /// Every metric frame that was adjusted and judged (see [`crate::guard`]), in the order tried;
+    /// the last one was kept.
+    pub candidates: Vec<crate::guard::CandidateRecord>,
 }
 
 /// The metric reconstruction right after the upgrade, before bundle adjustment.
@@ -109,6 +112,7 @@ pub(crate) fn upgrade(
         omega_eigenvalues: sc.omega_eigenvalues,
         focal_before_ba_px: focal,
         aspect_before_ba: aspect,
+        candidates: Vec::new(),
     };
     Ok(Upgraded {
         rec,

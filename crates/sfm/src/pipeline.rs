@@ -22,7 +22,7 @@ use crate::context::Context;
 use crate::metric::Upgraded;
 use crate::model::ProjectiveModel;
 use crate::{
-    hypotheses, metric, metric_ba, predict, projective, register, uncertainty, video,
+    guard, hypotheses, metric, metric_ba, predict, projective, register, uncertainty, video,
     MetricBaRecord, SfmModel, UncertaintyReport,
 };
 
@@ -125,9 +125,8 @@ pub(crate) fn build_model(
     let up = metric::upgrade(ctx, &model, estimate_aspect).map_err(StepError::MetricUpgrade)?;
     record(&mut timings, "self_calibration", t1);
     let t2 = Instant::now();
-    let (mut rec, is_prior, mut report) = metric_frame(ctx, &model, up, estimate_aspect);
-    let mut metric_ba = metric_ba::refine_metric(ctx, &mut rec, estimate_aspect)
-        .map_err(StepError::MetricAdjustment)?;
+    let (mut rec, is_prior, mut report, mut metric_ba) =
+        adjust_metric_frame(ctx, &model, up, estimate_aspect)?;
     let t_reg = Instant::now();
     metric_ba.extend(calibrated_registration_step(
         ctx,
@@ -183,59 +182,156 @@ fn projective_step(
     Ok(model)
 }
 
-/// The metric frame to adjust, whether it came from the priors (or a focal hypothesis) rather
-/// than from the self-calibration, and the self-calibration report.
+/// A metric frame to adjust: where it came from, and whether it is the priors' (or a focal
+/// hypothesis') rather than the self-calibration's.
+struct Candidate {
+    rec: MetricReconstruction,
+    source: &'static str,
+    is_prior: bool,
+}
+
+/// The frames from the priors alone and from the focal hypotheses (see `hypotheses`), which
+/// critical motion (eq. 26 leaves the focal length free) or a rejected self-calibration calls for.
+fn fallback_candidates(
+    ctx: &Context,
+    model: &ProjectiveModel,
+    report: &metric::SelfCalibrationReport,
+    estimate_aspect: bool,
+) -> Vec<Candidate> {
+    let mut out = Vec::new();
+    if !report.used_prior_fallback {
+        if let Ok(rec) = metric::prior_frame(ctx, model, estimate_aspect) {
+            out.push(Candidate {
+                rec,
+                source: "priors",
+                is_prior: true,
+            });
+        }
+    }
+    for h in hypotheses::focal_hypotheses(model, 3) {
+        tracing::debug!(focal = h.focal, residual = h.residual, "focal hypothesis");
+        if let Ok(rec) = metric::from_transform(ctx, model, &h.t, estimate_aspect) {
+            out.push(Candidate {
+                rec,
+                source: "focal hypothesis",
+                is_prior: true,
+            });
+        }
+    }
+    out
+}
+
+/// The adjusted metric model, whether its frame came from the priors (or a focal hypothesis)
+/// rather than from the self-calibration, the self-calibration report (with every candidate
+/// tried) and the adjustments.
 ///
 /// A known calibration gives the upgrade itself (eq. 26 with `K` given), whatever the motion; the
 /// self-calibrated candidates are built only without one, or if it is inconsistent with the
 /// cameras. When the linear self-calibration is doubtful (critical motion, or an `Ω*` that is not
-/// semi-definite), the frame from the priors alone and the focal hypotheses (see `hypotheses`) are
-/// candidates too, and a short adjustment keeps the best-explaining one: the paper's "fall back on
-/// the priors" without trusting either blindly.
-fn metric_frame(
+/// semi-definite), the frame from the priors alone and the focal hypotheses are candidates too, and
+/// a short adjustment ranks them: the paper's "fall back on the priors" without trusting either
+/// blindly. The best-ranked candidate gets the full adjustment, and [`crate::guard`] judges what
+/// that did; a rejected candidate gives way to the next (a rejected self-calibration to the
+/// fallbacks). When none survives, the step fails with what was tried, and no model is reported.
+fn adjust_metric_frame(
     ctx: &Context,
     model: &ProjectiveModel,
     up: Upgraded,
     estimate_aspect: bool,
-) -> (MetricReconstruction, bool, metric::SelfCalibrationReport) {
-    let report = up.report;
+) -> Result<
+    (
+        MetricReconstruction,
+        bool,
+        metric::SelfCalibrationReport,
+        Vec<metric_ba::MetricBaRecord>,
+    ),
+    StepError,
+> {
+    let mut report = up.report;
     let known = ctx.opts.known_intrinsics.and_then(|k| {
         let focal = 0.5 * (k.fx + k.fy) * ctx.scale.first().copied().unwrap_or(f64::NAN);
         let h = hypotheses::known_focal_upgrade(model, focal).filter(|h| !h.clamped)?;
         metric::from_transform(ctx, model, &h.t, estimate_aspect).ok()
     });
     let from_known = known.is_some();
-    let mut candidates = vec![(known.unwrap_or(up.rec), false)];
-    if report.degenerate.is_some() && !from_known {
-        if !report.used_prior_fallback {
-            if let Ok(r) = metric::prior_frame(ctx, model, estimate_aspect) {
-                candidates.push((r, true));
+    let source = match (from_known, report.used_prior_fallback) {
+        (true, _) => "known calibration",
+        (false, true) => "priors",
+        (false, false) => "self-calibration",
+    };
+    let mut candidates = vec![Candidate {
+        rec: known.unwrap_or(up.rec),
+        source,
+        is_prior: false,
+    }];
+    let mut expanded = report.degenerate.is_some() && !from_known;
+    if expanded {
+        candidates.extend(fallback_candidates(ctx, model, &report, estimate_aspect));
+    }
+    let projective_rms = model.ba.last().map(|r| r.final_rms_px);
+    let mut tried = Vec::new();
+    loop {
+        // One candidate: adjust it. Several: the one a short adjustment explains best first.
+        let scores: Vec<Option<f64>> = if candidates.len() == 1 {
+            vec![None]
+        } else {
+            candidates
+                .iter()
+                .map(|c| Some(metric_ba::quick_score(ctx, &c.rec, estimate_aspect)))
+                .collect()
+        };
+        tracing::debug!(?scores, "metric frame candidates");
+        let mut order: Vec<usize> = (0..candidates.len()).collect();
+        // Best score first; among equal scores the later candidate (as `Iterator::max_by` chose).
+        order.sort_by(|&a, &b| {
+            let (sa, sb) = (scores[a].unwrap_or(0.0), scores[b].unwrap_or(0.0));
+            sb.total_cmp(&sa).then(b.cmp(&a))
+        });
+        let found = guard::first_sound(
+            order.iter().map(|&k| {
+                (
+                    &candidates[k],
+                    candidates[k].source,
+                    &candidates[k].rec,
+                    scores[k],
+                )
+            }),
+            projective_rms,
+            |rec| metric_ba::refine_metric(ctx, rec, estimate_aspect),
+            &mut tried,
+        );
+        if let Some((c, rec, adjustments)) = found {
+            // The candidates ranked below the accepted one, with their scores, untried.
+            for &k in order
+                .iter()
+                .skip_while(|&&k| !std::ptr::eq(&candidates[k], c))
+                .skip(1)
+            {
+                let d = &candidates[k];
+                tried.push(guard::record_before(d.source, &d.rec, scores[k]));
             }
+            report.candidates = tried;
+            return Ok((rec, c.is_prior, report, adjustments));
         }
-        // Critical motion leaves the focal free in eq. 26: try the focal lengths that the
-        // cameras fit best with the other priors exact (see `hypotheses`).
-        for h in hypotheses::focal_hypotheses(model, 3) {
-            tracing::debug!(focal = h.focal, residual = h.residual, "focal hypothesis");
-            if let Ok(r) = metric::from_transform(ctx, model, &h.t, estimate_aspect) {
-                candidates.push((r, true));
-            }
+        if expanded || from_known {
+            break;
+        }
+        // The self-calibrated frame was rejected: the priors and the focal hypotheses now.
+        expanded = true;
+        candidates = fallback_candidates(ctx, model, &report, estimate_aspect);
+        if candidates.is_empty() {
+            break;
         }
     }
-    // One candidate: adjust it. Several: keep the one a short adjustment explains best.
-    let (rec, is_prior) = if candidates.len() == 1 {
-        candidates.swap_remove(0)
+    let advice = if ctx.opts.known_intrinsics.is_some() {
+        "check the calibration given with --intrinsics (FX,FY,CX,CY in pixels, COLMAP's convention)"
     } else {
-        let scores: Vec<f64> = candidates
-            .iter()
-            .map(|(r, _)| metric_ba::quick_score(ctx, r, estimate_aspect))
-            .collect();
-        tracing::debug!(?scores, "metric frame candidates");
-        let best = (0..candidates.len())
-            .max_by(|&a, &b| scores[a].total_cmp(&scores[b]))
-            .unwrap_or(0);
-        candidates.swap_remove(best)
+        "the focal length cannot be found from these images: give the calibration with --intrinsics FX,FY,CX,CY"
     };
-    (rec, is_prior, report)
+    Err(StepError::MetricAdjustment(format!(
+        "no metric frame survived its bundle adjustment ({}); {advice}",
+        guard::describe_rejections(&tried)
+    )))
 }
 
 /// Views the projective stage could not add (planar 2D–3D matches, late links) are tried again

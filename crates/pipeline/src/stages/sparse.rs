@@ -171,6 +171,20 @@ impl Stage for Sparse {
             warnings.push(format!("the images form {} separate models; the largest is in sparse/, the others in sparse/models/", result.models.len()));
         }
         let best = &result.models[0].summary;
+        let kept = best
+            .self_calibration
+            .candidates
+            .iter()
+            .find(|c| c.accepted)
+            .map_or("", |c| c.source.as_str());
+        for c in &best.self_calibration.candidates {
+            if let (true, Some(why)) = (c.tried, &c.rejected) {
+                warnings.push(format!(
+                    "the metric frame from {} was rejected ({why}); the model uses the frame from {kept}",
+                    c.source
+                ));
+            }
+        }
         match focal_verdict(best, opts.known_intrinsics.is_some()) {
             FocalVerdict::Calibrated => {}
             FocalVerdict::WellDetermined(note) => tracing::info!("{note}"),

@@ -1,0 +1,371 @@
+//! The checks an adjusted metric frame must pass before it is reported: a wrong upgrade (a
+//! self-calibration that is not positive semi-definite, a prior fallback with an absurd focal
+//! length) does not fail loudly inside bundle adjustment. It collapses instead: the outlier filter
+//! after each adjustment removes almost every observation, and the few points left fit well. So a
+//! candidate is judged by what its adjustment did, not only by how well the survivors fit:
+//!
+//! - the fraction of its observations the metric adjustment removed (a collapse removes nearly all;
+//!   sound models on the project's data sets lose 1–3 %);
+//! - the focal length after adjustment, which must lie in the range the focal hypotheses search
+//!   (0.2–5 × (w + h), a 150° to 8° diagonal field of view);
+//! - its final reprojection RMS against the projective model's (the metric model has fewer
+//!   degrees of freedom, but not a worse fit by a large factor);
+//! - the fraction of observations in front of their camera before adjustment (the oriented
+//!   projective reconstruction puts every point in front of every camera that sees it; an upgrade
+//!   that puts most of them behind is the wrong one of the two mirror frames, or no frame at all).
+
+use handheld_core::MetricReconstruction;
+use serde::Serialize;
+
+use crate::hypotheses::RANGE;
+use crate::metric_ba::MetricBaRecord;
+
+/// Largest fraction of a candidate's observations its metric adjustment may remove.
+pub const MAX_REMOVED_FRACTION: f64 = 0.5;
+/// A candidate whose final RMS exceeds `MAX_RMS_RATIO ×` the projective RMS plus
+/// [`RMS_SLACK_PX`] explains the images far worse than the projective model.
+pub const MAX_RMS_RATIO: f64 = 3.0;
+/// See [`MAX_RMS_RATIO`].
+pub const RMS_SLACK_PX: f64 = 1.0;
+/// Smallest fraction of observations in front of their camera before adjustment.
+pub const MIN_IN_FRONT: f64 = 0.5;
+
+/// One metric frame that was tried, for the summary.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct CandidateRecord {
+    /// `self-calibration`, `known calibration`, `priors` or `focal hypothesis`.
+    pub source: String,
+    /// Focal length of each intrinsics group before adjustment, pixels.
+    pub focal_before_px: Vec<f64>,
+    /// The short adjustment's score that ranked the candidates (none when it was the only one).
+    pub quick_score: Option<f64>,
+    /// Observations before adjustment, and the fraction of them in front of their camera.
+    pub observations: usize,
+    pub in_front_fraction: f64,
+    /// What the full adjustment did, when it ran.
+    pub removed_fraction: Option<f64>,
+    pub final_rms_px: Option<f64>,
+    pub focal_after_px: Vec<f64>,
+    /// Whether it was adjusted and judged (candidates ranked below the accepted one are not).
+    pub tried: bool,
+    pub accepted: bool,
+    /// Why it was rejected.
+    pub rejected: Option<String>,
+}
+
+/// Observations of the model's points.
+pub(crate) fn observation_count(rec: &MetricReconstruction) -> usize {
+    rec.points.values().map(|p| p.track.len()).sum()
+}
+
+/// Fraction of the observations whose point is in front of the observing camera.
+pub(crate) fn in_front_fraction(rec: &MetricReconstruction) -> f64 {
+    let (mut n, mut front) = (0usize, 0usize);
+    for pt in rec.points.values() {
+        for el in &pt.track.elements {
+            let Some(v) = rec.views.get(&el.image_id) else {
+                continue;
+            };
+            n += 1;
+            if v.cam_from_world.transform_point(&pt.xyz).z > 0.0 {
+                front += 1;
+            }
+        }
+    }
+    if n == 0 {
+        0.0
+    } else {
+        front as f64 / n as f64
+    }
+}
+
+/// Focal length of every intrinsics group, pixels.
+pub(crate) fn focal_lengths(rec: &MetricReconstruction) -> Vec<f64> {
+    rec.cameras.values().map(|c| c.intrinsics.f).collect()
+}
+
+/// A record of `rec` before its adjustment.
+pub(crate) fn record_before(
+    source: &str,
+    rec: &MetricReconstruction,
+    quick_score: Option<f64>,
+) -> CandidateRecord {
+    CandidateRecord {
+        source: source.to_string(),
+        focal_before_px: focal_lengths(rec),
+        quick_score,
+        observations: observation_count(rec),
+        in_front_fraction: in_front_fraction(rec),
+        ..Default::default()
+    }
+}
+
+/// Judges an adjusted candidate: fills in what the adjustment did and returns why it must be
+/// rejected, if it must. `projective_rms_px` is the projective model's final RMS.
+pub(crate) fn judge(
+    record: &mut CandidateRecord,
+    rec: &MetricReconstruction,
+    adjustments: &[MetricBaRecord],
+    projective_rms_px: Option<f64>,
+) -> Option<String> {
+    let removed: usize = adjustments.iter().map(|r| r.observations_removed).sum();
+    let removed_fraction = removed as f64 / record.observations.max(1) as f64;
+    let rms = adjustments.last().map(|r| r.final_rms_px);
+    record.removed_fraction = Some(removed_fraction);
+    record.final_rms_px = rms;
+    record.focal_after_px = focal_lengths(rec);
+    let why = if record.in_front_fraction < MIN_IN_FRONT {
+        Some(format!(
+            "only {:.0} % of the observations were in front of their camera",
+            100.0 * record.in_front_fraction
+        ))
+    } else if removed_fraction > MAX_REMOVED_FRACTION {
+        Some(format!(
+            "the metric adjustment removed {:.0} % of the observations (kept {} points)",
+            100.0 * removed_fraction,
+            rec.points.len()
+        ))
+    } else if let Some(c) = rec.cameras.values().find(|c| {
+        let s = f64::from(c.width + c.height);
+        let f = c.intrinsics.f;
+        !(f.is_finite() && f > RANGE.0 * s && f < RANGE.1 * s)
+    }) {
+        Some(format!(
+            "implausible focal length {:.1} px for a {}×{} image (outside {}–{} × (w + h))",
+            c.intrinsics.f, c.width, c.height, RANGE.0, RANGE.1
+        ))
+    } else {
+        match (rms, projective_rms_px) {
+            (Some(m), Some(p)) if m.is_nan() || m > MAX_RMS_RATIO * p + RMS_SLACK_PX => Some(
+                format!("reprojection error {m:.2} px, against {p:.2} px for the projective model"),
+            ),
+            (None, _) => Some("no adjustment ran".into()),
+            _ => None,
+        }
+    };
+    record.accepted = why.is_none();
+    record.rejected = why.clone();
+    why
+}
+
+/// Adjusts the candidates in the order given and returns the first one [`judge`] accepts, with its
+/// adjusted model and adjustments; every candidate tried is recorded in `tried`. `adjust` is the
+/// full metric bundle adjustment.
+pub(crate) fn first_sound<'a, C>(
+    candidates: impl IntoIterator<Item = (&'a C, &'a str, &'a MetricReconstruction, Option<f64>)>,
+    projective_rms_px: Option<f64>,
+    mut adjust: impl FnMut(&mut MetricReconstruction) -> Result<Vec<MetricBaRecord>, String>,
+    tried: &mut Vec<CandidateRecord>,
+) -> Option<(&'a C, MetricReconstruction, Vec<MetricBaRecord>)> {
+    for (c, source, rec, score) in candidates {
+        let mut record = record_before(source, rec, score);
+        record.tried = true;
+        let mut adjusted = rec.clone();
+        let why = match adjust(&mut adjusted) {
+            Ok(adjustments) => {
+                match judge(&mut record, &adjusted, &adjustments, projective_rms_px) {
+                    None => {
+                        tried.push(record);
+                        return Some((c, adjusted, adjustments));
+                    }
+                    Some(why) => why,
+                }
+            }
+            Err(e) => {
+                record.rejected = Some(e.clone());
+                e
+            }
+        };
+        tracing::warn!("metric frame from {source} rejected: {why}");
+        tried.push(record);
+    }
+    None
+}
+
+/// One line per rejected candidate, for the error a user sees when none survives.
+pub(crate) fn describe_rejections(records: &[CandidateRecord]) -> String {
+    records
+        .iter()
+        .map(|r| {
+            let f: Vec<String> = r
+                .focal_before_px
+                .iter()
+                .map(|f| format!("{f:.0} px"))
+                .collect();
+            format!(
+                "{} (f = {}): {}",
+                r.source,
+                f.join(", "),
+                r.rejected.as_deref().unwrap_or("rejected")
+            )
+        })
+        .collect::<Vec<_>>()
+        .join("; ")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use handheld_core::{
+        Camera, CameraId, ImageId, Intrinsics, Observation, Point3D, PointId, Rigid3, Track,
+        TrackElement, View,
+    };
+    use nalgebra::{Point3, Vector3};
+
+    /// Two cameras 1 m apart looking down +z at 20 points 4–6 m away; exact observations.
+    fn model(f: f64) -> MetricReconstruction {
+        let cam = Camera {
+            id: CameraId(1),
+            width: 640,
+            height: 480,
+            intrinsics: Intrinsics::pinhole(f, 319.5, 239.5),
+        };
+        let mut rec = MetricReconstruction::default();
+        rec.cameras.insert(cam.id, cam.clone());
+        let poses = [
+            Rigid3::identity(),
+            Rigid3::new(Vector3::new(-1.0, 0.0, 0.0), Vector3::zeros()),
+        ];
+        for (k, pose) in poses.iter().enumerate() {
+            let id = ImageId(k as u32 + 1);
+            rec.views.insert(
+                id,
+                View {
+                    id,
+                    camera_id: cam.id,
+                    name: format!("{k}.png"),
+                    cam_from_world: *pose,
+                    observations: Vec::new(),
+                    frame: None,
+                },
+            );
+        }
+        for i in 0..20 {
+            let xyz = Point3::new(
+                -1.0 + 0.1 * i as f64,
+                0.5 - 0.05 * i as f64,
+                4.0 + 0.1 * i as f64,
+            );
+            let pid = PointId(i);
+            let mut track = Track::default();
+            for (id, v) in rec.views.iter_mut() {
+                let xy = cam.project(&v.cam_from_world, &xyz).expect("in front");
+                track.elements.push(TrackElement {
+                    image_id: *id,
+                    point2d_idx: v.observations.len() as u32,
+                });
+                v.observations.push(Observation {
+                    xy,
+                    point_id: Some(pid),
+                });
+            }
+            rec.points.insert(
+                pid,
+                Point3D {
+                    xyz,
+                    color: [0; 3],
+                    error: 0.0,
+                    track,
+                },
+            );
+        }
+        rec
+    }
+
+    fn adjusted(removed: usize, rms: f64) -> Vec<MetricBaRecord> {
+        vec![MetricBaRecord {
+            step: "final".into(),
+            iterations: 3,
+            initial_rms_px: rms,
+            final_rms_px: rms,
+            seconds: 0.0,
+            observations_removed: removed,
+            points_removed: 0,
+        }]
+    }
+
+    #[test]
+    fn a_sound_candidate_passes() {
+        let rec = model(800.0);
+        let mut r = record_before("self-calibration", &rec, None);
+        assert_eq!(r.observations, 40);
+        assert_eq!(r.in_front_fraction, 1.0);
+        assert_eq!(judge(&mut r, &rec, &adjusted(1, 0.6), Some(0.5)), None);
+        assert!(r.accepted);
+    }
+
+    #[test]
+    fn a_collapsed_candidate_is_rejected_for_each_reason() {
+        // Most observations removed (the building-entrance failure: 52,108 removed, 34 points kept).
+        let rec = model(800.0);
+        let mut r = record_before("priors", &rec, None);
+        let why = judge(&mut r, &rec, &adjusted(38, 0.3), Some(0.5)).expect("rejected");
+        assert!(why.contains("removed 95 %"), "{why}");
+        assert!(!r.accepted);
+        // An absurd focal length (f = 0.32 px).
+        let rec = model(0.32);
+        let mut r = record_before("priors", &rec, None);
+        let why = judge(&mut r, &rec, &adjusted(0, 0.3), Some(0.5)).expect("rejected");
+        assert!(why.contains("implausible focal length 0.3 px"), "{why}");
+        // A fit far worse than the projective model's.
+        let rec = model(800.0);
+        let mut r = record_before("focal hypothesis", &rec, None);
+        let why = judge(&mut r, &rec, &adjusted(0, 9.0), Some(0.5)).expect("rejected");
+        assert!(why.contains("reprojection error 9.00 px"), "{why}");
+        // The mirror frame: every point behind the cameras.
+        let mut rec = model(800.0);
+        for p in rec.points.values_mut() {
+            p.xyz.z = -p.xyz.z;
+        }
+        let mut r = record_before("self-calibration", &rec, None);
+        let why = judge(&mut r, &rec, &adjusted(0, 0.5), Some(0.5)).expect("rejected");
+        assert!(why.contains("in front"), "{why}");
+        let text = describe_rejections(&[r]);
+        assert!(text.starts_with("self-calibration (f = 800 px):"), "{text}");
+    }
+
+    #[test]
+    fn a_collapsed_candidate_gives_way_to_the_next() {
+        // The first candidate's adjustment collapses (it keeps 2 of 40 observations); the
+        // second's is sound and is the one returned.
+        let (collapsed, sound) = (model(0.32), model(800.0));
+        let candidates = [(1, "self-calibration", &collapsed), (2, "priors", &sound)];
+        let mut tried = Vec::new();
+        let (winner, rec, adjustments) = first_sound(
+            candidates.iter().map(|(id, s, r)| (id, *s, *r, None)),
+            Some(0.5),
+            |rec| {
+                let collapse = rec.cameras.values().any(|c| c.intrinsics.f < 1.0);
+                Ok(adjusted(if collapse { 38 } else { 1 }, 0.4))
+            },
+            &mut tried,
+        )
+        .expect("the second candidate survives");
+        assert_eq!(*winner, 2);
+        assert_eq!(
+            rec.cameras.values().next().map(|c| c.intrinsics.f),
+            Some(800.0)
+        );
+        assert_eq!(adjustments[0].observations_removed, 1);
+        assert_eq!(tried.len(), 2);
+        assert!(!tried[0].accepted && tried[1].accepted);
+        assert!(tried[0]
+            .rejected
+            .as_deref()
+            .unwrap_or("")
+            .contains("removed 95 %"));
+        // None survives: nothing is returned, and both are recorded with their reasons.
+        let mut tried = Vec::new();
+        let none = first_sound(
+            candidates.iter().map(|(id, s, r)| (id, *s, *r, None)),
+            Some(0.5),
+            |_| Err("metric bundle adjustment (f+k1): diverged".to_string()),
+            &mut tried,
+        );
+        assert!(none.is_none());
+        assert_eq!(tried.len(), 2);
+        assert!(
+            describe_rejections(&tried).contains("priors (f = 800 px): metric bundle adjustment")
+        );
+    }
+}
