@@ -172,13 +172,17 @@ pub struct InputArgs {
     /// Features (KLT): live tracks kept per frame by re-detection.
     #[arg(long, default_value_t = defaults().features.klt_features, value_parser = clap::builder::TypedValueParser::map(clap::value_parser!(u64).range(16..=100_000), |v| v as usize))]
     pub klt_features: usize,
-    /// Matching: `exhaustive`, `sequential` (each image with its --window successors), or `auto`
-    /// (exhaustive up to 40 photos; sequential for video and longer photo sets).
+    /// Matching: `exhaustive`, `sequential` (each image with its --window successors),
+    /// `retrieval` (each image with its --neighbours most similar images, whatever the file
+    /// order), or `auto` (exhaustive up to 40 photos; sequential for video and more photos).
     #[arg(long, default_value = choice_name(&defaults().matches.pairs), value_parser = choice::<PairMode>)]
     pub pairs: PairMode,
     /// Matching: neighbours on each side for sequential matching.
     #[arg(long, default_value_t = defaults().matches.window, value_parser = clap::builder::TypedValueParser::map(clap::value_parser!(u64).range(1..=1000), |v| v as usize))]
     pub window: usize,
+    /// Matching (retrieval): the most similar images each image is matched with.
+    #[arg(long, default_value_t = defaults().matches.retrieval.neighbours)]
+    pub neighbours: usize,
     /// Matching: Lowe's ratio test threshold, in (0, 1].
     #[arg(long, default_value_t = defaults().matches.verification.matching.ratio)]
     pub ratio: f32,
@@ -264,6 +268,7 @@ impl InputArgs {
         o.features.klt_features = self.klt_features;
         o.matches.pairs = self.pairs;
         o.matches.window = self.window;
+        o.matches.retrieval.neighbours = self.neighbours;
         o.matches.close_views = !self.no_close_views;
         o.matches.verification.matching.ratio = self.ratio;
         o.matches.verification.guided = !self.no_guided;

@@ -19,6 +19,7 @@ pub mod klt;
 mod klt_align;
 pub mod matching;
 pub mod refine;
+pub mod retrieval;
 pub mod sift;
 pub mod verify;
 pub mod video;

@@ -1,5 +1,6 @@
 //! The matches stage: choose the pairs ([`PairMode`]: exhaustive for small sets, a sequential
-//! window for video and long sequences, plus §3.2's close views), match and verify them (Table 1),
+//! window plus §3.2's close views for video and long sequences, or image retrieval), match and
+//! verify them (Table 1),
 //! and write everything into COLMAP's `matches/database.db` plus `pairs.json`. Video workspaces
 //! verify key-frame pairs from their shared KLT tracks (§3.1).
 
@@ -8,6 +9,7 @@ use std::path::Path;
 
 use handheld_features::close_views::{propose_close_views, CloseViewOptions};
 use handheld_features::matching::{exhaustive_pairs, sequential_pairs};
+use handheld_features::retrieval::{retrieval_pairs, RetrievalOptions};
 use handheld_features::verify::{verify_pairs, PairVerificationOptions, VerifiedPair};
 use handheld_features::video::{keyframe_pairs, VideoTrackingOptions};
 use handheld_features::Features;
@@ -18,7 +20,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{PipelineError, Result};
 use crate::files::{stage, write_json, DATABASE, PAIRS_JSON};
-use crate::policy::{camera_key, focal_guess_px, PairMode};
+use crate::policy::{camera_key, focal_guess_px, PairMode, PairPlan};
 use crate::stage::{Produced, Stage, StageContext};
 use crate::stages::features::from_file;
 
@@ -31,6 +33,8 @@ pub struct MatchesStageOptions {
     pub window: usize,
     /// With sequential matching, also propose and verify close views outside the window (§3.2).
     pub close_views: bool,
+    /// Retrieval: the most similar images each image is matched with.
+    pub retrieval: RetrievalOptions,
     /// Putative matching, guided matching and two-view verification (Table 1).
     pub verification: PairVerificationOptions,
 }
@@ -41,6 +45,7 @@ impl Default for MatchesStageOptions {
             pairs: PairMode::Auto,
             window: 8,
             close_views: true,
+            retrieval: RetrievalOptions::default(),
             verification: PairVerificationOptions::default(),
         }
     }
@@ -71,6 +76,12 @@ impl MatchesStageOptions {
         if self.window == 0 {
             return Err(PipelineError::option("--window", "must be at least 1"));
         }
+        if self.retrieval.neighbours == 0 {
+            return Err(PipelineError::option("--neighbours", "must be at least 1"));
+        }
+        self.retrieval
+            .validate()
+            .map_err(|e| PipelineError::invalid(stage::MATCHES, e))?;
         self.verification
             .validate()
             .map_err(|e| PipelineError::invalid(stage::MATCHES, e))
@@ -124,14 +135,24 @@ impl Stage for Matches {
             );
             return finish(dir, &ingest, &features, &verified, verified.len(), 0, opts);
         }
-        let sequential = opts.pairs.sequential(ingest.kind, n);
-        let mut pairs = if sequential {
-            sequential_pairs(n, opts.window)
-        } else {
-            exhaustive_pairs(n)
+        let plan = opts.pairs.plan(ingest.kind, n);
+        let mut pairs = match plan {
+            PairPlan::Sequential => sequential_pairs(n, opts.window),
+            PairPlan::Exhaustive => exhaustive_pairs(n),
+            PairPlan::Retrieval => {
+                let p = retrieval_pairs(&features, &opts.retrieval)
+                    .map_err(|e| PipelineError::invalid(stage::MATCHES, e))?;
+                tracing::info!(
+                    "retrieval: {} pairs of {} images ({} most similar each)",
+                    p.len(),
+                    n,
+                    opts.retrieval.neighbours
+                );
+                p
+            }
         };
         let mut proposed = 0;
-        if sequential && opts.close_views {
+        if plan == PairPlan::Sequential && opts.close_views {
             let extra = propose_close_views(&features, opts.window, &CloseViewOptions::default());
             proposed = extra.len();
             pairs.extend(extra);

@@ -1,0 +1,344 @@
+//! Image retrieval for pair selection: which images of a large photo set to match, whatever order
+//! their files come in. Every image gets one global descriptor, a VLAD vector (Jégou et al.,
+//! "Aggregating local descriptors into a compact image representation", CVPR 2010) built from its
+//! RootSIFT descriptors over a small vocabulary learnt by k-means on the set itself, with
+//! intra-normalisation and signed square roots (Arandjelović & Zisserman, "All about VLAD",
+//! CVPR 2013). Each image is then paired with the images whose vectors are most similar (cosine),
+//! which finds the views that overlap, including a camera coming back to a place it saw before
+//! (§3.2's close views), without matching every pair.
+
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::detector::Features;
+use crate::error::FeatureError;
+
+/// Options of [`retrieval_pairs`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct RetrievalOptions {
+    /// Most similar images paired with each image.
+    pub neighbours: usize,
+    /// Visual words of the VLAD vocabulary.
+    pub words: usize,
+    /// Strongest descriptors per image that describe it (and train the vocabulary).
+    pub descriptors_per_image: usize,
+    /// Descriptors the vocabulary is trained on, sampled evenly from all images.
+    pub training_descriptors: usize,
+    /// Lloyd iterations of k-means.
+    pub iterations: usize,
+    /// Seed of the k-means++ initialisation.
+    pub seed: u64,
+}
+
+impl Default for RetrievalOptions {
+    fn default() -> Self {
+        Self {
+            neighbours: 15,
+            words: 64,
+            descriptors_per_image: 2000,
+            training_descriptors: 50_000,
+            iterations: 10,
+            seed: 0,
+        }
+    }
+}
+
+impl RetrievalOptions {
+    /// Checks option ranges; the error names the option.
+    pub fn validate(&self) -> Result<(), FeatureError> {
+        let bad = |option: &'static str, reason: &str| {
+            Err(FeatureError::InvalidOption {
+                option,
+                reason: reason.into(),
+            })
+        };
+        if self.neighbours == 0 {
+            return bad("neighbours", "must be at least 1");
+        }
+        if self.words < 2 {
+            return bad("words", "must be at least 2");
+        }
+        if self.descriptors_per_image == 0 || self.training_descriptors < self.words {
+            return bad(
+                "training_descriptors",
+                "must be at least `words`, with descriptors_per_image at least 1",
+            );
+        }
+        Ok(())
+    }
+}
+
+/// Indices of the `n` strongest keypoints that have a descriptor.
+fn strongest(f: &Features, n: usize) -> Vec<usize> {
+    let mut idx: Vec<usize> = (0..f.keypoints.len().min(f.descriptors.len())).collect();
+    idx.sort_by(|&a, &b| {
+        f.keypoints[b]
+            .response
+            .total_cmp(&f.keypoints[a].response)
+            .then(a.cmp(&b))
+    });
+    idx.truncate(n);
+    idx
+}
+
+fn dist2(a: &[f32], b: &[f32]) -> f32 {
+    a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum()
+}
+
+/// The nearest word of `d`.
+fn nearest(words: &[Vec<f32>], d: &[f32]) -> usize {
+    let mut best = (0, f32::INFINITY);
+    for (k, w) in words.iter().enumerate() {
+        let e = dist2(w, d);
+        if e < best.1 {
+            best = (k, e);
+        }
+    }
+    best.0
+}
+
+/// SplitMix64: a tiny seeded generator for the k-means++ draws.
+struct SplitMix(u64);
+
+impl SplitMix {
+    fn next_f64(&mut self) -> f64 {
+        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
+/// k-means with k-means++ seeding (Arthur & Vassilvitskii 2007) on the rows of `data`.
+fn kmeans(data: &[&[f32]], k: usize, iterations: usize, seed: u64) -> Vec<Vec<f32>> {
+    let mut rng = SplitMix(seed);
+    let mut words: Vec<Vec<f32>> = vec![data[0].to_vec()];
+    let mut d2: Vec<f32> = data.iter().map(|d| dist2(d, &words[0])).collect();
+    while words.len() < k.min(data.len()) {
+        let total: f64 = d2.iter().map(|&v| f64::from(v)).sum();
+        let mut target = rng.next_f64() * total;
+        let mut pick = data.len() - 1;
+        for (i, &v) in d2.iter().enumerate() {
+            target -= f64::from(v);
+            if target <= 0.0 {
+                pick = i;
+                break;
+            }
+        }
+        words.push(data[pick].to_vec());
+        let w = words.last().map(Vec::as_slice).unwrap_or(&[]);
+        d2.par_iter_mut()
+            .zip(data.par_iter())
+            .for_each(|(e, d)| *e = e.min(dist2(d, w)));
+    }
+    let dim = data[0].len();
+    for _ in 0..iterations {
+        let labels: Vec<usize> = data.par_iter().map(|d| nearest(&words, d)).collect();
+        let mut sums = vec![vec![0f64; dim]; words.len()];
+        let mut counts = vec![0usize; words.len()];
+        for (d, &l) in data.iter().zip(&labels) {
+            counts[l] += 1;
+            for (s, &v) in sums[l].iter_mut().zip(d.iter()) {
+                *s += f64::from(v);
+            }
+        }
+        for ((w, s), &c) in words.iter_mut().zip(&sums).zip(&counts) {
+            if c > 0 {
+                for (wv, sv) in w.iter_mut().zip(s) {
+                    *wv = (sv / c as f64) as f32;
+                }
+            }
+        }
+    }
+    words
+}
+
+/// The VLAD vector of one image: per word, the sum of its descriptors' residuals, each block
+/// L2-normalised (intra-normalisation), then signed square roots and a global L2 normalisation.
+fn vlad(f: &Features, idx: &[usize], words: &[Vec<f32>]) -> Vec<f32> {
+    let dim = f.descriptors.dim;
+    let mut v = vec![0f32; words.len() * dim];
+    for &i in idx {
+        let d = f.descriptors.row(i);
+        let k = nearest(words, d);
+        for (o, (x, w)) in v[k * dim..(k + 1) * dim]
+            .iter_mut()
+            .zip(d.iter().zip(&words[k]))
+        {
+            *o += x - w;
+        }
+    }
+    for block in v.chunks_mut(dim) {
+        let n = block.iter().map(|x| x * x).sum::<f32>().sqrt();
+        if n > 0.0 {
+            block.iter_mut().for_each(|x| *x /= n);
+        }
+    }
+    v.iter_mut().for_each(|x| *x = x.signum() * x.abs().sqrt());
+    let n = v.iter().map(|x| x * x).sum::<f32>().sqrt();
+    if n > 0.0 {
+        v.iter_mut().for_each(|x| *x /= n);
+    }
+    v
+}
+
+/// The pairs `(i, j)`, `i < j`, of every image with its `neighbours` most similar images (by VLAD
+/// cosine similarity; ties broken by index, so the result depends on the images, not on their
+/// order beyond that). Images without descriptors get no pairs.
+pub fn retrieval_pairs(
+    features: &[Features],
+    opts: &RetrievalOptions,
+) -> Result<Vec<(usize, usize)>, FeatureError> {
+    opts.validate()?;
+    let n = features.len();
+    let chosen: Vec<Vec<usize>> = features
+        .iter()
+        .map(|f| strongest(f, opts.descriptors_per_image))
+        .collect();
+    let total: usize = chosen.iter().map(Vec::len).sum();
+    if n < 2 || total < opts.words {
+        return Ok(Vec::new());
+    }
+    // An even sample of every image's chosen descriptors trains the vocabulary.
+    let step = total.div_ceil(opts.training_descriptors).max(1);
+    let training: Vec<&[f32]> = features
+        .iter()
+        .zip(&chosen)
+        .flat_map(|(f, idx)| idx.iter().map(move |&i| f.descriptors.row(i)))
+        .step_by(step)
+        .collect();
+    let words = kmeans(&training, opts.words, opts.iterations, opts.seed);
+    let vectors: Vec<Vec<f32>> = features
+        .par_iter()
+        .zip(&chosen)
+        .map(|(f, idx)| vlad(f, idx, &words))
+        .collect();
+    let neighbours: Vec<Vec<usize>> = (0..n)
+        .into_par_iter()
+        .map(|i| {
+            let mut sims: Vec<(f32, usize)> = (0..n)
+                .filter(|&j| j != i && !chosen[j].is_empty())
+                .map(|j| {
+                    let s: f32 = vectors[i].iter().zip(&vectors[j]).map(|(a, b)| a * b).sum();
+                    (s, j)
+                })
+                .collect();
+            sims.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+            sims.into_iter()
+                .take(opts.neighbours)
+                .map(|(_, j)| j)
+                .collect()
+        })
+        .collect();
+    let mut pairs: Vec<(usize, usize)> = neighbours
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| !chosen[*i].is_empty())
+        .flat_map(|(i, list)| list.iter().map(move |&j| (i.min(j), i.max(j))))
+        .collect();
+    pairs.sort_unstable();
+    pairs.dedup();
+    Ok(pairs)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::detector::{Descriptors, Keypoint};
+
+    /// `places` places with their own random unit descriptors; image `k` of a ring sees places
+    /// k−1, k and k+1 (mod n) with a little noise, so its true neighbours are k ± 1 and k ± 2.
+    fn ring(n: usize, seed: u64) -> Vec<Features> {
+        let dim = 32;
+        let mut rng = SplitMix(seed);
+        let places: Vec<Vec<Vec<f32>>> = (0..n)
+            .map(|_| {
+                (0..80)
+                    .map(|_| (0..dim).map(|_| rng.next_f64() as f32).collect())
+                    .collect()
+            })
+            .collect();
+        (0..n)
+            .map(|k| {
+                let mut data = Vec::new();
+                let mut keypoints = Vec::new();
+                for p in [(k + n - 1) % n, k, (k + 1) % n] {
+                    for d in &places[p] {
+                        let v: Vec<f32> =
+                            d.iter().map(|x| x + 0.02 * rng.next_f64() as f32).collect();
+                        let norm = v.iter().map(|x| x * x).sum::<f32>().sqrt();
+                        data.extend(v.iter().map(|x| x / norm));
+                        keypoints.push(Keypoint {
+                            x: 0.0,
+                            y: 0.0,
+                            scale: 1.0,
+                            orientation: 0.0,
+                            response: rng.next_f64() as f32,
+                        });
+                    }
+                }
+                Features {
+                    keypoints,
+                    descriptors: Descriptors { dim, data },
+                }
+            })
+            .collect()
+    }
+
+    fn opts() -> RetrievalOptions {
+        RetrievalOptions {
+            neighbours: 2,
+            words: 16,
+            training_descriptors: 5000,
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn neighbours_on_a_ring_are_found_in_any_order() {
+        let n = 45;
+        let features = ring(n, 3);
+        let pairs = retrieval_pairs(&features, &opts()).expect("pairs");
+        // Each image's two nearest places are its ring neighbours: the ring's edges, closure
+        // (44, 0) included, are all there.
+        for k in 0..n {
+            let e = (k.min((k + 1) % n), k.max((k + 1) % n));
+            assert!(pairs.contains(&e), "missing {e:?}");
+        }
+        // Shuffled files give the same pairs, relabelled.
+        let perm: Vec<usize> = (0..n).map(|k| (k * 17 + 5) % n).collect();
+        let mut shuffled = vec![features[0].clone(); n];
+        for (k, &p) in perm.iter().enumerate() {
+            shuffled[p] = features[k].clone();
+        }
+        let again = retrieval_pairs(&shuffled, &opts()).expect("pairs");
+        let mut relabelled: Vec<(usize, usize)> = pairs
+            .iter()
+            .map(|&(a, b)| (perm[a].min(perm[b]), perm[a].max(perm[b])))
+            .collect();
+        relabelled.sort_unstable();
+        let same = relabelled.iter().filter(|p| again.contains(p)).count();
+        assert!(
+            same as f64 >= 0.95 * relabelled.len() as f64,
+            "{same} of {} pairs survive a shuffle",
+            relabelled.len()
+        );
+    }
+
+    #[test]
+    fn bad_options_are_named() {
+        let o = RetrievalOptions {
+            neighbours: 0,
+            ..Default::default()
+        };
+        assert!(matches!(
+            o.validate(),
+            Err(FeatureError::InvalidOption {
+                option: "neighbours",
+                ..
+            })
+        ));
+    }
+}
