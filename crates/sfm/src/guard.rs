@@ -48,6 +48,9 @@ pub struct CandidateRecord {
     pub focal_after_px: Vec<f64>,
     /// Whether it was adjusted and judged (candidates ranked below the accepted one are not).
     pub tried: bool,
+    /// After the full adjustment: the observations kept, discounted by their RMS (higher is
+    /// better); ranks the candidates that pass when several are adjusted.
+    pub score: Option<f64>,
     pub accepted: bool,
     /// Why it was rejected.
     pub rejected: Option<String>,
@@ -113,6 +116,7 @@ pub(crate) fn judge(
     let rms = adjustments.last().map(|r| r.final_rms_px);
     record.removed_fraction = Some(removed_fraction);
     record.final_rms_px = rms;
+    record.score = rms.map(|r| (record.observations.saturating_sub(removed)) as f64 / (1.0 + r));
     record.focal_after_px = focal_lengths(rec);
     let why = if record.in_front_fraction < MIN_IN_FRONT {
         Some(format!(
@@ -180,6 +184,61 @@ pub(crate) fn first_sound<'a, C>(
         tried.push(record);
     }
     None
+}
+
+/// Adjusts every candidate and returns the accepted one with the best score after its full
+/// adjustment (ties: the earlier), the paper's "let the full adjustment decide" among the frames
+/// that critical motion leaves open. Every candidate is recorded in `tried`.
+pub(crate) fn best_sound<'a, C>(
+    candidates: impl IntoIterator<Item = (&'a C, &'a str, &'a MetricReconstruction, Option<f64>)>,
+    projective_rms_px: Option<f64>,
+    mut adjust: impl FnMut(&mut MetricReconstruction) -> Result<Vec<MetricBaRecord>, String>,
+    tried: &mut Vec<CandidateRecord>,
+) -> Option<(&'a C, MetricReconstruction, Vec<MetricBaRecord>)> {
+    let mut best: Option<(f64, usize, &'a C, MetricReconstruction, Vec<MetricBaRecord>)> = None;
+    for (c, source, rec, score) in candidates {
+        let mut found = Vec::new();
+        let Some((c, adjusted, adjustments)) = first_sound(
+            std::iter::once((c, source, rec, score)),
+            projective_rms_px,
+            &mut adjust,
+            &mut found,
+        ) else {
+            tried.append(&mut found);
+            continue;
+        };
+        let full = found
+            .last()
+            .and_then(|r| r.score)
+            .unwrap_or(f64::NEG_INFINITY);
+        tried.append(&mut found);
+        if best.as_ref().is_none_or(|b| full > b.0) {
+            best = Some((full, tried.len() - 1, c, adjusted, adjustments));
+        }
+    }
+    let (_, index, c, rec, adjustments) = best?;
+    for (k, r) in tried.iter_mut().enumerate() {
+        if r.accepted && k != index {
+            r.accepted = false;
+            r.rejected = Some("a better-scoring candidate was kept".into());
+        }
+    }
+    Some((c, rec, adjustments))
+}
+
+/// [`best_sound`] when `all`, else [`first_sound`].
+pub(crate) fn choose<'a, C>(
+    all: bool,
+    candidates: impl IntoIterator<Item = (&'a C, &'a str, &'a MetricReconstruction, Option<f64>)>,
+    projective_rms_px: Option<f64>,
+    adjust: impl FnMut(&mut MetricReconstruction) -> Result<Vec<MetricBaRecord>, String>,
+    tried: &mut Vec<CandidateRecord>,
+) -> Option<(&'a C, MetricReconstruction, Vec<MetricBaRecord>)> {
+    if all {
+        best_sound(candidates, projective_rms_px, adjust, tried)
+    } else {
+        first_sound(candidates, projective_rms_px, adjust, tried)
+    }
 }
 
 /// One line per rejected candidate, for the error a user sees when none survives.

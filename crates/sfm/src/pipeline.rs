@@ -271,7 +271,8 @@ fn adjust_metric_frame(
     let projective_rms = model.ba.last().map(|r| r.final_rms_px);
     let mut tried = Vec::new();
     loop {
-        // One candidate: adjust it. Several: the one a short adjustment explains best first.
+        // One candidate: adjust it. Several: all get the full adjustment (ranked by a short one),
+        // and the sound one that the full adjustment explains best is kept.
         let scores: Vec<Option<f64>> = if candidates.len() == 1 {
             vec![None]
         } else {
@@ -287,7 +288,8 @@ fn adjust_metric_frame(
             let (sa, sb) = (scores[a].unwrap_or(0.0), scores[b].unwrap_or(0.0));
             sb.total_cmp(&sa).then(b.cmp(&a))
         });
-        let found = guard::first_sound(
+        let found = guard::choose(
+            candidates.len() > 1,
             order.iter().map(|&k| {
                 (
                     &candidates[k],
@@ -301,15 +303,6 @@ fn adjust_metric_frame(
             &mut tried,
         );
         if let Some((c, rec, adjustments)) = found {
-            // The candidates ranked below the accepted one, with their scores, untried.
-            for &k in order
-                .iter()
-                .skip_while(|&&k| !std::ptr::eq(&candidates[k], c))
-                .skip(1)
-            {
-                let d = &candidates[k];
-                tried.push(guard::record_before(d.source, &d.rec, scores[k]));
-            }
             report.candidates = tried;
             return Ok((rec, c.is_prior, report, adjustments));
         }
