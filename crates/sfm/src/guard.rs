@@ -427,4 +427,28 @@ mod tests {
             describe_rejections(&tried).contains("priors (f = 800 px): metric bundle adjustment")
         );
     }
+
+    #[test]
+    fn with_several_sound_candidates_the_best_adjusted_one_is_kept() {
+        // Both pass; the second keeps more observations after its adjustment and wins, although it
+        // was ranked second.
+        let (a, b) = (model(800.0), model(820.0));
+        let candidates = [(1, "focal hypothesis", &a), (2, "priors", &b)];
+        let mut tried = Vec::new();
+        let (winner, _, _) = choose(
+            true,
+            candidates.iter().map(|(id, s, r)| (id, *s, *r, None)),
+            Some(0.5),
+            |rec| {
+                let f = rec.cameras.values().next().map_or(0.0, |c| c.intrinsics.f);
+                Ok(adjusted(if f < 810.0 { 10 } else { 2 }, 0.5))
+            },
+            &mut tried,
+        )
+        .expect("a sound candidate");
+        assert_eq!(*winner, 2);
+        assert_eq!(tried.len(), 2);
+        assert!(!tried[0].accepted && tried[1].accepted);
+        assert!(tried[0].score < tried[1].score);
+    }
 }
