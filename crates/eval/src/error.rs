@@ -14,12 +14,6 @@ pub enum EvalError {
     /// The data cannot be evaluated (too little was reconstructed, a file is missing).
     #[error("{0}")]
     Data(String),
-    /// A library step failed; `context` says which.
-    #[error("{context}: {cause}")]
-    Step {
-        context: String,
-        cause: Box<dyn std::error::Error + Send + Sync>,
-    },
     /// Reading or writing a file.
     #[error(transparent)]
     Io(#[from] handheld_io::IoError),
@@ -60,31 +54,5 @@ impl EvalError {
             Self::InvalidOption { option, .. } => Some(option),
             _ => None,
         }
-    }
-}
-
-/// Adds what was being done to a library error (or a library's `String` error).
-pub trait Context<T> {
-    /// Wraps the error as [`EvalError::Step`] with `what` as its context.
-    fn context(self, what: impl Into<String>) -> Result<T>;
-    /// As [`Context::context`], the context built only on failure.
-    fn with_context<S: Into<String>>(self, what: impl FnOnce() -> S) -> Result<T>;
-}
-
-impl<T, E: Into<Box<dyn std::error::Error + Send + Sync>>> Context<T>
-    for std::result::Result<T, E>
-{
-    fn context(self, what: impl Into<String>) -> Result<T> {
-        self.map_err(|e| EvalError::Step {
-            context: what.into(),
-            cause: e.into(),
-        })
-    }
-
-    fn with_context<S: Into<String>>(self, what: impl FnOnce() -> S) -> Result<T> {
-        self.map_err(|e| EvalError::Step {
-            context: what().into(),
-            cause: e.into(),
-        })
     }
 }

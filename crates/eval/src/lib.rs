@@ -15,7 +15,8 @@ pub mod demo;
 pub mod error;
 
 pub use demo::{run_demo, CameraPath, DemoOptions, DemoReport};
-pub use error::{Context, EvalError, Result};
+pub use error::{EvalError, Result};
+pub use handheld_pipeline::Context;
 
 /// An error and its causes on one line (`outer: inner: …`), as reports carry failed evaluations.
 pub fn error_chain(e: &dyn std::error::Error) -> String {

@@ -260,14 +260,7 @@ impl VideoReader {
             path: path.to_path_buf(),
             reason: "no output pipe".into(),
         })?;
-        let mut err_pipe = child.stderr.take();
-        let stderr = std::thread::spawn(move || {
-            let mut buf = Vec::new();
-            if let Some(p) = err_pipe.as_mut() {
-                let _ = p.read_to_end(&mut buf);
-            }
-            buf
-        });
+        let stderr = collect_stderr(&mut child);
         let first_index = (opts.start_s * info.fps).round() as u64;
         Ok(Self {
             path: path.to_path_buf(),
@@ -424,6 +417,18 @@ impl Drop for VideoReader {
             let _ = self.child.wait();
         }
     }
+}
+
+/// Collects a child's stderr on a thread, so a chatty ffmpeg never blocks on a full pipe.
+pub(crate) fn collect_stderr(child: &mut std::process::Child) -> std::thread::JoinHandle<Vec<u8>> {
+    let mut err_pipe = child.stderr.take();
+    std::thread::spawn(move || {
+        let mut buf = Vec::new();
+        if let Some(p) = err_pipe.as_mut() {
+            let _ = p.read_to_end(&mut buf);
+        }
+        buf
+    })
 }
 
 #[cfg(test)]

@@ -70,24 +70,27 @@ impl PipelineError {
     }
 }
 
-/// Adds what was being done to a library error.
+/// Adds what was being done to a library error (or a library's `String` error); `?` turns the
+/// result into any error type that wraps [`PipelineError`] (the eval crate's does).
 pub trait Context<T> {
     fn context(self, what: impl Into<String>) -> Result<T>;
     fn with_context<S: Into<String>>(self, what: impl FnOnce() -> S) -> Result<T>;
 }
 
-impl<T, E: std::error::Error + Send + Sync + 'static> Context<T> for std::result::Result<T, E> {
+impl<T, E: Into<Box<dyn std::error::Error + Send + Sync>>> Context<T>
+    for std::result::Result<T, E>
+{
     fn context(self, what: impl Into<String>) -> Result<T> {
         self.map_err(|e| PipelineError::Step {
             context: what.into(),
-            cause: Box::new(e),
+            cause: e.into(),
         })
     }
 
     fn with_context<S: Into<String>>(self, what: impl FnOnce() -> S) -> Result<T> {
         self.map_err(|e| PipelineError::Step {
             context: what().into(),
-            cause: Box::new(e),
+            cause: e.into(),
         })
     }
 }

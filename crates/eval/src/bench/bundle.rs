@@ -13,7 +13,8 @@ use handheld_bundle::{
 use handheld_core::Progress;
 use serde::{Deserialize, Serialize};
 
-use crate::error::{Context, EvalError, Result};
+use crate::error::{EvalError, Result};
+use handheld_pipeline::Context;
 
 /// The problem a bundle benchmark solves.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

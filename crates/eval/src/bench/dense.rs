@@ -22,7 +22,8 @@ use handheld_testkit::render::{render_sequence, SequenceOptions};
 use nalgebra::Point3;
 use serde::{Deserialize, Serialize};
 
-use crate::error::{Context, EvalError, Result};
+use crate::error::{EvalError, Result};
+use handheld_pipeline::Context;
 
 /// Options of the dense benchmark.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -17,7 +17,8 @@ use nalgebra::{Matrix3, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
 use super::colmap::{run_colmap, ColmapReport};
-use crate::error::{Context, EvalError, Result};
+use crate::error::{EvalError, Result};
+use handheld_pipeline::Context;
 
 /// Options of the matching benchmark.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -9,7 +9,8 @@ use handheld_core::FloatMap;
 use handheld_dense::{Disparity, StereoMatcher, StereoMethod, StereoOptions};
 use serde::{Deserialize, Serialize};
 
-use crate::error::{Context, EvalError, Result};
+use crate::error::{EvalError, Result};
+use handheld_pipeline::Context;
 
 /// Options of one rectified pair's dense matching.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -19,7 +19,8 @@ pub use accuracy::{
 pub use dense::{dense_accuracy, mesh_accuracy, DenseAccuracy, MeshAccuracy};
 pub use sequence::{sequence_options, write_sequence, DemoStamp};
 
-use crate::error::{Context, EvalError, Result};
+use crate::error::{EvalError, Result};
+use handheld_pipeline::Context;
 
 /// Camera path of the synthetic sequence.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]

@@ -11,7 +11,8 @@ use handheld_testkit::render::{SequenceOptions, SyntheticSequence};
 use serde::{Deserialize, Serialize};
 
 use super::{CameraPath, DemoOptions};
-use crate::error::{Context, Result};
+use crate::error::Result;
+use handheld_pipeline::Context;
 
 /// The demo folder's sub-folder of rendered frames.
 pub const IMAGES_DIR: &str = "images";

@@ -4,7 +4,7 @@
 //! (same extension, so ffmpeg picks the same container) and renamed when complete, so a failed or
 //! interrupted run never leaves a truncated file under the final name.
 
-use std::io::{Read, Write};
+use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 
@@ -105,14 +105,7 @@ fn spawn(
         .stderr(Stdio::piped())
         .spawn()
         .map_err(|e| spawn_error(program, e))?;
-    let mut err_pipe = child.stderr.take();
-    let stderr = std::thread::spawn(move || {
-        let mut buf = Vec::new();
-        if let Some(p) = err_pipe.as_mut() {
-            let _ = p.read_to_end(&mut buf);
-        }
-        buf
-    });
+    let stderr = super::collect_stderr(&mut child);
     Ok((child, stderr))
 }
 
