@@ -37,8 +37,6 @@ pub struct CandidateRecord {
     pub source: String,
     /// Focal length of each intrinsics group before adjustment, pixels.
     pub focal_before_px: Vec<f64>,
-    /// The short adjustment's score that ranked the candidates (none when it was the only one).
-    pub quick_score: Option<f64>,
     /// Observations before adjustment, and the fraction of them in front of their camera.
     pub observations: usize,
     pub in_front_fraction: f64,
@@ -88,15 +86,10 @@ pub(crate) fn focal_lengths(rec: &MetricReconstruction) -> Vec<f64> {
 }
 
 /// A record of `rec` before its adjustment.
-pub(crate) fn record_before(
-    source: &str,
-    rec: &MetricReconstruction,
-    quick_score: Option<f64>,
-) -> CandidateRecord {
+pub(crate) fn record_before(source: &str, rec: &MetricReconstruction) -> CandidateRecord {
     CandidateRecord {
         source: source.to_string(),
         focal_before_px: focal_lengths(rec),
-        quick_score,
         observations: observation_count(rec),
         in_front_fraction: in_front_fraction(rec),
         ..Default::default()
@@ -156,13 +149,13 @@ pub(crate) fn judge(
 /// adjusted model and adjustments; every candidate tried is recorded in `tried`. `adjust` is the
 /// full metric bundle adjustment.
 pub(crate) fn first_sound<'a, C>(
-    candidates: impl IntoIterator<Item = (&'a C, &'a str, &'a MetricReconstruction, Option<f64>)>,
+    candidates: impl IntoIterator<Item = (&'a C, &'a str, &'a MetricReconstruction)>,
     projective_rms_px: Option<f64>,
     mut adjust: impl FnMut(&mut MetricReconstruction) -> Result<Vec<MetricBaRecord>, String>,
     tried: &mut Vec<CandidateRecord>,
 ) -> Option<(&'a C, MetricReconstruction, Vec<MetricBaRecord>)> {
-    for (c, source, rec, score) in candidates {
-        let mut record = record_before(source, rec, score);
+    for (c, source, rec) in candidates {
+        let mut record = record_before(source, rec);
         record.tried = true;
         let mut adjusted = rec.clone();
         let why = match adjust(&mut adjusted) {
@@ -190,16 +183,16 @@ pub(crate) fn first_sound<'a, C>(
 /// adjustment (ties: the earlier), the paper's "let the full adjustment decide" among the frames
 /// that critical motion leaves open. Every candidate is recorded in `tried`.
 pub(crate) fn best_sound<'a, C>(
-    candidates: impl IntoIterator<Item = (&'a C, &'a str, &'a MetricReconstruction, Option<f64>)>,
+    candidates: impl IntoIterator<Item = (&'a C, &'a str, &'a MetricReconstruction)>,
     projective_rms_px: Option<f64>,
     mut adjust: impl FnMut(&mut MetricReconstruction) -> Result<Vec<MetricBaRecord>, String>,
     tried: &mut Vec<CandidateRecord>,
 ) -> Option<(&'a C, MetricReconstruction, Vec<MetricBaRecord>)> {
     let mut best: Option<(f64, usize, &'a C, MetricReconstruction, Vec<MetricBaRecord>)> = None;
-    for (c, source, rec, score) in candidates {
+    for (c, source, rec) in candidates {
         let mut found = Vec::new();
         let Some((c, adjusted, adjustments)) = first_sound(
-            std::iter::once((c, source, rec, score)),
+            std::iter::once((c, source, rec)),
             projective_rms_px,
             &mut adjust,
             &mut found,
@@ -229,7 +222,7 @@ pub(crate) fn best_sound<'a, C>(
 /// [`best_sound`] when `all`, else [`first_sound`].
 pub(crate) fn choose<'a, C>(
     all: bool,
-    candidates: impl IntoIterator<Item = (&'a C, &'a str, &'a MetricReconstruction, Option<f64>)>,
+    candidates: impl IntoIterator<Item = (&'a C, &'a str, &'a MetricReconstruction)>,
     projective_rms_px: Option<f64>,
     adjust: impl FnMut(&mut MetricReconstruction) -> Result<Vec<MetricBaRecord>, String>,
     tried: &mut Vec<CandidateRecord>,
@@ -346,7 +339,7 @@ mod tests {
     #[test]
     fn a_sound_candidate_passes() {
         let rec = model(800.0);
-        let mut r = record_before("self-calibration", &rec, None);
+        let mut r = record_before("self-calibration", &rec);
         assert_eq!(r.observations, 40);
         assert_eq!(r.in_front_fraction, 1.0);
         assert_eq!(judge(&mut r, &rec, &adjusted(1, 0.6), Some(0.5)), None);
@@ -357,18 +350,18 @@ mod tests {
     fn a_collapsed_candidate_is_rejected_for_each_reason() {
         // Most observations removed (the building-entrance failure: 52,108 removed, 34 points kept).
         let rec = model(800.0);
-        let mut r = record_before("priors", &rec, None);
+        let mut r = record_before("priors", &rec);
         let why = judge(&mut r, &rec, &adjusted(38, 0.3), Some(0.5)).expect("rejected");
         assert!(why.contains("removed 95 %"), "{why}");
         assert!(!r.accepted);
         // An absurd focal length (f = 0.32 px).
         let rec = model(0.32);
-        let mut r = record_before("priors", &rec, None);
+        let mut r = record_before("priors", &rec);
         let why = judge(&mut r, &rec, &adjusted(0, 0.3), Some(0.5)).expect("rejected");
         assert!(why.contains("implausible focal length 0.3 px"), "{why}");
         // A fit far worse than the projective model's.
         let rec = model(800.0);
-        let mut r = record_before("focal hypothesis", &rec, None);
+        let mut r = record_before("focal hypothesis", &rec);
         let why = judge(&mut r, &rec, &adjusted(0, 9.0), Some(0.5)).expect("rejected");
         assert!(why.contains("reprojection error 9.00 px"), "{why}");
         // The mirror frame: every point behind the cameras.
@@ -376,7 +369,7 @@ mod tests {
         for p in rec.points.values_mut() {
             p.xyz.z = -p.xyz.z;
         }
-        let mut r = record_before("self-calibration", &rec, None);
+        let mut r = record_before("self-calibration", &rec);
         let why = judge(&mut r, &rec, &adjusted(0, 0.5), Some(0.5)).expect("rejected");
         assert!(why.contains("in front"), "{why}");
         let text = describe_rejections(&[r]);
@@ -391,7 +384,7 @@ mod tests {
         let candidates = [(1, "self-calibration", &collapsed), (2, "priors", &sound)];
         let mut tried = Vec::new();
         let (winner, rec, adjustments) = first_sound(
-            candidates.iter().map(|(id, s, r)| (id, *s, *r, None)),
+            candidates.iter().map(|(id, s, r)| (id, *s, *r)),
             Some(0.5),
             |rec| {
                 let collapse = rec.cameras.values().any(|c| c.intrinsics.f < 1.0);
@@ -416,7 +409,7 @@ mod tests {
         // None survives: nothing is returned, and both are recorded with their reasons.
         let mut tried = Vec::new();
         let none = first_sound(
-            candidates.iter().map(|(id, s, r)| (id, *s, *r, None)),
+            candidates.iter().map(|(id, s, r)| (id, *s, *r)),
             Some(0.5),
             |_| Err("metric bundle adjustment (f+k1): diverged".to_string()),
             &mut tried,
@@ -437,7 +430,7 @@ mod tests {
         let mut tried = Vec::new();
         let (winner, _, _) = choose(
             true,
-            candidates.iter().map(|(id, s, r)| (id, *s, *r, None)),
+            candidates.iter().map(|(id, s, r)| (id, *s, *r)),
             Some(0.5),
             |rec| {
                 let f = rec.cameras.values().next().map_or(0.0, |c| c.intrinsics.f);

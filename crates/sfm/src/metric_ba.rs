@@ -1,7 +1,7 @@
 //! Metric bundle adjustment (§3.4, eq. 21) of the upgraded model: the schedule of adjustments
 //! (focal and k1 first, then every intrinsic the options allow, then a final pass), each followed by
-//! outlier removal; the soft priors (principal point near the centre, EXIF focal lengths, a known
-//! calibration); and the cheap score that compares candidate metric frames. Split from
+//! outlier removal; and the soft priors (principal point near the centre, EXIF focal lengths, a known
+//! calibration). Split from
 //! [`crate::metric`], which builds the metric model from the projective one.
 
 use std::collections::BTreeMap;
@@ -234,57 +234,6 @@ fn long_lens(rec: &MetricReconstruction) -> bool {
             let half_diag = 0.5 * f64::from(c.width).hypot(f64::from(c.height));
             half_diag / c.intrinsics.f.abs().max(1e-9) < MIN_DISTORTION_RADIUS
         })
-}
-
-/// A cheap comparison of candidate metric frames (different upgrades `T`): a short adjustment of
-/// poses, points and focal lengths, then the number of observations within the metric threshold,
-/// discounted by their RMS. Higher is better; the candidate is left unchanged.
-pub(crate) fn quick_score(ctx: &Context, rec: &MetricReconstruction, estimate_aspect: bool) -> f64 {
-    let mut r = rec.clone();
-    let config = MetricBundleConfig {
-        refine: IntrinsicsMask {
-            f: true,
-            aspect: estimate_aspect,
-            skew: false,
-            principal_point: false,
-            k1: false,
-            k2: false,
-        },
-        ..Default::default()
-    };
-    let bopts = BundleOptions {
-        max_iterations: 25,
-        loss: RobustLoss::Huber(ctx.opts.loss_scale_px),
-        function_tolerance: 1e-5,
-        ..Default::default()
-    };
-    if bundle_adjust_metric(&mut r, &config, &bopts).is_err() {
-        return f64::NEG_INFINITY;
-    }
-    let thr = ctx.opts.metric_max_error_px;
-    let (mut n, mut sq) = (0usize, 0.0);
-    for pt in r.points.values() {
-        for el in &pt.track.elements {
-            let Some(v) = r.views.get(&el.image_id) else {
-                continue;
-            };
-            let Some(cam) = r.cameras.get(&v.camera_id) else {
-                continue;
-            };
-            let Some(px) = cam.project(&v.cam_from_world, &pt.xyz) else {
-                continue;
-            };
-            let e = (px - v.observations[el.point2d_idx as usize].xy).norm();
-            if e <= thr {
-                n += 1;
-                sq += e * e;
-            }
-        }
-    }
-    if n == 0 {
-        return f64::NEG_INFINITY;
-    }
-    n as f64 / (1.0 + (sq / n as f64).sqrt())
 }
 
 /// EXIF focal lengths are only priors (σ = 10 %), per group, when every member agrees.

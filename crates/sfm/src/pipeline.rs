@@ -228,11 +228,10 @@ fn fallback_candidates(
 /// A known calibration gives the upgrade itself (eq. 26 with `K` given), whatever the motion; the
 /// self-calibrated candidates are built only without one, or if it is inconsistent with the
 /// cameras. When the linear self-calibration is doubtful (critical motion, or an `Ω*` that is not
-/// semi-definite), the frame from the priors alone and the focal hypotheses are candidates too, and
-/// a short adjustment ranks them: the paper's "fall back on the priors" without trusting either
-/// blindly. The best-ranked candidate gets the full adjustment, and [`crate::guard`] judges what
-/// that did; a rejected candidate gives way to the next (a rejected self-calibration to the
-/// fallbacks). When none survives, the step fails with what was tried, and no model is reported.
+/// semi-definite), the frame from the priors alone and the focal hypotheses are candidates too:
+/// the paper's "fall back on the priors" without trusting either blindly. Every candidate gets the
+/// full adjustment, [`crate::guard`] judges what that did, and the sound one with the best score
+/// is kept; a rejected self-calibration gives way to the fallbacks. When none survives, the step fails with what was tried, and no model is reported.
 fn adjust_metric_frame(
     ctx: &Context,
     model: &ProjectiveModel,
@@ -271,33 +270,11 @@ fn adjust_metric_frame(
     let projective_rms = model.ba.last().map(|r| r.final_rms_px);
     let mut tried = Vec::new();
     loop {
-        // One candidate: adjust it. Several: all get the full adjustment (ranked by a short one),
-        // and the sound one that the full adjustment explains best is kept.
-        let scores: Vec<Option<f64>> = if candidates.len() == 1 {
-            vec![None]
-        } else {
-            candidates
-                .iter()
-                .map(|c| Some(metric_ba::quick_score(ctx, &c.rec, estimate_aspect)))
-                .collect()
-        };
-        tracing::debug!(?scores, "metric frame candidates");
-        let mut order: Vec<usize> = (0..candidates.len()).collect();
-        // Best score first; among equal scores the later candidate (as `Iterator::max_by` chose).
-        order.sort_by(|&a, &b| {
-            let (sa, sb) = (scores[a].unwrap_or(0.0), scores[b].unwrap_or(0.0));
-            sb.total_cmp(&sa).then(b.cmp(&a))
-        });
+        // One candidate: adjust it. Several: all get the full adjustment, and the sound one that
+        // it explains best is kept.
         let found = guard::choose(
             candidates.len() > 1,
-            order.iter().map(|&k| {
-                (
-                    &candidates[k],
-                    candidates[k].source,
-                    &candidates[k].rec,
-                    scores[k],
-                )
-            }),
+            candidates.iter().map(|c| (c, c.source, &c.rec)),
             projective_rms,
             |rec| metric_ba::refine_metric(ctx, rec, estimate_aspect),
             &mut tried,
