@@ -124,6 +124,51 @@ impl VerifiedPair {
             view_distance_px: self.geometry.view_distance_px,
         }
     }
+
+    /// The same result with the two images swapped: `(j, i)`, Fᵀ, H⁻¹, every match reversed.
+    pub fn transposed(self) -> Self {
+        let mut geometry = self.geometry;
+        geometry.f = geometry.f.map(|f| f.transpose());
+        geometry.h = geometry.h.and_then(|h| h.try_inverse());
+        Self {
+            i: self.j,
+            j: self.i,
+            putative: self
+                .putative
+                .into_iter()
+                .map(|m| Match {
+                    i: m.j,
+                    j: m.i,
+                    distance: m.distance,
+                })
+                .collect(),
+            geometry,
+            inliers: self.inliers.into_iter().map(|(a, b)| (b, a)).collect(),
+            guided_added: self.guided_added,
+        }
+    }
+}
+
+/// A key of an image's content (its keypoints and descriptors), the same whatever the file is
+/// called. [`verify_pairs`] orders each pair by it, so that a pair is matched and verified the
+/// same way, with the same random draws, under any naming or ordering of the files.
+pub fn content_key(f: &Features) -> u64 {
+    // FNV-1a over the keypoint positions and the first descriptor bytes.
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    let mut eat = |b: u64| {
+        for k in 0..8 {
+            h ^= (b >> (8 * k)) & 0xff;
+            h = h.wrapping_mul(0x0100_0000_01b3);
+        }
+    };
+    eat(f.keypoints.len() as u64);
+    for kp in f.keypoints.iter().take(256) {
+        eat(u64::from(kp.x.to_bits()) << 32 | u64::from(kp.y.to_bits()));
+    }
+    for &d in f.descriptors.data.iter().take(1024) {
+        eat(u64::from(d.to_bits()));
+    }
+    h
 }
 
 fn point(f: &Features, k: u32) -> Vector2<f64> {
@@ -502,13 +547,17 @@ pub fn verify_pairs(
     progress: &dyn Progress,
 ) -> Vec<VerifiedPair> {
     progress.start("matching pairs", pairs.len() as u64);
+    let keys: Vec<u64> = features.par_iter().map(content_key).collect();
     let out = pairs
         .par_iter()
         .filter_map(|&(i, j)| {
-            let (f1, f2) = (features.get(i)?, features.get(j)?);
-            let v = match_and_verify(i, j, f1, f2, opts);
+            // Matched in the order of the images' content, not of their indices (file names).
+            let swap = (keys.get(j)?, j) < (keys.get(i)?, i);
+            let (a, b) = if swap { (j, i) } else { (i, j) };
+            let (f1, f2) = (features.get(a)?, features.get(b)?);
+            let v = match_and_verify(a, b, f1, f2, opts);
             progress.inc(1);
-            Some(v)
+            Some(if swap { v.transposed() } else { v })
         })
         .collect();
     progress.finish();

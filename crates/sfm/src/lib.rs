@@ -7,6 +7,7 @@
 //! returns one or more metric models: a broken sequence gives several models with the reason, never
 //! a silent partial result.
 
+mod canonical;
 mod context;
 pub mod graph;
 pub mod guard;
@@ -120,7 +121,8 @@ pub struct SfmResult {
 
 /// Runs Table 2 and §3.4 end to end: models are built one after the other from the views still
 /// free (the steps of `pipeline.rs`) until `max_models`, or until no view is left to start one.
-/// Deterministic for a given input and seed.
+/// Deterministic for a given input and seed, and for photos independent of their order (see
+/// `canonical.rs`).
 pub fn reconstruct(
     input: &SfmInput,
     options: &SfmOptions,
@@ -136,6 +138,8 @@ pub fn reconstruct(
     if usable < 2 {
         return Err(SfmError::TooFewImages(usable));
     }
+    let canonical = canonical::Canonical::new(input);
+    let input = canonical.as_ref().map_or(input, |c| &c.input);
     let graph = graph::CorrespondenceGraph::build(input, 8);
     let ctx = context::Context::new(input, &graph, options);
     let mut search = pipeline::Search::new(&ctx);
@@ -170,6 +174,11 @@ pub fn reconstruct(
     }
     models.sort_by_key(|m| std::cmp::Reverse(m.summary.registered));
     let unregistered = unregistered(input, &graph, &models, &search.failures);
+    if let Some(c) = &canonical {
+        for m in &mut models {
+            c.restore(&mut m.reconstruction);
+        }
+    }
     Ok(SfmResult {
         models,
         unregistered,
