@@ -36,6 +36,16 @@ pub struct SelfCalibrationReport {
     /// Every metric frame that was adjusted and judged (see [`crate::guard`]), in the order tried;
     /// the last one was kept.
     pub candidates: Vec<crate::guard::CandidateRecord>,
+    /// Projective models started from a better-ranked initial pair whose metric frame no candidate
+    /// survived, before the one reported (see `pipeline::build_model`).
+    pub rejected_starts: Vec<RejectedStart>,
+}
+
+/// A start of the model that was abandoned: its initial pair and why.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct RejectedStart {
+    pub initial_pair: [String; 2],
+    pub reason: String,
 }
 
 /// The metric reconstruction right after the upgrade, before bundle adjustment.
@@ -113,6 +123,7 @@ pub(crate) fn upgrade(
         focal_before_ba_px: focal,
         aspect_before_ba: aspect,
         candidates: Vec::new(),
+        rejected_starts: Vec::new(),
     };
     Ok(Upgraded {
         rec,

@@ -104,6 +104,33 @@ fn record(timings: &mut Timings, step: &str, since: Instant) {
     timings.insert(step.to_string(), since.elapsed().as_secs_f64());
 }
 
+/// Adds to a step's time (a step run once per start).
+fn add(timings: &mut Timings, step: &str, since: Instant) {
+    *timings.entry(step.to_string()).or_default() += since.elapsed().as_secs_f64();
+}
+
+/// The error of a model none of whose starts gave a sound metric frame: the last failure, with
+/// the initial pairs tried.
+fn abandoned(rejected: &[metric::RejectedStart], last: StepError) -> StepError {
+    let pairs: Vec<String> = rejected
+        .iter()
+        .map(|r| format!("{} + {}", r.initial_pair[0], r.initial_pair[1]))
+        .collect();
+    let tried = format!("started from {} initial pairs ({})", pairs.len(), pairs.join(", "));
+    match last {
+        StepError::MetricUpgrade(m) => StepError::MetricUpgrade(format!("{m}; {tried}")),
+        StepError::MetricAdjustment(m) => StepError::MetricAdjustment(format!("{m}; {tried}")),
+        other => other,
+    }
+}
+
+/// How many initial pairs one model may start from. A start whose metric frame no candidate
+/// survives (or whose self-calibration fails outright) is abandoned and the model is built again
+/// from the next best initial pair among the same views: a projective frame from a short or
+/// ill-conditioned baseline can poison the self-calibration while another start of the same views
+/// upgrades cleanly, as COLMAP retries its initial pairs.
+pub const MAX_STARTS: usize = 3;
+
 /// Builds the next model from the free views of `search`: the steps of the module docs in order.
 /// `Ok(None)` when the projective model holds fewer than 2 views (nothing more can be built); an
 /// error names the step that failed. The views of the projective model are taken from `search`
@@ -115,18 +142,53 @@ pub(crate) fn build_model(
 ) -> Result<Option<SfmModel>, StepError> {
     let estimate_aspect = ctx.opts.estimate_aspect.unwrap_or(ctx.input.video);
     let mut timings = Timings::new();
-    let t0 = Instant::now();
-    let model = projective_step(ctx, search, progress)?;
-    record(&mut timings, "projective", t0);
-    if model.order.len() < 2 {
-        return Ok(None);
-    }
-    let t1 = Instant::now();
-    let up = metric::upgrade(ctx, &model, estimate_aspect).map_err(StepError::MetricUpgrade)?;
-    record(&mut timings, "self_calibration", t1);
+    let mut excluded: Vec<(usize, usize)> = Vec::new();
+    let mut rejected: Vec<metric::RejectedStart> = Vec::new();
+    let (model, (mut rec, is_prior, mut report, mut metric_ba)) = loop {
+        let saved = (search.allowed.clone(), search.failures.clone());
+        let t0 = Instant::now();
+        let model = match projective_step(ctx, search, &excluded, progress) {
+            Ok(m) => m,
+            // No other start: the last start's failure is the one to report.
+            Err(e) if !rejected.is_empty() => return Err(abandoned(&rejected, e)),
+            Err(e) => return Err(e),
+        };
+        add(&mut timings, "projective", t0);
+        if model.order.len() < 2 {
+            return Ok(None);
+        }
+        let t1 = Instant::now();
+        let up = metric::upgrade(ctx, &model, estimate_aspect).map_err(StepError::MetricUpgrade);
+        add(&mut timings, "self_calibration", t1);
+        let t2 = Instant::now();
+        let metric = up.and_then(|up| adjust_metric_frame(ctx, &model, up, estimate_aspect));
+        add(&mut timings, "metric_ba", t2);
+        match metric {
+            Ok(m) => break (model, m),
+            Err(e) => {
+                let names = &ctx.input.images;
+                let (a, b) = model.init_pair;
+                tracing::warn!(
+                    "the model started from {} and {} has no sound metric frame ({e}); starting again from the next initial pair",
+                    names[a].name,
+                    names[b].name
+                );
+                rejected.push(metric::RejectedStart {
+                    initial_pair: [names[a].name.clone(), names[b].name.clone()],
+                    reason: e.to_string(),
+                });
+                excluded.push((a.min(b), a.max(b)));
+                if rejected.len() >= MAX_STARTS {
+                    return Err(abandoned(&rejected, e));
+                }
+                search.allowed = saved.0;
+                search.failures = saved.1;
+            }
+        }
+    };
+    report.rejected_starts = rejected;
     let t2 = Instant::now();
-    let (mut rec, is_prior, mut report, mut metric_ba) =
-        adjust_metric_frame(ctx, &model, up, estimate_aspect)?;
+    let metric_frame_s = timings.get("metric_ba").copied().unwrap_or(0.0);
     let t_reg = Instant::now();
     metric_ba.extend(calibrated_registration_step(
         ctx,
@@ -146,7 +208,10 @@ pub(crate) fn build_model(
     if is_prior {
         report.used_prior_fallback = true;
     }
-    record(&mut timings, "metric_ba", t2);
+    timings.insert(
+        "metric_ba".into(),
+        metric_frame_s + t2.elapsed().as_secs_f64(),
+    );
     let t3 = Instant::now();
     let (uncertainty, uncertainty_note) = uncertainty_step(ctx, &rec);
     record(&mut timings, "uncertainty", t3);
@@ -171,9 +236,10 @@ pub(crate) fn build_model(
 fn projective_step(
     ctx: &Context,
     search: &mut Search,
+    excluded: &[(usize, usize)],
     progress: &dyn Progress,
 ) -> Result<ProjectiveModel, StepError> {
-    let model = projective::reconstruct_projective(ctx, &search.allowed, progress)
+    let model = projective::reconstruct_projective(ctx, &search.allowed, excluded, progress)
         .map_err(StepError::Projective)?;
     search.take(&model.order);
     for (i, e) in &model.failures {

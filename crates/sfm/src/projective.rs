@@ -232,9 +232,11 @@ impl ProjectiveModel {
 pub(crate) fn reconstruct_projective(
     ctx: &Context,
     allowed: &[bool],
+    excluded: &[(usize, usize)],
     progress: &dyn handheld_core::Progress,
 ) -> Result<ProjectiveModel, String> {
-    let candidates = crate::init::initial_pair_candidates(ctx, allowed);
+    let mut candidates = crate::init::initial_pair_candidates(ctx, allowed);
+    candidates.retain(|&(a, b, _)| !excluded.contains(&(a, b)));
     if candidates.is_empty() {
         return Err(
             "no image pair has enough verified, non-degenerate matches to start a model".into(),
