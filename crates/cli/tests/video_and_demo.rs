@@ -91,7 +91,7 @@ fn demo_writes_sequence_ground_truth_and_workspace() {
         "-o",
         out.to_str().unwrap(),
         "--frames",
-        "8",
+        "20",
         "--width",
         "320",
         "--height",
@@ -101,9 +101,17 @@ fn demo_writes_sequence_ground_truth_and_workspace() {
     let o = handheld(&args);
     assert!(o.status.success(), "{}", stderr(&o));
     let v: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
-    assert_eq!(v["frames"], 8);
+    assert_eq!(v["frames"], 20);
     assert_eq!(v["stages"][0]["stage"], "ingest");
-    assert_eq!(v["stages"][0]["summary"]["images"], 8);
+    assert_eq!(v["stages"][0]["summary"]["images"], 20);
+    // The cameras, uncalibrated, against the exact ones.
+    let s = &v["accuracy"]["sparse"];
+    assert_eq!(s["registered"], 20, "{s}");
+    assert!(s["focal_error_pct"].as_f64().unwrap() < 3.0, "{s}");
+    assert!(
+        s["relative_rotation_error_deg_median"].as_f64().unwrap() < 1.0,
+        "{s}"
+    );
     // Matching is scored against the exact relative poses.
     let m = &v["accuracy"]["matching"];
     assert!(m["verified_pairs"].as_u64().unwrap() >= 1, "{m}");
@@ -128,7 +136,7 @@ fn demo_writes_sequence_ground_truth_and_workspace() {
     }
     // The written ground truth reads back and is self-consistent.
     let gt = handheld_io::colmap::read_reconstruction(&out.join("ground_truth/sparse")).unwrap();
-    assert_eq!(gt.views.len(), 8);
+    assert_eq!(gt.views.len(), 20);
     assert!(gt.mean_reprojection_error() < 1e-6);
     let depth = handheld_io::pfm::read_pfm(&out.join("ground_truth/depth/frame_0000.pfm")).unwrap();
     assert_eq!((depth.width, depth.height), (320, 240));
@@ -137,6 +145,34 @@ fn demo_writes_sequence_ground_truth_and_workspace() {
     let o = handheld(&args);
     let v: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
     assert_eq!(v["stages"][0]["status"], "up_to_date");
+}
+
+/// Eight frames of the demo's orbit at 320×240 span too short an arc to fix the focal length:
+/// every metric frame of every start collapses in its adjustment (issue #18). The run must fail and
+/// say what to give, and leave no sparse model that looks complete.
+#[test]
+fn a_demo_too_short_to_calibrate_fails_and_writes_no_model() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("demo");
+    let o = handheld(&[
+        "demo",
+        "-o",
+        out.to_str().unwrap(),
+        "--frames",
+        "8",
+        "--width",
+        "320",
+        "--height",
+        "240",
+        "--quiet",
+    ]);
+    assert!(!o.status.success());
+    let err = stderr(&o);
+    assert!(err.contains("no metric frame survived"), "{err}");
+    assert!(err.contains("--intrinsics"), "{err}");
+    assert!(err.contains("initial pairs"), "{err}");
+    assert!(!out.join("workspace/sparse/images.bin").exists());
+    assert!(!out.join("workspace/sparse/manifest.json").exists());
 }
 
 /// Video mode end to end (§3.1, Table 2): the demo's frames encoded as H.264, KLT tracks, GRIC

@@ -116,6 +116,53 @@ impl VideoTracks {
     }
 }
 
+/// The median fraction of a frame's tracks that KLT follows into the next frame, below which
+/// tracking is not trusted. KLT assumes small motion between frames (eq. 8 is a linearisation):
+/// on a hand-held video it keeps nearly every track from one frame to the next, and loses them
+/// only at the borders and at occlusions. When it keeps fewer than half, the frames are too far
+/// apart for it (a fast camera, a low frame rate, or frames skipped with a stride): the tracks
+/// that remain are short, re-detected ones, key-frames share too few of them, and the sequence
+/// breaks into pieces. Descriptor matching between the frames, as for photos, does not depend on
+/// the motion being small.
+pub const MIN_TRACK_SURVIVAL: f64 = 0.5;
+
+/// Whether KLT tracking held over a video, or why not: too few key-frames, too few tracks kept
+/// from frame to frame (see [`MIN_TRACK_SURVIVAL`]), or key-frames that stop long before the end.
+pub fn tracking_verdict(tracks: &VideoTracks) -> Result<(), String> {
+    let n = tracks.num_frames();
+    if n < 2 {
+        return Ok(());
+    }
+    if tracks.keyframes.len() < 2 {
+        return Err("KLT found fewer than 2 key-frames".into());
+    }
+    let mut survival: Vec<f64> = (0..n - 1)
+        .map(|k| {
+            let next: std::collections::HashSet<u64> = tracks.ids[k + 1].iter().copied().collect();
+            let kept = tracks.ids[k].iter().filter(|id| next.contains(id)).count();
+            kept as f64 / tracks.ids[k].len().max(1) as f64
+        })
+        .collect();
+    survival.sort_by(f64::total_cmp);
+    let median = survival[survival.len() / 2];
+    if median < MIN_TRACK_SURVIVAL {
+        return Err(format!(
+            "KLT keeps only {:.0} % of its tracks from one frame to the next (median; a steady video keeps over {:.0} %): the frames are too far apart for tracking",
+            100.0 * median,
+            100.0 * MIN_TRACK_SURVIVAL
+        ));
+    }
+    let keys: Vec<usize> = tracks.keyframes.iter().map(|k| k.0).collect();
+    let widest = keys.windows(2).map(|w| w[1] - w[0]).max().unwrap_or(1);
+    let last = keys[keys.len() - 1];
+    if n - 1 - last > 2 * widest {
+        return Err(format!(
+            "the key-frames stop at frame {last} of {n}: tracking was lost after it"
+        ));
+    }
+    Ok(())
+}
+
 /// Tracks features through `frames` (in order) with pyramidal KLT (eq. 8) and selects key-frames by
 /// GRIC (§3.1). `frames` yields each frame or the error that stops the run.
 pub fn track_video<E>(

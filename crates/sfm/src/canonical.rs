@@ -174,13 +174,25 @@ mod tests {
         shuffled.pairs[0].b = 2;
         shuffled.pairs[0].matches = vec![(1, 0)];
         shuffled.pairs[0].f = Some(f.transpose());
-        let (c1, c2) = (Canonical::new(&input).unwrap(), Canonical::new(&shuffled).unwrap());
-        let kp = |c: &Canonical| -> Vec<_> { c.input.images.iter().map(|i| i.keypoints[0]).collect() };
+        let (c1, c2) = (
+            Canonical::new(&input).unwrap(),
+            Canonical::new(&shuffled).unwrap(),
+        );
+        let kp =
+            |c: &Canonical| -> Vec<_> { c.input.images.iter().map(|i| i.keypoints[0]).collect() };
         assert_eq!(kp(&c1), kp(&c2));
         let (p1, p2) = (&c1.input.pairs[0], &c2.input.pairs[0]);
-        assert_eq!((p1.a, p1.b, &p1.matches, p1.f), (p2.a, p2.b, &p2.matches, p2.f));
+        assert_eq!(
+            (p1.a, p1.b, &p1.matches, p1.f),
+            (p2.a, p2.b, &p2.matches, p2.f)
+        );
         // Ids come back: the canonical image holding image 3's content is restored to id 3.
-        let k3 = c1.input.images.iter().position(|i| i.name == "3.jpg").unwrap();
+        let k3 = c1
+            .input
+            .images
+            .iter()
+            .position(|i| i.name == "3.jpg")
+            .unwrap();
         assert_eq!(c1.original[&ImageId(k3 as u32 + 1)], ImageId(3));
     }
 

@@ -116,7 +116,11 @@ fn abandoned(rejected: &[metric::RejectedStart], last: StepError) -> StepError {
         .iter()
         .map(|r| format!("{} + {}", r.initial_pair[0], r.initial_pair[1]))
         .collect();
-    let tried = format!("started from {} initial pairs ({})", pairs.len(), pairs.join(", "));
+    let tried = format!(
+        "started from {} initial pairs ({})",
+        pairs.len(),
+        pairs.join(", ")
+    );
     match last {
         StepError::MetricUpgrade(m) => StepError::MetricUpgrade(format!("{m}; {tried}")),
         StepError::MetricAdjustment(m) => StepError::MetricAdjustment(format!("{m}; {tried}")),

@@ -6,7 +6,7 @@ use std::path::Path;
 use std::time::Instant;
 
 use handheld_features::extract::{extract_features, ExtractionOptions};
-use handheld_features::video::VideoTrackingOptions;
+use handheld_features::video::{tracking_verdict, VideoTrackingOptions};
 use handheld_io::features_file::{write_features, FeatureFile};
 use handheld_io::images::{load_image, ImageIngestOptions};
 use handheld_io::ingest::InputKind;
@@ -22,7 +22,8 @@ use crate::stage::{Produced, Stage, StageContext};
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum TrackingMode {
-    /// KLT for a video file, SIFT for photos.
+    /// KLT for a video file, SIFT for photos; SIFT for a video too when KLT does not hold over
+    /// it (`handheld_features::video::tracking_verdict`).
     Auto,
     /// KLT tracks and key-frames (also for a folder of consecutive frames).
     Klt,
@@ -116,13 +117,27 @@ impl Stage for Features {
 
     fn run(&self, ctx: &StageContext, dir: &Path) -> Result<Produced<FeaturesSummary>> {
         let ingest = ctx.ws.read_ingest()?;
+        let mut warnings = Vec::new();
         if self.options.uses_klt(ingest.kind) {
-            return super::tracks::run_tracking(
-                &ingest,
-                dir,
-                &self.options.video_tracking(),
-                ctx.progress,
-            );
+            let tracks =
+                super::tracks::track(&ingest, &self.options.video_tracking(), ctx.progress)?;
+            match tracking_verdict(&tracks) {
+                // Asked for KLT, or KLT held: the tracks are the features.
+                Ok(()) => return super::tracks::write_tracking(&tracks, dir),
+                Err(why) if self.options.tracking == TrackingMode::Klt => {
+                    let mut p = super::tracks::write_tracking(&tracks, dir)?;
+                    p.warnings
+                        .push(format!("{why}; --tracking sift may do better"));
+                    return Ok(p);
+                }
+                // Descriptor matching between the frames instead (issue #18: the video mode must
+                // not break the sequence into pieces where tracking fails).
+                Err(why) => {
+                    let w = format!("{why}; SIFT features and descriptor matching between the frames are used instead");
+                    tracing::warn!("{w}");
+                    warnings.push(w);
+                }
+            }
         }
         let opts = &self.options.extraction;
         let bars = ctx.progress;
@@ -153,7 +168,6 @@ impl Stage for Features {
         let mut secs: Vec<f64> = results.iter().map(|r| r.1).collect();
         secs.sort_by(|a, b| a.total_cmp(b));
         let min = counts.iter().min().copied().unwrap_or(0);
-        let mut warnings = Vec::new();
         if min < FEW_FEATURES {
             warnings.push(format!("an image has only {min} features: textureless, blurred or tiny images match poorly"));
         }

@@ -4,7 +4,7 @@
 use std::path::Path;
 
 use handheld_core::Progress;
-use handheld_features::video::{track_video, VideoTrackingOptions};
+use handheld_features::video::{track_video, VideoTrackingOptions, VideoTracks};
 use handheld_features::GrayImage;
 use handheld_io::features_file::write_features;
 use handheld_io::images::{load_image, ImageIngestOptions};
@@ -19,14 +19,12 @@ use crate::stages::features::{to_file, FeaturesSummary};
 /// Frames decoded in parallel ahead of the (sequential) tracker.
 const CHUNK: usize = 16;
 
-/// Tracks every ingested frame, writes one feature file per frame (the live tracks as keypoints, no
-/// descriptors) and `tracks.json`.
-pub fn run_tracking(
+/// Tracks every ingested frame.
+pub fn track(
     ingest: &IngestResult,
-    dir: &Path,
     opts: &VideoTrackingOptions,
     bars: &dyn Progress,
-) -> Result<Produced<FeaturesSummary>> {
+) -> Result<VideoTracks> {
     let load_opts = ImageIngestOptions {
         min_dimension: 1,
         ..Default::default()
@@ -46,6 +44,12 @@ pub fn run_tracking(
     });
     let tracks = track_video(chunks.map(|r| r.map_err(TrackError)), opts, bars).map_err(|e| e.0)?;
     bars.finish();
+    Ok(tracks)
+}
+
+/// Writes one feature file per frame (the live tracks as keypoints, no descriptors) and
+/// `tracks.json`.
+pub fn write_tracking(tracks: &VideoTracks, dir: &Path) -> Result<Produced<FeaturesSummary>> {
     for k in 0..tracks.num_frames() {
         write_features(
             &dir.join(feature_file_name(k)),
