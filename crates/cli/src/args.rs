@@ -70,6 +70,8 @@ pub enum BenchCommand {
     Bundle(crate::bench::BenchBundleArgs),
     /// Feature extraction and matching on a folder of images (compare with COLMAP).
     Matching(crate::bench::BenchMatchingArgs),
+    /// The whole sparse run (images → metric model), stage by stage, against COLMAP 4.2 (pycolmap).
+    Sparse(crate::bench::BenchSparseArgs),
     /// SGM and DP stereo on the Middlebury pairs, scored against GT (compare with OpenCV SGBM).
     Stereo(crate::bench::BenchStereoArgs),
     /// Dense targets: multi-view linking curve, polar rectification, pair speed.

@@ -141,6 +141,84 @@ pub fn matching(a: &BenchMatchingArgs, g: &GlobalArgs, bars: &Bars) -> Result<()
 }
 
 #[derive(Debug, Args)]
+pub struct BenchSparseArgs {
+    /// Folder of images.
+    #[arg(long)]
+    pub images: PathBuf,
+    /// Data set folder with ground-truth cameras: both models are scored with --eval-script.
+    #[arg(long)]
+    pub gt: Option<PathBuf>,
+    /// Threads for Handheld and COLMAP (default: all cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// Also run COLMAP 4.2 (`pip install pycolmap`, CPU): extraction, exhaustive matching,
+    /// incremental mapping.
+    #[arg(long)]
+    pub colmap: bool,
+    /// The script that scores a COLMAP text model against --gt (`python3 SCRIPT MODEL DATASET`).
+    #[arg(long, default_value_os_t = bench::SparseBenchOptions::default().eval_script)]
+    pub eval_script: PathBuf,
+    /// Keep both runs in this folder (empty or absent); default: a temporary folder.
+    #[arg(long)]
+    pub work: Option<PathBuf>,
+}
+
+pub fn sparse(a: &BenchSparseArgs, g: &GlobalArgs, bars: &Bars) -> Result<()> {
+    let o = bench::SparseBenchOptions {
+        images: a.images.clone(),
+        gt: a.gt.clone(),
+        threads: a.threads,
+        colmap: a.colmap,
+        eval_script: a.eval_script.clone(),
+        work: a.work.clone(),
+        ..Default::default()
+    };
+    let r = bench::bench_sparse(&o, bars)?;
+    print(g, &r, |_| {
+        let h = &r.handheld;
+        let mut text = format!(
+            "handheld: ingest {:.2} s + features {:.2} s, matches {:.2} s, sparse {:.2} s; total {:.2} s; \
+             {}/{} registered ({} threads)",
+            h.ingest_seconds,
+            h.features_seconds,
+            h.matches_seconds,
+            h.sparse_seconds,
+            h.total_seconds,
+            h.registered,
+            h.total_images,
+            r.threads
+        );
+        if let Some(c) = &r.colmap {
+            text.push_str(&format!(
+                "\ncolmap {}: extraction {:.2} s, matching {:.2} s, mapping {:.2} s; total {:.2} s; {}/{} registered",
+                c.run.version,
+                c.run.extraction_seconds,
+                c.run.matching_seconds,
+                c.run.mapping_seconds,
+                c.total_seconds,
+                c.run.registered,
+                c.run.total_images
+            ));
+        }
+        if let Some(q) = &r.ratio {
+            text.push_str(&format!(
+                "\nCOLMAP ÷ Handheld: extraction {:.2}×, matching {:.2}×, mapping {:.2}×, total {:.2}× (target ≥ {})",
+                q.extraction, q.matching, q.mapping, q.total, r.target_total_ratio
+            ));
+        }
+        for (who, eval) in [
+            ("handheld", h.eval.as_ref()),
+            ("colmap", r.colmap.as_ref().and_then(|c| c.eval.as_ref())),
+        ] {
+            if let Some(e) = eval {
+                text.push_str(&format!("\n{who} eval: {e}"));
+            }
+        }
+        text
+    })
+}
+
+#[derive(Debug, Args)]
 pub struct BenchDenseArgs {
     /// Width of the synthetic images (height is 3/4 of it).
     #[arg(long, default_value_t = bench::DenseBenchOptions::default().width)]

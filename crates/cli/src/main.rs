@@ -63,6 +63,7 @@ fn run(cmd: &Command, g: &GlobalArgs) -> anyhow::Result<()> {
         Command::Bench(b) => match &b.which {
             BenchCommand::Bundle(a) => bench::bundle(a, g, &bars),
             BenchCommand::Matching(a) => bench::matching(a, g, &bars),
+            BenchCommand::Sparse(a) => bench::sparse(a, g, &bars),
             BenchCommand::Stereo(a) => bench::bench_stereo(a, g),
             BenchCommand::Dense(a) => bench::dense(a, g),
         },

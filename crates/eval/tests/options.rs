@@ -1,7 +1,9 @@
 //! Options are checked with errors naming the option, and reports serialise as the CLI prints them.
 
 use handheld_eval::bench::{
-    BundleBenchOptions, BundleProblem, DenseBenchOptions, StereoBenchOptions, StereoPairOptions,
+    BundleBenchOptions, BundleProblem, ColmapSparseRun, DenseBenchOptions, HandheldSparseRun,
+    PycolmapSparseRun, SparseBenchOptions, SparseBenchReport, StereoBenchOptions,
+    StereoPairOptions,
 };
 use handheld_eval::demo::Scored;
 use handheld_eval::{DemoOptions, EvalError};
@@ -119,4 +121,117 @@ fn a_failed_evaluation_serialises_as_its_error() {
         serde_json::json!({ "error": "only 2 views registered" })
     );
     assert_eq!(serde_json::to_value(Scored::Ok(3u32)).unwrap(), 3);
+}
+
+#[test]
+fn sparse_bench_options_are_checked_by_name() {
+    let ok = SparseBenchOptions {
+        images: "images".into(),
+        ..Default::default()
+    };
+    assert!(ok.validate().is_ok());
+    let name = |o: SparseBenchOptions| {
+        o.validate()
+            .unwrap_err()
+            .invalid_option()
+            .map(str::to_string)
+    };
+    assert_eq!(
+        name(SparseBenchOptions::default()).as_deref(),
+        Some("--images")
+    );
+    let threads = SparseBenchOptions {
+        threads: Some(0),
+        ..ok.clone()
+    };
+    assert_eq!(name(threads).as_deref(), Some("--threads"));
+    let no_script = SparseBenchOptions {
+        gt: Some("dataset".into()),
+        eval_script: "".into(),
+        ..ok.clone()
+    };
+    assert_eq!(name(no_script).as_deref(), Some("--eval-script"));
+    let mut bad_pipeline = ok.clone();
+    bad_pipeline.pipeline.features.extraction.sift.max_features = Some(0);
+    let e = bad_pipeline.validate().unwrap_err();
+    assert_eq!(e.invalid_option(), Some("pipeline options"), "{e}");
+    assert!(e.to_string().contains("max_features"), "{e}");
+    // Missing files and a used --work folder are named before anything runs.
+    let dir = tempfile::tempdir().unwrap();
+    let missing_script = SparseBenchOptions {
+        gt: Some(dir.path().to_path_buf()),
+        eval_script: dir.path().join("nope.py"),
+        ..ok.clone()
+    };
+    let e = handheld_eval::bench::bench_sparse(&missing_script, &handheld_core::NoProgress)
+        .unwrap_err();
+    assert_eq!(e.invalid_option(), Some("--eval-script"), "{e}");
+    std::fs::write(dir.path().join("something"), b"x").unwrap();
+    let used = SparseBenchOptions {
+        work: Some(dir.path().to_path_buf()),
+        ..ok.clone()
+    };
+    let e = handheld_eval::bench::bench_sparse(&used, &handheld_core::NoProgress).unwrap_err();
+    assert_eq!(e.invalid_option(), Some("--work"), "{e}");
+    // Serde with defaults for missing fields.
+    let o: SparseBenchOptions =
+        serde_json::from_str(r#"{"images": "x", "threads": 2, "colmap": true}"#).unwrap();
+    assert_eq!((o.threads, o.colmap), (Some(2), true));
+    assert_eq!(o.eval_script, SparseBenchOptions::default().eval_script);
+}
+
+#[test]
+fn sparse_bench_report_has_the_ratio_per_stage() {
+    let handheld = HandheldSparseRun {
+        ingest_seconds: 1.0,
+        features_seconds: 3.0,
+        matches_seconds: 2.0,
+        sparse_seconds: 4.0,
+        total_seconds: 10.0,
+        models: 1,
+        registered: 11,
+        total_images: 11,
+        points: 5000,
+        mean_reprojection_error_px: 0.4,
+        focal_px: vec![2760.0],
+        eval: None,
+    };
+    let run = PycolmapSparseRun {
+        version: "4.2.1".into(),
+        extraction_seconds: 40.0,
+        matching_seconds: 30.0,
+        mapping_seconds: 20.0,
+        models: 1,
+        registered: 10,
+        total_images: 11,
+        points: 6000,
+        mean_reprojection_error_px: Some(0.5),
+        model: None,
+    };
+    let colmap = ColmapSparseRun {
+        total_seconds: run.total_seconds(),
+        run,
+        eval: Some(serde_json::json!({ "registered": 10 })),
+    };
+    let report = SparseBenchReport::new("images".into(), 2, handheld.clone(), Some(colmap), None);
+    let v = serde_json::to_value(&report).unwrap();
+    assert_eq!(
+        v["ratio"],
+        serde_json::json!({ "extraction": 10.0, "matching": 15.0, "mapping": 5.0, "total": 9.0 })
+    );
+    assert_eq!(v["meets_target"], true);
+    assert_eq!(v["target_total_ratio"], 5.0);
+    assert_eq!(v["colmap"]["version"], "4.2.1");
+    assert_eq!(v["colmap"]["total_seconds"], 90.0);
+    assert_eq!(v["colmap"]["eval"]["registered"], 10);
+    assert_eq!(v["handheld"]["sparse_seconds"], 4.0);
+    assert!(v["handheld"].get("eval").is_none());
+    let back: SparseBenchReport = serde_json::from_value(v).unwrap();
+    assert_eq!(back, report);
+    // Handheld alone: no COLMAP, no ratio, no verdict.
+    let alone = SparseBenchReport::new("images".into(), 2, handheld, None, None);
+    let v = serde_json::to_value(&alone).unwrap();
+    for key in ["colmap", "ratio", "meets_target", "work"] {
+        assert!(v.get(key).is_none(), "{key} in {v}");
+    }
 }

@@ -1,10 +1,12 @@
 //! The benchmarks: each takes a typed options struct and returns a typed report, the reference
-//! programs (COLMAP, OpenCV) run in the same process tree so the timings compare.
+//! programs (COLMAP, pycolmap, OpenCV) run in the same process tree so the timings compare.
 
 pub mod bundle;
 pub mod colmap;
 pub mod dense;
 pub mod matching;
+pub mod pycolmap;
+pub mod sparse;
 pub mod stereo;
 
 pub use bundle::{
@@ -13,6 +15,11 @@ pub use bundle::{
 pub use colmap::{run_colmap, ColmapReport};
 pub use dense::{bench_dense, DenseBenchOptions, DenseBenchReport};
 pub use matching::{bench_matching, MatchingBenchOptions, MatchingBenchReport};
+pub use pycolmap::{pycolmap_version, run_pycolmap_sparse, PycolmapSparseRun};
+pub use sparse::{
+    bench_sparse, ColmapSparseRun, HandheldSparseRun, SparseBenchOptions, SparseBenchReport,
+    SparseRatios, TARGET_TOTAL_RATIO,
+};
 pub use stereo::{
     bench_stereo, stereo_pair, StereoBenchOptions, StereoBenchReport, StereoPairOptions,
     StereoPairReport,

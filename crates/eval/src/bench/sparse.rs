@@ -1,0 +1,346 @@
+//! The whole sparse run, images → metric model, of Handheld against COLMAP 4.2 in the same run
+//! (issue #18: Handheld in at most a fifth of COLMAP's time for feature extraction + exhaustive
+//! matching + incremental mapping). Handheld runs through the library
+//! ([`handheld_pipeline::reconstruct`] up to `sparse`, into a fresh workspace); COLMAP runs through
+//! pycolmap in a child process ([`super::pycolmap`]), after Handheld, with the same thread count.
+//! Both models can be scored against ground-truth cameras with the shared `eval_sfm.py`.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use handheld_core::Progress;
+use handheld_pipeline::files::stage;
+use handheld_pipeline::stages::sparse::SparseSummary;
+use handheld_pipeline::{PipelineOptions, StageReport};
+use serde::{Deserialize, Serialize};
+
+use super::pycolmap::{eval_sfm, pycolmap_version, run_pycolmap_sparse, PycolmapSparseRun};
+use crate::error::{EvalError, Result};
+use handheld_pipeline::Context;
+
+/// Issue #18's target for the total ratio: Handheld in at most a fifth of COLMAP's time.
+pub const TARGET_TOTAL_RATIO: f64 = 5.0;
+
+/// Options of the sparse benchmark.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(default)]
+pub struct SparseBenchOptions {
+    /// Folder of images.
+    pub images: PathBuf,
+    /// Data set folder with ground-truth cameras (any format `eval_script` reads); both models
+    /// are scored against it. Default none.
+    pub gt: Option<PathBuf>,
+    /// Threads for Handheld and COLMAP (default: all cores).
+    pub threads: Option<usize>,
+    /// Also run COLMAP 4.2 (pycolmap, CPU) on the same images. Default false.
+    pub colmap: bool,
+    /// The scoring script, run with `python3 SCRIPT MODEL DATASET`. Default
+    /// `../shared/tools/eval_sfm.py` (from the repository root).
+    pub eval_script: PathBuf,
+    /// Keep both runs in this folder (`handheld/`, `colmap/`); it must be empty or absent.
+    /// Default none: a temporary folder, removed afterwards.
+    pub work: Option<PathBuf>,
+    /// Handheld's options. Default: the pipeline's defaults, as `handheld reconstruct` runs.
+    pub pipeline: PipelineOptions,
+}
+
+impl Default for SparseBenchOptions {
+    fn default() -> Self {
+        Self {
+            images: PathBuf::new(),
+            gt: None,
+            threads: None,
+            colmap: false,
+            eval_script: PathBuf::from("../shared/tools/eval_sfm.py"),
+            work: None,
+            pipeline: PipelineOptions::default(),
+        }
+    }
+}
+
+impl SparseBenchOptions {
+    /// Checks the options (the pipeline's through its own checks); the error names the option.
+    pub fn validate(&self) -> Result<()> {
+        if self.images.as_os_str().is_empty() {
+            return Err(EvalError::option(
+                "--images",
+                "a folder of images is required",
+            ));
+        }
+        if self.threads == Some(0) {
+            return Err(EvalError::option("--threads", "must be at least 1"));
+        }
+        if self.gt.is_some() && self.eval_script.as_os_str().is_empty() {
+            return Err(EvalError::option(
+                "--eval-script",
+                "is required with --gt (the script that scores a model)",
+            ));
+        }
+        self.pipeline
+            .validate()
+            .map_err(|e| EvalError::option("pipeline options", e.to_string()))
+    }
+}
+
+/// Handheld's run: each stage's wall time (as the pipeline reports it), the whole library call,
+/// and the largest model.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct HandheldSparseRun {
+    pub ingest_seconds: f64,
+    pub features_seconds: f64,
+    pub matches_seconds: f64,
+    pub sparse_seconds: f64,
+    /// The whole `reconstruct` call: the four stages and the workspace's bookkeeping.
+    pub total_seconds: f64,
+    pub models: usize,
+    /// Images registered in the largest model.
+    pub registered: usize,
+    pub total_images: usize,
+    pub points: usize,
+    pub mean_reprojection_error_px: f64,
+    pub focal_px: Vec<f64>,
+    /// `eval_script`'s JSON for the model, with `gt`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub eval: Option<serde_json::Value>,
+}
+
+/// COLMAP's run: its three stages, their sum, the largest model.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ColmapSparseRun {
+    #[serde(flatten)]
+    pub run: PycolmapSparseRun,
+    /// Extraction + matching + mapping.
+    pub total_seconds: f64,
+    /// `eval_script`'s JSON for the largest model, with `gt`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub eval: Option<serde_json::Value>,
+}
+
+/// COLMAP's time ÷ Handheld's, stage by stage (> 1: Handheld is faster).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SparseRatios {
+    /// COLMAP's feature extraction ÷ Handheld's ingest + features.
+    pub extraction: f64,
+    /// COLMAP's exhaustive matching ÷ Handheld's matches.
+    pub matching: f64,
+    /// COLMAP's incremental mapping ÷ Handheld's sparse.
+    pub mapping: f64,
+    /// COLMAP's three stages ÷ Handheld's whole call.
+    pub total: f64,
+}
+
+impl SparseRatios {
+    /// The ratios of two runs.
+    pub fn of(handheld: &HandheldSparseRun, colmap: &PycolmapSparseRun) -> Self {
+        Self {
+            extraction: colmap.extraction_seconds
+                / (handheld.ingest_seconds + handheld.features_seconds),
+            matching: colmap.matching_seconds / handheld.matches_seconds,
+            mapping: colmap.mapping_seconds / handheld.sparse_seconds,
+            total: colmap.total_seconds() / handheld.total_seconds,
+        }
+    }
+}
+
+/// What the sparse benchmark measured.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SparseBenchReport {
+    pub images: PathBuf,
+    pub threads: usize,
+    pub handheld: HandheldSparseRun,
+    /// With `colmap`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub colmap: Option<ColmapSparseRun>,
+    /// COLMAP ÷ Handheld, with `colmap`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub ratio: Option<SparseRatios>,
+    /// The target for `ratio.total` ([`TARGET_TOTAL_RATIO`]).
+    pub target_total_ratio: f64,
+    /// Whether `ratio.total` reaches the target, with `colmap`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub meets_target: Option<bool>,
+    /// The folder both runs were kept in (none: a removed temporary folder).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub work: Option<PathBuf>,
+}
+
+impl SparseBenchReport {
+    /// Puts a report together, computing the ratios when COLMAP ran.
+    pub fn new(
+        images: PathBuf,
+        threads: usize,
+        handheld: HandheldSparseRun,
+        colmap: Option<ColmapSparseRun>,
+        work: Option<PathBuf>,
+    ) -> Self {
+        let ratio = colmap.as_ref().map(|c| SparseRatios::of(&handheld, &c.run));
+        Self {
+            images,
+            threads,
+            meets_target: ratio.as_ref().map(|r| r.total >= TARGET_TOTAL_RATIO),
+            handheld,
+            colmap,
+            ratio,
+            target_total_ratio: TARGET_TOTAL_RATIO,
+            work,
+        }
+    }
+}
+
+/// The folder both runs go into: the one asked for (empty or absent), or a temporary one.
+enum Work {
+    Kept(PathBuf),
+    Temporary(tempfile::TempDir),
+}
+
+impl Work {
+    fn open(asked: Option<&Path>) -> Result<Self> {
+        let Some(dir) = asked else {
+            return tempfile::Builder::new()
+                .prefix("handheld-bench-sparse-")
+                .tempdir()
+                .context("creating a temporary folder")
+                .map(Work::Temporary)
+                .map_err(EvalError::from);
+        };
+        if std::fs::read_dir(dir).is_ok_and(|mut d| d.next().is_some()) {
+            return Err(EvalError::option(
+                "--work",
+                format!(
+                    "{} is not empty (the runs need a fresh folder)",
+                    dir.display()
+                ),
+            ));
+        }
+        std::fs::create_dir_all(dir).map_err(|e| handheld_io::IoError::io(dir, e))?;
+        Ok(Work::Kept(dir.to_path_buf()))
+    }
+
+    fn path(&self) -> &Path {
+        match self {
+            Work::Kept(p) => p,
+            Work::Temporary(t) => t.path(),
+        }
+    }
+}
+
+/// The seconds of stage `name` among the pipeline's reports.
+fn stage_seconds(reports: &[StageReport], name: &str) -> Result<f64> {
+    reports
+        .iter()
+        .find(|r| r.stage == name)
+        .map(|r| r.seconds)
+        .ok_or_else(|| EvalError::Data(format!("the pipeline did not run the {name} stage")))
+}
+
+/// Runs Handheld's pipeline up to `sparse` into the fresh workspace `ws`, every stage forced.
+fn run_handheld(
+    o: &SparseBenchOptions,
+    ws: &Path,
+    pool: &rayon::ThreadPool,
+    progress: &dyn Progress,
+) -> Result<HandheldSparseRun> {
+    let t0 = Instant::now();
+    let reports = pool.install(|| {
+        handheld_pipeline::reconstruct(
+            &o.images,
+            ws,
+            &o.pipeline,
+            Some(stage::SPARSE),
+            true,
+            progress,
+        )
+    })?;
+    let total_seconds = t0.elapsed().as_secs_f64();
+    let sparse = reports
+        .iter()
+        .find(|r| r.stage == stage::SPARSE)
+        .ok_or_else(|| EvalError::Data("the pipeline did not run the sparse stage".into()))?;
+    let summary: SparseSummary = serde_json::from_value(sparse.summary.clone())
+        .context("reading the sparse stage's summary")?;
+    Ok(HandheldSparseRun {
+        ingest_seconds: stage_seconds(&reports, stage::INGEST)?,
+        features_seconds: stage_seconds(&reports, stage::FEATURES)?,
+        matches_seconds: stage_seconds(&reports, stage::MATCHES)?,
+        sparse_seconds: sparse.seconds,
+        total_seconds,
+        models: summary.models,
+        registered: summary.registered,
+        total_images: summary.total_images,
+        points: summary.points,
+        mean_reprojection_error_px: summary.mean_reprojection_error_px,
+        focal_px: summary.focal_px,
+        eval: None,
+    })
+}
+
+/// Runs Handheld, then (with `colmap`) COLMAP 4.2, on the same images with the same threads, and
+/// (with `gt`) scores both models once every timing is done.
+pub fn bench_sparse(o: &SparseBenchOptions, progress: &dyn Progress) -> Result<SparseBenchReport> {
+    o.validate()?;
+    if let Some(gt) = &o.gt {
+        if !o.eval_script.is_file() {
+            return Err(EvalError::option(
+                "--eval-script",
+                format!("{} is not a file", o.eval_script.display()),
+            ));
+        }
+        if !gt.is_dir() {
+            return Err(EvalError::option(
+                "--gt",
+                format!("{} is not a folder", gt.display()),
+            ));
+        }
+    }
+    if o.colmap {
+        pycolmap_version()?;
+    }
+    let threads = o.threads.unwrap_or_else(rayon::current_num_threads);
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .context("starting the thread pool")?;
+    let work = Work::open(o.work.as_deref())?;
+    let ws = work.path().join("handheld");
+    let mut handheld = run_handheld(o, &ws, &pool, progress)?;
+    let mut colmap = if o.colmap {
+        let dir = work.path().join("colmap");
+        std::fs::create_dir_all(&dir).map_err(|e| handheld_io::IoError::io(&dir, e))?;
+        progress.start("COLMAP 4.2 (pycolmap): extraction, matching, mapping", 0);
+        let run = run_pycolmap_sparse(&o.images, &dir, threads);
+        progress.finish();
+        let run = run?;
+        Some(ColmapSparseRun {
+            total_seconds: run.total_seconds(),
+            run,
+            eval: None,
+        })
+    } else {
+        None
+    };
+    if let Some(gt) = &o.gt {
+        handheld.eval = Some(eval_sfm(&o.eval_script, &ws.join(stage::SPARSE), gt)?);
+        if let Some(c) = colmap.as_mut() {
+            if let Some(model) = &c.run.model {
+                c.eval = Some(eval_sfm(&o.eval_script, model, gt)?);
+            }
+        }
+    }
+    let kept = match &work {
+        Work::Kept(p) => Some(p.clone()),
+        Work::Temporary(_) => None,
+    };
+    if kept.is_none() {
+        // The temporary folder goes with `work`: no path into it is reported.
+        if let Some(c) = colmap.as_mut() {
+            c.run.model = None;
+        }
+    }
+    Ok(SparseBenchReport::new(
+        o.images.clone(),
+        threads,
+        handheld,
+        colmap,
+        kept,
+    ))
+}
