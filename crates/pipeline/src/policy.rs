@@ -101,6 +101,11 @@ pub enum FocalVerdict {
 /// where the BA leaves f uncertain by 4.5 %). A focal that the final adjustment determines to
 /// [`FOCAL_WELL_DETERMINED`] or better is only noted.
 pub fn focal_verdict(best: &ModelSummary, calibration_given: bool) -> FocalVerdict {
+    if let (Some(w), false) = (&best.self_calibration.focal_ambiguity, calibration_given) {
+        return FocalVerdict::Doubtful(format!(
+            "{w}; the focal length, and with it the depths and the camera's speed, may be wrong: give the calibration with --intrinsics FX,FY,CX,CY"
+        ));
+    }
     let Some(why) = &best.self_calibration.degenerate else {
         return FocalVerdict::Calibrated;
     };

@@ -55,6 +55,8 @@ pub struct CandidateRecord {
     /// better); ranks the candidates that pass when several are adjusted.
     pub score: Option<f64>,
     pub accepted: bool,
+    /// Whether it passed every check (a sound candidate may still lose to a better-scoring one).
+    pub sound: bool,
     /// Why it was rejected.
     pub rejected: Option<String>,
 }
@@ -167,6 +169,7 @@ pub(crate) fn first_sound<'a, C>(
             Ok(adjustments) => {
                 match judge(&mut record, &adjusted, &adjustments, projective_rms_px) {
                     None => {
+                        record.sound = true;
                         tried.push(record);
                         return Some((c, adjusted, adjustments));
                     }
@@ -237,6 +240,36 @@ pub(crate) fn choose<'a, C>(
     } else {
         first_sound(candidates, projective_rms_px, adjust, tried)
     }
+}
+
+/// A sound candidate whose focal length differs from the kept one's by more than this fraction is
+/// a different calibration, not the same one reached by another path.
+pub const DISTINCT_FOCAL: f64 = 0.1;
+/// Such a candidate scoring at least this fraction of the kept one's score explains the images
+/// about as well: the scores of sound frames of one calibration differ by the last few outliers.
+pub const CLOSE_SCORE: f64 = 0.95;
+
+/// When the images do not decide the focal length, why: two sound candidates with focal lengths
+/// more than [`DISTINCT_FOCAL`] apart whose full adjustments explain the images about as well
+/// ([`CLOSE_SCORE`]). Near-critical motion (forward motion, a turntable, a long lens) leaves such
+/// a valley: on kitti-seq1 as photos the frames at 570 px and at 1163 px score within 4 % of each
+/// other (the true focal length, 707 px, fits as well as either). The kept model is then a guess
+/// that must be reported as one, whatever its covariance says.
+pub fn focal_ambiguity(records: &[CandidateRecord]) -> Option<String> {
+    let kept = records.iter().find(|r| r.accepted)?;
+    let (ks, kf) = (kept.score?, kept.focal_after_px.first().copied()?);
+    records
+        .iter()
+        .filter(|r| r.sound && !r.accepted)
+        .filter_map(|r| Some((r, r.score?, r.focal_after_px.first().copied()?)))
+        .filter(|&(_, s, f)| (f / kf - 1.0).abs() > DISTINCT_FOCAL && s >= CLOSE_SCORE * ks)
+        .max_by(|a, b| a.1.total_cmp(&b.1))
+        .map(|(r, s, f)| {
+            format!(
+                "the images do not determine the focal length: the frame from {} (f = {f:.0} px after adjustment) explains them about as well as the one kept (f = {kf:.0} px; scores {s:.0} and {ks:.0})",
+                r.source
+            )
+        })
 }
 
 /// One line per rejected candidate, for the error a user sees when none survives.
@@ -448,5 +481,46 @@ mod tests {
         assert_eq!(tried.len(), 2);
         assert!(!tried[0].accepted && tried[1].accepted);
         assert!(tried[0].score < tried[1].score);
+    }
+
+    fn record(
+        source: &str,
+        focal: f64,
+        score: f64,
+        sound: bool,
+        accepted: bool,
+    ) -> CandidateRecord {
+        CandidateRecord {
+            source: source.into(),
+            focal_after_px: vec![focal],
+            score: Some(score),
+            sound,
+            accepted,
+            tried: true,
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn two_sound_frames_with_different_focal_lengths_and_close_scores_are_ambiguous() {
+        // kitti-seq1 as photos: 570 px kept, 1163 px sound and 4 % behind.
+        let tried = [
+            record("priors", 1163.0, 99_582.0, true, false),
+            record("focal hypothesis", 570.0, 103_473.0, true, true),
+        ];
+        let w = focal_ambiguity(&tried).expect("ambiguous");
+        assert!(w.contains("1163") && w.contains("570"), "{w}");
+        // Far behind, or the same calibration reached another way, or rejected: not ambiguous.
+        for other in [
+            record("priors", 1163.0, 60_000.0, true, false),
+            record("priors", 600.0, 103_000.0, true, false),
+            record("priors", 1163.0, 103_000.0, false, false),
+        ] {
+            let tried = [
+                other,
+                record("focal hypothesis", 570.0, 103_473.0, true, true),
+            ];
+            assert_eq!(focal_ambiguity(&tried), None);
+        }
     }
 }

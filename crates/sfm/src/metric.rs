@@ -39,6 +39,9 @@ pub struct SelfCalibrationReport {
     /// Projective models started from a better-ranked initial pair whose metric frame no candidate
     /// survived, before the one reported (see `pipeline::build_model`).
     pub rejected_starts: Vec<RejectedStart>,
+    /// Set when two sound candidates with different focal lengths explain the images about as
+    /// well (see [`crate::guard::focal_ambiguity`]).
+    pub focal_ambiguity: Option<String>,
 }
 
 /// A start of the model that was abandoned: its initial pair and why.
@@ -124,6 +127,7 @@ pub(crate) fn upgrade(
         aspect_before_ba: aspect,
         candidates: Vec::new(),
         rejected_starts: Vec::new(),
+        focal_ambiguity: None,
     };
     Ok(Upgraded {
         rec,

@@ -350,6 +350,10 @@ fn adjust_metric_frame(
             &mut tried,
         );
         if let Some((c, rec, adjustments)) = found {
+            report.focal_ambiguity = guard::focal_ambiguity(&tried);
+            if let Some(w) = &report.focal_ambiguity {
+                tracing::warn!("{w}");
+            }
             report.candidates = tried;
             return Ok((rec, c.is_prior, report, adjustments));
         }
