@@ -176,7 +176,8 @@ pub struct InputArgs {
     pub klt_features: usize,
     /// Matching: `exhaustive`, `sequential` (each image with its --window successors),
     /// `retrieval` (each image with its --neighbours most similar images, whatever the file
-    /// order), or `auto` (exhaustive up to 40 photos; sequential for video and more photos).
+    /// order), or `auto` (exhaustive up to 40 photos; sequential for video; for more photos, the
+    /// window over the order their content gives, plus the --neighbours most similar images).
     #[arg(long, default_value = choice_name(&defaults().matches.pairs), value_parser = choice::<PairMode>)]
     pub pairs: PairMode,
     /// Matching: neighbours on each side for sequential matching.

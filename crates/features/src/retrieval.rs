@@ -184,13 +184,13 @@ fn vlad(f: &Features, idx: &[usize], words: &[Vec<f32>]) -> Vec<f32> {
     v
 }
 
-/// The pairs `(i, j)`, `i < j`, of every image with its `neighbours` most similar images (by VLAD
-/// cosine similarity; ties broken by index, so the result depends on the images, not on their
-/// order beyond that). Images without descriptors get no pairs.
-pub fn retrieval_pairs(
+/// Every image's VLAD vector (empty for an image without descriptors). The vocabulary is trained
+/// on the images taken in the order of their content keys ([`crate::verify::content_key`]), so the
+/// vectors do not depend on the files' names or order.
+pub fn global_descriptors(
     features: &[Features],
     opts: &RetrievalOptions,
-) -> Result<Vec<(usize, usize)>, FeatureError> {
+) -> Result<Vec<Vec<f32>>, FeatureError> {
     opts.validate()?;
     let n = features.len();
     let chosen: Vec<Vec<usize>> = features
@@ -199,45 +199,169 @@ pub fn retrieval_pairs(
         .collect();
     let total: usize = chosen.iter().map(Vec::len).sum();
     if n < 2 || total < opts.words {
-        return Ok(Vec::new());
+        return Ok(vec![Vec::new(); n]);
     }
+    let keys: Vec<u64> = features
+        .par_iter()
+        .map(crate::verify::content_key)
+        .collect();
+    let mut canonical: Vec<usize> = (0..n).collect();
+    canonical.sort_by_key(|&i| (keys[i], i));
     // An even sample of every image's chosen descriptors trains the vocabulary.
     let step = total.div_ceil(opts.training_descriptors).max(1);
-    let training: Vec<&[f32]> = features
+    let training: Vec<&[f32]> = canonical
         .iter()
-        .zip(&chosen)
-        .flat_map(|(f, idx)| idx.iter().map(move |&i| f.descriptors.row(i)))
+        .flat_map(|&k| {
+            chosen[k]
+                .iter()
+                .map(move |&i| features[k].descriptors.row(i))
+        })
         .step_by(step)
         .collect();
     let words = kmeans(&training, opts.words, opts.iterations, opts.seed);
-    let vectors: Vec<Vec<f32>> = features
+    Ok(features
         .par_iter()
         .zip(&chosen)
-        .map(|(f, idx)| vlad(f, idx, &words))
-        .collect();
-    let neighbours: Vec<Vec<usize>> = (0..n)
+        .map(|(f, idx)| {
+            if idx.is_empty() {
+                Vec::new()
+            } else {
+                vlad(f, idx, &words)
+            }
+        })
+        .collect())
+}
+
+fn cosine(a: &[f32], b: &[f32]) -> f32 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+/// Each image's `k` most similar images, best first (ties by index).
+fn nearest_images(vectors: &[Vec<f32>], k: usize) -> Vec<Vec<(f32, usize)>> {
+    let n = vectors.len();
+    (0..n)
         .into_par_iter()
         .map(|i| {
+            if vectors[i].is_empty() {
+                return Vec::new();
+            }
             let mut sims: Vec<(f32, usize)> = (0..n)
-                .filter(|&j| j != i && !chosen[j].is_empty())
-                .map(|j| {
-                    let s: f32 = vectors[i].iter().zip(&vectors[j]).map(|(a, b)| a * b).sum();
-                    (s, j)
-                })
+                .filter(|&j| j != i && !vectors[j].is_empty())
+                .map(|j| (cosine(&vectors[i], &vectors[j]), j))
                 .collect();
             sims.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
-            sims.into_iter()
-                .take(opts.neighbours)
-                .map(|(_, j)| j)
-                .collect()
+            sims.truncate(k);
+            sims
         })
-        .collect();
-    let mut pairs: Vec<(usize, usize)> = neighbours
+        .collect()
+}
+
+/// The pairs `(i, j)`, `i < j`, of every image with its `neighbours` most similar images (by VLAD
+/// cosine similarity; ties broken by index, so the result depends on the images, not on their
+/// order beyond that). Images without descriptors get no pairs.
+pub fn retrieval_pairs(
+    features: &[Features],
+    opts: &RetrievalOptions,
+) -> Result<Vec<(usize, usize)>, FeatureError> {
+    let vectors = global_descriptors(features, opts)?;
+    Ok(most_similar_pairs(&vectors, opts.neighbours))
+}
+
+fn most_similar_pairs(vectors: &[Vec<f32>], neighbours: usize) -> Vec<(usize, usize)> {
+    let mut pairs: Vec<(usize, usize)> = nearest_images(vectors, neighbours)
         .iter()
         .enumerate()
-        .filter(|(i, _)| !chosen[*i].is_empty())
-        .flat_map(|(i, list)| list.iter().map(move |&j| (i.min(j), i.max(j))))
+        .flat_map(|(i, list)| list.iter().map(move |&(_, j)| (i.min(j), i.max(j))))
         .collect();
+    pairs.sort_unstable();
+    pairs.dedup();
+    pairs
+}
+
+/// Most images [`capture_order`] orders (a dense eigen-decomposition of n × n).
+pub const MAX_SERIATION_IMAGES: usize = 2000;
+
+/// An order of the images recovered from their content: spectral seriation (Atkins, Boman &
+/// Hendrickson, "A spectral algorithm for seriation and the consecutive ones problem", SIAM J.
+/// Comput. 1998). The graph links each image with its `neighbours` most similar ones (VLAD cosine),
+/// and the images are sorted by the Fiedler vector of its normalised Laplacian. Photos taken
+/// walking along a path come back in the order they were taken (or reversed, which gives the
+/// same sequential pairs), whatever their file names. `None` beyond
+/// [`MAX_SERIATION_IMAGES`] or without descriptors.
+pub fn capture_order(
+    features: &[Features],
+    opts: &RetrievalOptions,
+) -> Result<Option<Vec<usize>>, FeatureError> {
+    let vectors = global_descriptors(features, opts)?;
+    Ok(order_of(features, &vectors, opts.neighbours))
+}
+
+/// [`capture_order`] from the images' VLAD vectors.
+fn order_of(features: &[Features], vectors: &[Vec<f32>], neighbours: usize) -> Option<Vec<usize>> {
+    let n = features.len();
+    if !(3..=MAX_SERIATION_IMAGES).contains(&n) || vectors.iter().any(Vec::is_empty) {
+        return None;
+    }
+    // Computed in content order, so that the eigenvector's rounding cannot depend on file order.
+    let keys: Vec<u64> = features
+        .par_iter()
+        .map(crate::verify::content_key)
+        .collect();
+    let mut canonical: Vec<usize> = (0..n).collect();
+    canonical.sort_by_key(|&i| (keys[i], i));
+    let mut pos = vec![0usize; n];
+    for (k, &i) in canonical.iter().enumerate() {
+        pos[i] = k;
+    }
+    let near = nearest_images(vectors, neighbours);
+    // A tiny weight between every pair keeps the graph connected.
+    let mut w = nalgebra::DMatrix::<f64>::from_element(n, n, 1e-6);
+    for (i, list) in near.iter().enumerate() {
+        for &(s, j) in list {
+            let v = f64::from(s).max(1e-6);
+            let (a, b) = (pos[i], pos[j]);
+            w[(a, b)] = w[(a, b)].max(v);
+            w[(b, a)] = w[(b, a)].max(v);
+        }
+    }
+    for k in 0..n {
+        w[(k, k)] = 0.0;
+    }
+    let d: Vec<f64> = (0..n).map(|k| w.row(k).sum().max(1e-12)).collect();
+    let mut l = nalgebra::DMatrix::<f64>::identity(n, n);
+    for a in 0..n {
+        for b in 0..n {
+            l[(a, b)] -= w[(a, b)] / (d[a] * d[b]).sqrt();
+        }
+    }
+    let eig = nalgebra::SymmetricEigen::new(l);
+    let mut idx: Vec<usize> = (0..n).collect();
+    idx.sort_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]));
+    let fiedler = eig.eigenvectors.column(idx[1]);
+    let value = |k: usize| fiedler[k] / d[k].sqrt();
+    let mut order: Vec<usize> = (0..n).collect();
+    order.sort_by(|&a, &b| value(a).total_cmp(&value(b)).then(a.cmp(&b)));
+    Some(order.into_iter().map(|k| canonical[k]).collect())
+}
+
+/// Pairs for a large photo set, whatever the files' order: each image with the next `window`
+/// images of the [`capture_order`] (the sequential window of a video, on the order the content
+/// gives), and with its most similar images ([`retrieval_pairs`]), which link the views a path
+/// passes twice and the rings of a hemisphere that the order puts apart.
+pub fn unordered_pairs(
+    features: &[Features],
+    window: usize,
+    opts: &RetrievalOptions,
+) -> Result<Vec<(usize, usize)>, FeatureError> {
+    let vectors = global_descriptors(features, opts)?;
+    let mut pairs = most_similar_pairs(&vectors, opts.neighbours);
+    if let Some(order) = order_of(features, &vectors, opts.neighbours) {
+        for (a, &i) in order.iter().enumerate() {
+            for &j in order.iter().skip(a + 1).take(window) {
+                pairs.push((i.min(j), i.max(j)));
+            }
+        }
+    }
     pairs.sort_unstable();
     pairs.dedup();
     Ok(pairs)
@@ -251,6 +375,12 @@ mod tests {
     /// `places` places with their own random unit descriptors; image `k` of a ring sees places
     /// k−1, k and k+1 (mod n) with a little noise, so its true neighbours are k ± 1 and k ± 2.
     fn ring(n: usize, seed: u64) -> Vec<Features> {
+        scene(n, seed, true)
+    }
+
+    /// `n` images, image k seeing places k − 1, k and k + 1: around a ring when `closed`, else
+    /// along a path.
+    fn scene(n: usize, seed: u64, closed: bool) -> Vec<Features> {
         let dim = 32;
         let mut rng = SplitMix(seed);
         let places: Vec<Vec<Vec<f32>>> = (0..n)
@@ -264,7 +394,12 @@ mod tests {
             .map(|k| {
                 let mut data = Vec::new();
                 let mut keypoints = Vec::new();
-                for p in [(k + n - 1) % n, k, (k + 1) % n] {
+                let seen: Vec<usize> = if closed {
+                    vec![(k + n - 1) % n, k, (k + 1) % n]
+                } else {
+                    (k.saturating_sub(1)..=(k + 1).min(n - 1)).collect()
+                };
+                for p in seen {
                     for d in &places[p] {
                         let v: Vec<f32> =
                             d.iter().map(|x| x + 0.02 * rng.next_f64() as f32).collect();
@@ -340,5 +475,37 @@ mod tests {
                 ..
             })
         ));
+    }
+
+    #[test]
+    fn a_shuffled_path_comes_back_in_its_order() {
+        let n = 30;
+        let features = scene(n, 4, false);
+        let perm: Vec<usize> = (0..n).map(|k| (k * 7 + 3) % n).collect();
+        let mut shuffled = vec![features[0].clone(); n];
+        let mut original = vec![0; n];
+        for (k, &p) in perm.iter().enumerate() {
+            shuffled[p] = features[k].clone();
+            original[p] = k;
+        }
+        let order = capture_order(&shuffled, &opts())
+            .expect("ok")
+            .expect("an order");
+        let back: Vec<usize> = order.iter().map(|&p| original[p]).collect();
+        let forward: Vec<usize> = (0..n).collect();
+        let reversed: Vec<usize> = (0..n).rev().collect();
+        assert!(back == forward || back == reversed, "{back:?}");
+        // The pairs do not depend on the order of the files.
+        let pairs = unordered_pairs(&features, 3, &opts()).expect("pairs");
+        let again = unordered_pairs(&shuffled, 3, &opts()).expect("pairs");
+        let mut relabelled: Vec<(usize, usize)> = again
+            .iter()
+            .map(|&(a, b)| (original[a].min(original[b]), original[a].max(original[b])))
+            .collect();
+        relabelled.sort_unstable();
+        assert_eq!(pairs, relabelled);
+        for k in 0..n - 1 {
+            assert!(pairs.contains(&(k, k + 1)));
+        }
     }
 }

@@ -14,17 +14,15 @@ pub const EXHAUSTIVE_MAX_PHOTOS: usize = 40;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum PairMode {
-    /// Exhaustive up to [`EXHAUSTIVE_MAX_PHOTOS`] photos; a sequential window for video and
-    /// larger photo sets (see [`PairMode::Retrieval`] for why not retrieval yet).
+    /// Exhaustive up to [`EXHAUSTIVE_MAX_PHOTOS`] photos; a sequential window for video; for larger
+    /// photo sets, whose file names need not follow the capture, the window over the order the
+    /// images' content gives (spectral seriation) together with retrieval's most similar images.
     Auto,
     /// Every pair.
     Exhaustive,
     /// Each image with its window of successors (plus §3.2's close views).
     Sequential,
-    /// Each image with its most similar images (VLAD retrieval): for any order of the files.
-    /// Not yet the default for large photo sets: on kitti-seq1 as photos the retrieval pairs are all
-    /// verified, but the sparse stage then self-calibrates a focal length 30–40 % off (forward
-    /// motion is near-critical), where the sequential window's pairs give AUC@5 81.
+    /// Each image with its most similar images (VLAD retrieval) only: for any order of the files.
     Retrieval,
 }
 
@@ -34,6 +32,9 @@ pub enum PairPlan {
     Exhaustive,
     Sequential,
     Retrieval,
+    /// A large photo set: the sequential window over the order recovered from the images'
+    /// content, and retrieval (`handheld_features::retrieval::unordered_pairs`).
+    Unordered,
 }
 
 impl PairMode {
@@ -43,9 +44,7 @@ impl PairMode {
             (PairMode::Exhaustive, _) => PairPlan::Exhaustive,
             (PairMode::Retrieval, _) => PairPlan::Retrieval,
             (PairMode::Sequential, _) | (PairMode::Auto, InputKind::Video) => PairPlan::Sequential,
-            (PairMode::Auto, InputKind::Photos) if n > EXHAUSTIVE_MAX_PHOTOS => {
-                PairPlan::Sequential
-            }
+            (PairMode::Auto, InputKind::Photos) if n > EXHAUSTIVE_MAX_PHOTOS => PairPlan::Unordered,
             (PairMode::Auto, InputKind::Photos) => PairPlan::Exhaustive,
         }
     }

@@ -272,6 +272,38 @@ pub fn focal_ambiguity(records: &[CandidateRecord]) -> Option<String> {
         })
 }
 
+/// Optical axes that all lie within this angle (degrees) of their mean: the camera translates
+/// without turning. The project's sets span 21–106°; kitti-seq1, a car driving straight, 0.8°.
+pub const MIN_AXIS_SPREAD_DEG: f64 = 10.0;
+
+/// When the camera only translates, why the focal length is not determined: with no rotation the
+/// infinite homography between any two views is the identity whatever the calibration, so neither
+/// the Kruppa equations nor the absolute quadric constrain it (Sturm, "Critical motion sequences
+/// for monocular self-calibration and uncalibrated Euclidean reconstruction", CVPR 1997: pure
+/// translation is critical). The model may fit the images well and still have the wrong focal
+/// length and, with it, the wrong depths.
+pub fn translation_only(rec: &MetricReconstruction) -> Option<String> {
+    let axes: Vec<nalgebra::Vector3<f64>> = rec
+        .views
+        .values()
+        .map(|v| v.cam_from_world.rotation.inverse() * nalgebra::Vector3::z())
+        .collect();
+    if axes.len() < 2 {
+        return None;
+    }
+    let mean = axes.iter().sum::<nalgebra::Vector3<f64>>();
+    let mean = mean.try_normalize(1e-12)?;
+    let spread = axes
+        .iter()
+        .map(|a| a.dot(&mean).clamp(-1.0, 1.0).acos().to_degrees())
+        .fold(0.0f64, f64::max);
+    (spread < MIN_AXIS_SPREAD_DEG).then(|| {
+        format!(
+            "the camera translates without turning (every optical axis within {spread:.1}° of their mean), which leaves the focal length undetermined (pure translation is critical motion)"
+        )
+    })
+}
+
 /// One line per rejected candidate, for the error a user sees when none survives.
 pub(crate) fn describe_rejections(records: &[CandidateRecord]) -> String {
     records
@@ -522,5 +554,20 @@ mod tests {
             ];
             assert_eq!(focal_ambiguity(&tried), None);
         }
+    }
+
+    #[test]
+    fn a_camera_that_only_translates_is_flagged() {
+        // The test model's second view is the first moved sideways, without turning.
+        let mut rec = model(800.0);
+        assert!(translation_only(&rec)
+            .expect("flagged")
+            .contains("translates"));
+        // Turned by 30°: the motion determines the focal length.
+        if let Some(v) = rec.views.values_mut().nth(1) {
+            v.cam_from_world =
+                Rigid3::new(Vector3::new(-1.0, 0.0, 0.0), Vector3::new(0.0, 0.52, 0.0));
+        }
+        assert_eq!(translation_only(&rec), None);
     }
 }

@@ -350,7 +350,13 @@ fn adjust_metric_frame(
             &mut tried,
         );
         if let Some((c, rec, adjustments)) = found {
-            report.focal_ambiguity = guard::focal_ambiguity(&tried);
+            report.focal_ambiguity = guard::focal_ambiguity(&tried).or_else(|| {
+                ctx.opts
+                    .known_intrinsics
+                    .is_none()
+                    .then(|| guard::translation_only(&rec))
+                    .flatten()
+            });
             if let Some(w) = &report.focal_ambiguity {
                 tracing::warn!("{w}");
             }

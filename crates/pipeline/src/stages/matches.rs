@@ -9,7 +9,7 @@ use std::path::Path;
 
 use handheld_features::close_views::{propose_close_views, CloseViewOptions};
 use handheld_features::matching::{exhaustive_pairs, sequential_pairs};
-use handheld_features::retrieval::{retrieval_pairs, RetrievalOptions};
+use handheld_features::retrieval::{retrieval_pairs, unordered_pairs, RetrievalOptions};
 use handheld_features::verify::{verify_pairs, PairVerificationOptions, VerifiedPair};
 use handheld_features::video::{keyframe_pairs, VideoTrackingOptions};
 use handheld_features::Features;
@@ -139,6 +139,18 @@ impl Stage for Matches {
         let mut pairs = match plan {
             PairPlan::Sequential => sequential_pairs(n, opts.window),
             PairPlan::Exhaustive => exhaustive_pairs(n),
+            PairPlan::Unordered => {
+                let p = unordered_pairs(&features, opts.window, &opts.retrieval)
+                    .map_err(|e| PipelineError::invalid(stage::MATCHES, e))?;
+                tracing::info!(
+                    "{} pairs of {} photos: a window of {} over the order their content gives, and the {} most similar images of each",
+                    p.len(),
+                    n,
+                    opts.window,
+                    opts.retrieval.neighbours
+                );
+                p
+            }
             PairPlan::Retrieval => {
                 let p = retrieval_pairs(&features, &opts.retrieval)
                     .map_err(|e| PipelineError::invalid(stage::MATCHES, e))?;
