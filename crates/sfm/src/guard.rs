@@ -57,6 +57,8 @@ pub struct CandidateRecord {
     pub accepted: bool,
     /// Whether it passed every check (a sound candidate may still lose to a better-scoring one).
     pub sound: bool,
+    /// Adjusted only to test whether the images determine the focal length; never kept.
+    pub probe: bool,
     /// Why it was rejected.
     pub rejected: Option<String>,
 }

@@ -350,13 +350,35 @@ fn adjust_metric_frame(
             &mut tried,
         );
         if let Some((c, rec, adjustments)) = found {
-            report.focal_ambiguity = guard::focal_ambiguity(&tried).or_else(|| {
-                ctx.opts
-                    .known_intrinsics
-                    .is_none()
-                    .then(|| guard::translation_only(&rec))
-                    .flatten()
-            });
+            let mut ambiguity = guard::focal_ambiguity(&tried);
+            if ambiguity.is_none() && !expanded && ctx.opts.known_intrinsics.is_none() {
+                if let Some(why) = guard::translation_only(&rec) {
+                    // Nearly pure translation is nearly critical: the other frames are adjusted
+                    // too, as probes, and decide whether the focal length is determined. The kept
+                    // model stays what it is.
+                    tracing::info!("{why}; probing the focal length with the other frames");
+                    for p in &fallback_candidates(ctx, model, &report, estimate_aspect) {
+                        let mut records = Vec::new();
+                        let _ = guard::first_sound(
+                            std::iter::once((p, p.source, &p.rec)),
+                            projective_rms,
+                            |r| metric_ba::refine_metric(ctx, r, estimate_aspect),
+                            &mut records,
+                        );
+                        for mut r in records {
+                            r.probe = true;
+                            if r.accepted {
+                                r.accepted = false;
+                                r.rejected =
+                                    Some(format!("a probe of the focal length only ({why})"));
+                            }
+                            tried.push(r);
+                        }
+                    }
+                    ambiguity = guard::focal_ambiguity(&tried);
+                }
+            }
+            report.focal_ambiguity = ambiguity;
             if let Some(w) = &report.focal_ambiguity {
                 tracing::warn!("{w}");
             }

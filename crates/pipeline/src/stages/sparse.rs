@@ -178,7 +178,7 @@ impl Stage for Sparse {
             .find(|c| c.accepted)
             .map_or("", |c| c.source.as_str());
         for c in &best.self_calibration.candidates {
-            if let (true, Some(why)) = (c.tried, &c.rejected) {
+            if let (true, false, Some(why)) = (c.tried, c.probe, &c.rejected) {
                 warnings.push(format!(
                     "the metric frame from {} was rejected ({why}); the model uses the frame from {kept}",
                     c.source
