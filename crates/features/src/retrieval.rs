@@ -201,12 +201,7 @@ pub fn global_descriptors(
     if n < 2 || total < opts.words {
         return Ok(vec![Vec::new(); n]);
     }
-    let keys: Vec<u64> = features
-        .par_iter()
-        .map(crate::verify::content_key)
-        .collect();
-    let mut canonical: Vec<usize> = (0..n).collect();
-    canonical.sort_by_key(|&i| (keys[i], i));
+    let canonical = content_order(features);
     // An even sample of every image's chosen descriptors trains the vocabulary.
     let step = total.div_ceil(opts.training_descriptors).max(1);
     let training: Vec<&[f32]> = canonical
@@ -230,6 +225,17 @@ pub fn global_descriptors(
             }
         })
         .collect())
+}
+
+/// The image indices in the order of their content keys ([`crate::verify::content_key`]).
+fn content_order(features: &[Features]) -> Vec<usize> {
+    let keys: Vec<u64> = features
+        .par_iter()
+        .map(crate::verify::content_key)
+        .collect();
+    let mut order: Vec<usize> = (0..features.len()).collect();
+    order.sort_by_key(|&i| (keys[i], i));
+    order
 }
 
 fn cosine(a: &[f32], b: &[f32]) -> f32 {
@@ -303,12 +309,7 @@ fn order_of(features: &[Features], vectors: &[Vec<f32>], neighbours: usize) -> O
         return None;
     }
     // Computed in content order, so that the eigenvector's rounding cannot depend on file order.
-    let keys: Vec<u64> = features
-        .par_iter()
-        .map(crate::verify::content_key)
-        .collect();
-    let mut canonical: Vec<usize> = (0..n).collect();
-    canonical.sort_by_key(|&i| (keys[i], i));
+    let canonical = content_order(features);
     let mut pos = vec![0usize; n];
     for (k, &i) in canonical.iter().enumerate() {
         pos[i] = k;
