@@ -278,6 +278,20 @@ fn fallback_candidates(
             });
         }
     }
+    // An independent source: the focal length the verified pairs give one by one (Bougnoux).
+    if let Some(h) = hypotheses::two_view_focal(ctx, model)
+        .and_then(|f| hypotheses::known_focal_upgrade(model, f))
+        .filter(|h| !h.clamped)
+    {
+        tracing::debug!(focal = h.focal, "two-view focal hypothesis");
+        if let Ok(rec) = metric::from_transform(ctx, model, &h.t, estimate_aspect) {
+            out.push(Candidate {
+                rec,
+                source: "two-view focal length",
+                is_prior: true,
+            });
+        }
+    }
     for h in hypotheses::focal_hypotheses(model, 3) {
         tracing::debug!(focal = h.focal, residual = h.residual, "focal hypothesis");
         if let Ok(rec) = metric::from_transform(ctx, model, &h.t, estimate_aspect) {
