@@ -57,7 +57,8 @@ pub struct CandidateRecord {
     pub accepted: bool,
     /// Whether it passed every check (a sound candidate may still lose to a better-scoring one).
     pub sound: bool,
-    /// Adjusted only to test whether the images determine the focal length; never kept.
+    /// Adjusted because the camera only translates, to test whether the images determine the
+    /// focal length; kept only when it explains the images better than the frame it probed.
     pub probe: bool,
     /// Rejected for the observations its adjustment removed alone: every other check passed.
     pub removals_only: bool,

@@ -364,29 +364,54 @@ fn adjust_metric_frame(
             &mut tried,
         );
         if let Some((c, rec, adjustments)) = found {
+            let (mut rec, mut adjustments, mut is_prior) = (rec, adjustments, c.is_prior);
             let mut ambiguity = guard::focal_ambiguity(&tried);
             if ambiguity.is_none() && !expanded && ctx.opts.known_intrinsics.is_none() {
                 if let Some(why) = guard::translation_only(&rec) {
                     // Nearly pure translation is nearly critical: the other frames are adjusted
-                    // too, as probes, and decide whether the focal length is determined. The kept
-                    // model stays what it is.
+                    // too, as probes. They decide whether the focal length is determined, and a
+                    // sound probe that explains the images better than the kept frame replaces
+                    // it: every frame has had the full adjustment, which decides (the rule of
+                    // `guard::best_sound`).
                     tracing::info!("{why}; probing the focal length with the other frames");
                     for p in &fallback_candidates(ctx, model, &report, estimate_aspect) {
                         let mut records = Vec::new();
-                        let _ = guard::first_sound(
+                        let found = guard::first_sound(
                             std::iter::once((p, p.source, &p.rec)),
                             projective_rms,
                             |r| metric_ba::refine_metric(ctx, r, estimate_aspect),
                             &mut records,
                         );
+                        let kept_score = tried
+                            .iter()
+                            .find(|r| r.accepted)
+                            .and_then(|r| r.score)
+                            .unwrap_or(f64::NEG_INFINITY);
+                        let better = records
+                            .last()
+                            .filter(|r| r.accepted)
+                            .and_then(|r| r.score)
+                            .is_some_and(|sc| sc > kept_score);
                         for mut r in records {
                             r.probe = true;
-                            if r.accepted {
+                            if r.accepted && !better {
                                 r.accepted = false;
                                 r.rejected =
                                     Some(format!("a probe of the focal length only ({why})"));
                             }
+                            if r.accepted {
+                                for k in tried.iter_mut().filter(|k| k.accepted) {
+                                    k.accepted = false;
+                                    k.rejected = Some(
+                                        "a probe of the focal length explained the images better"
+                                            .into(),
+                                    );
+                                }
+                            }
                             tried.push(r);
+                        }
+                        if let (true, Some((p, r, a))) = (better, found) {
+                            (rec, adjustments, is_prior) = (r, a, p.is_prior);
                         }
                     }
                     ambiguity = guard::focal_ambiguity(&tried);
@@ -397,7 +422,7 @@ fn adjust_metric_frame(
                 tracing::warn!("{w}");
             }
             report.candidates = tried;
-            return Ok((rec, c.is_prior, report, adjustments));
+            return Ok((rec, is_prior, report, adjustments));
         }
         if expanded || from_known {
             break;
