@@ -179,7 +179,8 @@ fn a_demo_too_short_to_calibrate_fails_and_writes_no_model() {
 /// says the focal length is undetermined (issue #18: no wrong model reported as a success). The
 /// 12-frame orbit used to keep a focal length 34 % off with no warning, its relative rotations 9°
 /// wrong, while another frame that explained the images better had been rejected for what its
-/// adjustment filtered on the way.
+/// adjustment filtered on the way; the focal profile now also walks from that frame to the right
+/// one (1.1 % off).
 #[test]
 fn a_demo_whose_focal_length_is_wrong_says_so() {
     let dir = tempfile::tempdir().unwrap();

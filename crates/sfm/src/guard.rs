@@ -293,6 +293,24 @@ pub fn focal_ambiguity(records: &[CandidateRecord]) -> Option<String> {
         })
 }
 
+/// Smallest relative increase of the robust cost when the focal length is held
+/// [`crate::metric_ba::PROFILE_STEP`] away from the kept value, below which the images do not
+/// determine it.
+pub const MIN_PROFILE_INCREASE: f64 = 0.05;
+
+/// When the fit hardly changes with the focal length held 20 % off on either side
+/// ([`crate::metric_ba::focal_profile`]), why the focal length is not determined.
+pub fn flat_profile(rec: &MetricReconstruction, ratios: [f64; 2]) -> Option<String> {
+    let worst = ratios[0].min(ratios[1]);
+    let f = focal_lengths(rec).first().copied()?;
+    (worst.is_finite() && worst < 1.0 + MIN_PROFILE_INCREASE).then(|| {
+        let side = if ratios[0] <= ratios[1] { "shorter" } else { "longer" };
+        format!(
+            "the images do not determine the focal length: with it held 20 % {side} than the              kept {f:.0} px, the adjusted model explains them almost as well (cost × {worst:.3})"
+        )
+    })
+}
+
 /// Optical axes that all lie within this angle (degrees) of their mean: the camera translates
 /// without turning. The project's sets span 21–106°; kitti-seq1, a car driving straight, 0.8°.
 pub const MIN_AXIS_SPREAD_DEG: f64 = 10.0;
@@ -603,6 +621,21 @@ mod tests {
         let mut r = record_before("priors", &rec);
         assert!(judge(&mut r, &rec, &adjusted(30, 0.5), Some(0.5)).is_some());
         assert!(!r.removals_only);
+    }
+
+    #[test]
+    fn a_flat_focal_profile_is_an_ambiguity() {
+        let rec = model(800.0);
+        // fountain-P11: the cost rises 30-fold with the focal length held 20 % off.
+        assert_eq!(flat_profile(&rec, [38.4, 30.7]), None);
+        // templeSparseRing (a turntable, yet determined): 1.6-fold.
+        assert_eq!(flat_profile(&rec, [1.78, 1.56]), None);
+        // Hardly any rise on one side, or a better fit there (an adjustment stopped on a slope).
+        for ratios in [[1.01, 3.0], [4.0, 0.42]] {
+            let w = flat_profile(&rec, ratios).expect("flat");
+            assert!(w.contains("do not determine the focal length"), "{w}");
+        }
+        assert!(flat_profile(&rec, [f64::NAN, 2.0]).is_none());
     }
 
     #[test]

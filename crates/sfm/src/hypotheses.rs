@@ -153,7 +153,7 @@ pub(crate) fn two_view_focal(ctx: &Context, model: &ProjectiveModel) -> Option<f
         .filter(|p| in_model.contains(&p.a) && in_model.contains(&p.b))
         .filter_map(|p| Some((p, p.f?)))
         .collect();
-    pairs.sort_by(|x, y| y.0.matches.len().cmp(&x.0.matches.len()));
+    pairs.sort_by_key(|p| std::cmp::Reverse(p.0.matches.len()));
     let mut estimates: Vec<f64> = Vec::new();
     for (p, f) in pairs.into_iter().take(TWO_VIEW_PAIRS) {
         // In normalised coordinates x = K_N⁻¹ x_px: F_n = K_N,bᵀ F K_N,a.

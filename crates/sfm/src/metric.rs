@@ -42,6 +42,10 @@ pub struct SelfCalibrationReport {
     /// Set when two sound candidates with different focal lengths explain the images about as
     /// well (see [`crate::guard::focal_ambiguity`]).
     pub focal_ambiguity: Option<String>,
+    /// The robust cost of the kept model adjusted with its focal length held 20 % below and above
+    /// its value, relative to the cost with it free (`metric_ba::focal_profile`); near 1 when the
+    /// images do not determine the focal length.
+    pub focal_profile: Option<[f64; 2]>,
 }
 
 /// A start of the model that was abandoned: its initial pair and why.
@@ -128,6 +132,7 @@ pub(crate) fn upgrade(
         candidates: Vec::new(),
         rejected_starts: Vec::new(),
         focal_ambiguity: None,
+        focal_profile: None,
     };
     Ok(Upgraded {
         rec,

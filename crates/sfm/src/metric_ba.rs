@@ -105,6 +105,163 @@ fn adjust_metric(
 ) -> Result<Vec<MetricBaRecord>, String> {
     let o = ctx.opts;
     let mut records = Vec::new();
+    // A known calibration is the starting point too: the upgrade assumed a centred principal point.
+    if let (Some(k), false) = (o.known_intrinsics, only_final) {
+        for cam in rec.cameras.values_mut() {
+            let i = &mut cam.intrinsics;
+            i.f = k.fx;
+            i.aspect = k.fy / k.fx;
+            i.pp = nalgebra::Vector2::new(k.cx, k.cy);
+        }
+    }
+    let Setup { base, full, priors } = setup(ctx, rec, estimate_aspect);
+    let steps: [(&str, IntrinsicsMask, f64, usize); 3] = [
+        ("f+k1", base, o.metric_max_error_px, 50),
+        ("all intrinsics", full, o.final_max_error_px, 100),
+        ("final", full, o.final_max_error_px, 100),
+    ];
+    for (name, mask, thr, iters) in steps {
+        if only_final && name != "final" {
+            continue;
+        }
+        let config = MetricBundleConfig {
+            refine: mask,
+            priors: priors.clone(),
+            keypoint_sigma: ctx.keypoint_sigma.clone(),
+            ..Default::default()
+        };
+        let bopts = BundleOptions {
+            max_iterations: iters,
+            loss: RobustLoss::Huber(o.loss_scale_px),
+            // Tight tolerances only for the last adjustment; the earlier ones feed a filter.
+            function_tolerance: if name == "final" { 1e-7 } else { 1e-5 },
+            parameter_tolerance: if name == "final" { 1e-10 } else { 1e-8 },
+            ..Default::default()
+        };
+        let s = bundle_adjust_metric(rec, &config, &bopts)
+            .map_err(|e| format!("metric bundle adjustment ({name}): {e}"))?;
+        let (ro, rp) = filter_metric(rec, thr, o.min_track_length);
+        records.push(MetricBaRecord {
+            step: name.to_string(),
+            iterations: s.iterations,
+            initial_rms_px: s.initial_rms_px,
+            final_rms_px: s.final_rms_px,
+            seconds: s.total_seconds,
+            observations_removed: ro,
+            points_removed: rp,
+        });
+    }
+    Ok(records)
+}
+
+/// Relative change of the focal length at which [`focal_profile`] probes the fit: far enough to
+/// leave a determined focal length's valley by a wide margin (a sound frame's focal length is
+/// within a few per cent), near enough to stay in the basin of the kept frame.
+pub const PROFILE_STEP: f64 = 0.2;
+
+/// The profile of the fit along the focal length (a likelihood-ratio test in the spirit of
+/// Hartley & Zisserman §A6.4's parameter profiling): the adjusted model `rec` is adjusted again on
+/// the same observations (no filtering), once with every parameter free and once each with the
+/// focal length held at `(1 ∓ PROFILE_STEP) ×` its value, everything else (poses, points, the
+/// other intrinsics) free. Returns the robust cost of the two held adjustments relative to the
+/// free one's. A determined focal length makes them large (the metric constraints break); a
+/// critical motion (pure translation, a turntable's single axis) leaves them near 1, whatever
+/// the covariance says: the formal σ of the focal length is a local, linear statement, and it
+/// reads a few pixels on data where two focal lengths 20 % apart fit equally well.
+pub(crate) fn focal_profile(
+    ctx: &Context,
+    rec: &MetricReconstruction,
+    estimate_aspect: bool,
+) -> Result<[f64; 2], String> {
+    let sample = subsample_points(rec, PROFILE_MAX_POINTS);
+    let free = held_adjustment(ctx, &sample, estimate_aspect, None)?
+        .0
+        .max(f64::MIN_POSITIVE);
+    let low = held_adjustment(ctx, &sample, estimate_aspect, Some(1.0 - PROFILE_STEP))?.0;
+    let high = held_adjustment(ctx, &sample, estimate_aspect, Some(1.0 + PROFILE_STEP))?.0;
+    Ok([low / free, high / free])
+}
+
+/// `rec` adjusted on its observations as they are (no filtering) with its focal lengths scaled by
+/// `scale` and held there, or free (`None`); every other parameter the schedule refines is free.
+/// Returns the robust cost and the adjusted model.
+pub(crate) fn held_adjustment(
+    ctx: &Context,
+    rec: &MetricReconstruction,
+    estimate_aspect: bool,
+    scale: Option<f64>,
+) -> Result<(f64, MetricReconstruction), String> {
+    let o = ctx.opts;
+    let Setup { full, priors, .. } = setup(ctx, rec, estimate_aspect);
+    let bopts = BundleOptions {
+        max_iterations: 100,
+        loss: RobustLoss::Huber(o.loss_scale_px),
+        function_tolerance: 1e-7,
+        parameter_tolerance: 1e-10,
+        ..Default::default()
+    };
+    let mut r = rec.clone();
+    if let Some(sc) = scale {
+        for cam in r.cameras.values_mut() {
+            cam.intrinsics.f *= sc;
+        }
+    }
+    let config = MetricBundleConfig {
+        refine: IntrinsicsMask {
+            f: scale.is_none(),
+            ..full
+        },
+        priors,
+        keypoint_sigma: ctx.keypoint_sigma.clone(),
+        ..Default::default()
+    };
+    bundle_adjust_metric(&mut r, &config, &bopts)
+        .map(|s| (s.final_cost, r))
+        .map_err(|e| format!("focal profile: {e}"))
+}
+
+/// Points the profile adjusts at most: a costs ratio needs a sample, not every point (fountain-P11
+/// has 20 000), and the profile then costs a fraction of the schedule.
+const PROFILE_MAX_POINTS: usize = 3000;
+
+/// `rec` with every k-th point only (by id, so the same model gives the same sample), at most
+/// `max` of them; the observations of the others are detached.
+fn subsample_points(rec: &MetricReconstruction, max: usize) -> MetricReconstruction {
+    let mut out = rec.clone();
+    let n = out.points.len();
+    if n <= max {
+        return out;
+    }
+    let step = n.div_ceil(max);
+    let dropped: Vec<_> = out
+        .points
+        .keys()
+        .enumerate()
+        .filter(|(k, _)| k % step != 0)
+        .map(|(_, id)| *id)
+        .collect();
+    for id in dropped {
+        if let Some(p) = out.points.remove(&id) {
+            for el in p.track.elements {
+                if let Some(v) = out.views.get_mut(&el.image_id) {
+                    v.observations[el.point2d_idx as usize].point_id = None;
+                }
+            }
+        }
+    }
+    out
+}
+
+/// What every adjustment of the schedule shares: the intrinsics refined in the first step
+/// (`base`) and in the later ones (`full`), and the soft priors.
+struct Setup {
+    base: IntrinsicsMask,
+    full: IntrinsicsMask,
+    priors: BTreeMap<CameraId, Vec<(IntrinsicParam, GaussianPrior)>>,
+}
+
+fn setup(ctx: &Context, rec: &MetricReconstruction, estimate_aspect: bool) -> Setup {
+    let o = ctx.opts;
     let distortion = o.distortion != Distortion::None && !long_lens(rec);
     let base = IntrinsicsMask {
         f: true,
@@ -119,15 +276,6 @@ fn adjust_metric(
         k2: distortion && o.distortion == Distortion::K1K2,
         ..base
     };
-    // A known calibration is the starting point too: the upgrade assumed a centred principal point.
-    if let (Some(k), false) = (o.known_intrinsics, only_final) {
-        for cam in rec.cameras.values_mut() {
-            let i = &mut cam.intrinsics;
-            i.f = k.fx;
-            i.aspect = k.fy / k.fx;
-            i.pp = nalgebra::Vector2::new(k.cx, k.cy);
-        }
-    }
     let mut priors = focal_priors(ctx, rec);
     // A soft prior keeps the principal point near the image centre (σ = principal_point_prior ·
     // (w + h), eq. 25's u ≈ v ≈ 0 in K_N units): free where the views determine it (wide-angle,
@@ -180,43 +328,7 @@ fn adjust_metric(
         }
         None => full,
     };
-    let steps: [(&str, IntrinsicsMask, f64, usize); 3] = [
-        ("f+k1", base, o.metric_max_error_px, 50),
-        ("all intrinsics", full, o.final_max_error_px, 100),
-        ("final", full, o.final_max_error_px, 100),
-    ];
-    for (name, mask, thr, iters) in steps {
-        if only_final && name != "final" {
-            continue;
-        }
-        let config = MetricBundleConfig {
-            refine: mask,
-            priors: priors.clone(),
-            keypoint_sigma: ctx.keypoint_sigma.clone(),
-            ..Default::default()
-        };
-        let bopts = BundleOptions {
-            max_iterations: iters,
-            loss: RobustLoss::Huber(o.loss_scale_px),
-            // Tight tolerances only for the last adjustment; the earlier ones feed a filter.
-            function_tolerance: if name == "final" { 1e-7 } else { 1e-5 },
-            parameter_tolerance: if name == "final" { 1e-10 } else { 1e-8 },
-            ..Default::default()
-        };
-        let s = bundle_adjust_metric(rec, &config, &bopts)
-            .map_err(|e| format!("metric bundle adjustment ({name}): {e}"))?;
-        let (ro, rp) = filter_metric(rec, thr, o.min_track_length);
-        records.push(MetricBaRecord {
-            step: name.to_string(),
-            iterations: s.iterations,
-            initial_rms_px: s.initial_rms_px,
-            final_rms_px: s.final_rms_px,
-            seconds: s.total_seconds,
-            observations_removed: ro,
-            points_removed: rp,
-        });
-    }
-    Ok(records)
+    Setup { base, full, priors }
 }
 
 /// Normalized radius `r = ½ diagonal / f` below which radial distortion is not estimated.

@@ -135,6 +135,9 @@ fn abandoned(rejected: &[metric::RejectedStart], last: StepError) -> StepError {
 /// upgrades cleanly, as COLMAP retries its initial pairs.
 pub const MAX_STARTS: usize = 3;
 
+/// How many times the kept frame may be replaced by a better one found along its focal profile.
+const MAX_PROFILE_DESCENTS: usize = 2;
+
 /// Builds the next model from the free views of `search`: the steps of the module docs in order.
 /// `Ok(None)` when the projective model holds fewer than 2 views (nothing more can be built); an
 /// error names the step that failed. The views of the projective model are taken from `search`
@@ -416,6 +419,88 @@ fn adjust_metric_frame(
                     }
                     ambiguity = guard::focal_ambiguity(&tried);
                 }
+            }
+            let mut flat = None;
+            if ctx.opts.known_intrinsics.is_none() {
+                // The fit along the focal length. Where holding it 20 % away fits clearly better,
+                // the adjustment stopped on a slope, not at a minimum (a near-critical motion's
+                // long valley): that held model, with its focal length freed again, is one more
+                // candidate, kept when its full adjustment scores better. Then the profile of
+                // what is kept decides whether the focal length is determined.
+                for descents in 0..=MAX_PROFILE_DESCENTS {
+                    let ratios = match metric_ba::focal_profile(ctx, &rec, estimate_aspect) {
+                        Ok(p) => p,
+                        Err(e) => {
+                            tracing::debug!("{e}");
+                            break;
+                        }
+                    };
+                    tracing::debug!(?ratios, "focal profile");
+                    report.focal_profile = Some(ratios);
+                    flat = guard::flat_profile(&rec, ratios);
+                    let k = usize::from(ratios[1] < ratios[0]);
+                    if descents == MAX_PROFILE_DESCENTS
+                        || ratios[k] >= 1.0 - guard::MIN_PROFILE_INCREASE
+                    {
+                        break;
+                    }
+                    let scale = if k == 0 {
+                        1.0 - metric_ba::PROFILE_STEP
+                    } else {
+                        1.0 + metric_ba::PROFILE_STEP
+                    };
+                    let start =
+                        match metric_ba::held_adjustment(ctx, &rec, estimate_aspect, Some(scale)) {
+                            Ok((_, r)) => r,
+                            Err(e) => {
+                                tracing::debug!("{e}");
+                                break;
+                            }
+                        };
+                    let kept_score = tried
+                        .iter()
+                        .find(|r| r.accepted)
+                        .and_then(|r| r.score)
+                        .unwrap_or(f64::NEG_INFINITY);
+                    let mut records = Vec::new();
+                    let found = guard::first_sound(
+                        std::iter::once((&(), "focal profile", &start)),
+                        projective_rms,
+                        |r| metric_ba::refine_metric(ctx, r, estimate_aspect),
+                        &mut records,
+                    );
+                    let better = records
+                        .last()
+                        .filter(|r| r.accepted)
+                        .and_then(|r| r.score)
+                        .is_some_and(|sc| sc > kept_score);
+                    for mut r in records {
+                        if r.accepted && !better {
+                            r.accepted = false;
+                            r.rejected = Some("scored below the kept frame".into());
+                        }
+                        if r.accepted {
+                            for k in tried.iter_mut().filter(|k| k.accepted) {
+                                k.accepted = false;
+                                k.rejected = Some(
+                                    "the frame found along the focal profile explained the images better"
+                                        .into(),
+                                );
+                            }
+                        }
+                        tried.push(r);
+                    }
+                    match (better, found) {
+                        (true, Some((_, r, a))) => {
+                            (rec, adjustments, is_prior) = (r, a, true);
+                        }
+                        _ => break,
+                    }
+                }
+            }
+            // Judged again against what is kept now: other frames first, then the profile.
+            if ambiguity.is_some() || flat.is_some() {
+                ambiguity = guard::focal_ambiguity(&tried).or(flat);
             }
             report.focal_ambiguity = ambiguity;
             if let Some(w) = &report.focal_ambiguity {
