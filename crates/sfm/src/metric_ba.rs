@@ -221,8 +221,8 @@ pub(crate) fn held_adjustment(
 }
 
 /// Points the profile adjusts at most: a costs ratio needs a sample, not every point (fountain-P11
-/// has 20 000), and the profile then costs a fraction of the schedule.
-const PROFILE_MAX_POINTS: usize = 3000;
+/// has 18 000), and the profile then costs a fraction of the schedule (0.1 s there).
+const PROFILE_MAX_POINTS: usize = 1000;
 
 /// `rec` with every k-th point only (by id, so the same model gives the same sample), at most
 /// `max` of them; the observations of the others are detached.
