@@ -499,14 +499,12 @@ pub fn match_and_verify(
         let putative = match_descriptors(&f1.descriptors, &f2.descriptors, &opts.matching);
         return verify_pair(i, j, f1, f2, putative, opts);
     };
-    // Seeds of k keypoints per image, then more: 2k when the seeds verified a general geometry too
-    // weakly supported for guided matching (the images overlap; twice the seeds usually give it
-    // the support it lacks, at a quarter of the cost of 4k), 4k when they verified nothing. The last
-    // level is whatever brute force over up to 4k keypoints verifies (all keypoints when there are
-    // no more than that).
+    // Seeds of k, then 4k, keypoints per image; the last level is whatever brute force over up to
+    // 4k keypoints verifies (all keypoints when there are no more than that).
     let most = f1.descriptors.len().max(f2.descriptors.len());
-    let mut seeds = k;
-    loop {
+    let levels = [k, 4 * k];
+    let mut last = None;
+    for &seeds in &levels {
         let t0 = std::time::Instant::now();
         let (s1, s2) = (strongest(f1, seeds), strongest(f2, seeds));
         let putative: Vec<Match> = match_descriptors(
@@ -530,13 +528,15 @@ pub fn match_and_verify(
             v.inliers.len(),
             v.guided_added
         );
-        if v.guided_added > 0 || seeds >= most || seeds >= 4 * k {
+        if v.guided_added > 0 || seeds >= most {
             return v;
         }
-        let weak =
-            v.geometry.configuration == TwoViewConfiguration::General && !v.inliers.is_empty();
-        seeds = if weak { 2 * seeds } else { 4 * k };
+        last = Some(v);
     }
+    last.unwrap_or_else(|| {
+        let putative = match_descriptors(&f1.descriptors, &f2.descriptors, &opts.matching);
+        verify_pair(i, j, f1, f2, putative, opts)
+    })
 }
 
 /// Matches and verifies every pair, in parallel, reporting progress per pair.
