@@ -428,6 +428,7 @@ fn adjust_metric_frame(
                 // candidate, kept when its full adjustment scores better. Then the profile of
                 // what is kept decides whether the focal length is determined.
                 for descents in 0..=MAX_PROFILE_DESCENTS {
+                    let t_profile = Instant::now();
                     let ratios = match metric_ba::focal_profile(ctx, &rec, estimate_aspect) {
                         Ok(p) => p,
                         Err(e) => {
@@ -435,7 +436,11 @@ fn adjust_metric_frame(
                             break;
                         }
                     };
-                    tracing::debug!(?ratios, "focal profile");
+                    tracing::debug!(
+                        ?ratios,
+                        seconds = t_profile.elapsed().as_secs_f64(),
+                        "focal profile"
+                    );
                     report.focal_profile = Some(ratios);
                     flat = guard::flat_profile(&rec, ratios);
                     let k = usize::from(ratios[1] < ratios[0]);
