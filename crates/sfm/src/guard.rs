@@ -311,6 +311,26 @@ pub fn flat_profile(rec: &MetricReconstruction, ratios: [f64; 2]) -> Option<Stri
     })
 }
 
+/// Largest departure of an estimated aspect ratio from 1 that a camera which only translates may
+/// report without a warning.
+pub const MAX_UNDETERMINED_ASPECT: f64 = 0.05;
+
+/// When the camera only translates (`why`, from [`translation_only`]) and the aspect ratio was
+/// estimated: pure translation leaves the whole calibration free (the infinite homography is the
+/// identity, Sturm 1997), the aspect ratio as much as the focal length, and an estimate far from
+/// square pixels is the valley's drift, not a measurement (kitti-seq1 as H.264 at crf 28: 1.31
+/// where the truth is 1, the focal length 26 % off, with probes that agreed with each other).
+pub fn aspect_undetermined(rec: &MetricReconstruction, why: &str) -> Option<String> {
+    let c = rec
+        .cameras
+        .values()
+        .find(|c| (c.intrinsics.aspect - 1.0).abs() > MAX_UNDETERMINED_ASPECT)?;
+    Some(format!(
+        "the images do not determine the focal length: {why}, and the aspect ratio estimated from          them ({:.3}) is as free as the focal length ({:.0} px); give `--aspect fixed` for square          pixels",
+        c.intrinsics.aspect, c.intrinsics.f
+    ))
+}
+
 /// Optical axes that all lie within this angle (degrees) of their mean: the camera translates
 /// without turning. The project's sets span 21–106°; kitti-seq1, a car driving straight, 0.8°.
 pub const MIN_AXIS_SPREAD_DEG: f64 = 10.0;
@@ -636,6 +656,17 @@ mod tests {
             assert!(w.contains("do not determine the focal length"), "{w}");
         }
         assert!(flat_profile(&rec, [f64::NAN, 2.0]).is_none());
+    }
+
+    #[test]
+    fn an_aspect_ratio_estimated_under_pure_translation_is_flagged_when_not_square() {
+        let mut rec = model(800.0);
+        assert_eq!(aspect_undetermined(&rec, "it translates"), None);
+        for c in rec.cameras.values_mut() {
+            c.intrinsics.aspect = 1.31;
+        }
+        let w = aspect_undetermined(&rec, "it translates").expect("flagged");
+        assert!(w.contains("1.310") && w.contains("--aspect fixed"), "{w}");
     }
 
     #[test]

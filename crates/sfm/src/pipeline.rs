@@ -212,6 +212,16 @@ pub(crate) fn build_model(
         metric_ba.extend(records);
         record(&mut timings, "video_frames", t_frames);
     }
+    // The aspect ratio a camera that only translates cannot determine, judged on the final model
+    // (a video's in-between frames are adjusted with it last).
+    if estimate_aspect && report.focal_ambiguity.is_none() && ctx.opts.known_intrinsics.is_none() {
+        if let Some(why) = guard::translation_only(&rec) {
+            report.focal_ambiguity = guard::aspect_undetermined(&rec, &why);
+            if let Some(w) = &report.focal_ambiguity {
+                tracing::warn!("{w}");
+            }
+        }
+    }
     if is_prior {
         report.used_prior_fallback = true;
     }
