@@ -274,15 +274,43 @@ fn run_handheld(
     })
 }
 
+/// The scoring script: `script` when it is a file; otherwise, when it is a relative path that
+/// does not resolve from the current folder (the default is relative to the repository root),
+/// `tools/<its file name>` beside the data sets' folder of `gt` (`shared/datasets/X` →
+/// `shared/tools/eval_sfm.py`), so the bench runs from any folder. `None` when neither exists.
+fn eval_script_for(script: &Path, gt: &Path) -> Option<PathBuf> {
+    if script.is_file() {
+        return Some(script.to_path_buf());
+    }
+    if script.is_absolute() {
+        return None;
+    }
+    let beside = gt
+        .canonicalize()
+        .ok()?
+        .parent()?
+        .parent()?
+        .join("tools")
+        .join(script.file_name()?);
+    beside.is_file().then_some(beside)
+}
+
 /// Runs Handheld, then (with `colmap`) COLMAP 4.2, on the same images with the same threads, and
 /// (with `gt`) scores both models once every timing is done.
 pub fn bench_sparse(o: &SparseBenchOptions, progress: &dyn Progress) -> Result<SparseBenchReport> {
     o.validate()?;
+    let script =
+        o.gt.as_deref()
+            .and_then(|gt| eval_script_for(&o.eval_script, gt))
+            .unwrap_or_else(|| o.eval_script.clone());
     if let Some(gt) = &o.gt {
-        if !o.eval_script.is_file() {
+        if !script.is_file() {
             return Err(EvalError::option(
                 "--eval-script",
-                format!("{} is not a file", o.eval_script.display()),
+                format!(
+                    "{} is not a file (give the path of shared/tools/eval_sfm.py)",
+                    o.eval_script.display()
+                ),
             ));
         }
         if !gt.is_dir() {
@@ -319,10 +347,10 @@ pub fn bench_sparse(o: &SparseBenchOptions, progress: &dyn Progress) -> Result<S
         None
     };
     if let Some(gt) = &o.gt {
-        handheld.eval = Some(eval_sfm(&o.eval_script, &ws.join(stage::SPARSE), gt)?);
+        handheld.eval = Some(eval_sfm(&script, &ws.join(stage::SPARSE), gt)?);
         if let Some(c) = colmap.as_mut() {
             if let Some(model) = &c.run.model {
-                c.eval = Some(eval_sfm(&o.eval_script, model, gt)?);
+                c.eval = Some(eval_sfm(&script, model, gt)?);
             }
         }
     }
@@ -343,4 +371,28 @@ pub fn bench_sparse(o: &SparseBenchOptions, progress: &dyn Progress) -> Result<S
         colmap,
         kept,
     ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_scoring_script_is_found_beside_the_data_sets_from_any_folder() {
+        let dir = tempfile::tempdir().unwrap();
+        let gt = dir.path().join("shared/datasets/fountain");
+        std::fs::create_dir_all(&gt).unwrap();
+        std::fs::create_dir_all(dir.path().join("shared/tools")).unwrap();
+        let script = dir.path().join("shared/tools/eval_sfm.py");
+        std::fs::write(&script, "").unwrap();
+        let default = PathBuf::from("../no-such-folder/tools/eval_sfm.py");
+        let found = eval_script_for(&default, &gt).expect("found beside the data sets");
+        assert_eq!(
+            found.canonicalize().unwrap(),
+            script.canonicalize().unwrap()
+        );
+        // An explicit file is taken as it is; a missing absolute path is not searched for.
+        assert_eq!(eval_script_for(&script, &gt), Some(script.clone()));
+        assert_eq!(eval_script_for(&dir.path().join("none.py"), &gt), None);
+    }
 }
