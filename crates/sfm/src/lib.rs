@@ -9,6 +9,7 @@
 
 mod canonical;
 mod context;
+mod frame;
 pub mod graph;
 pub mod guard;
 mod hypotheses;

@@ -1,0 +1,244 @@
+//! The metric frame of one start (§3.4): the candidate frames (the self-calibration's, a known
+//! calibration's, the priors', the focal hypotheses', the two-view focal length's), each given the
+//! full adjustment and judged by [`crate::guard`]; the probes of a camera that only translates;
+//! and the focal profile of the kept frame, which may lead to a better one or show that the focal
+//! length is undetermined. Split from `pipeline.rs`, which builds the whole model.
+
+use std::time::Instant;
+
+use handheld_core::MetricReconstruction;
+
+use crate::context::Context;
+use crate::metric::Upgraded;
+use crate::model::ProjectiveModel;
+use crate::pipeline::StepError;
+use crate::{guard, hypotheses, metric, metric_ba};
+
+/// How many times the kept frame may be replaced by a better one found along its focal profile.
+const MAX_PROFILE_DESCENTS: usize = 2;
+
+/// A metric frame to adjust: where it came from, and whether it is the priors' (or a focal
+/// hypothesis') rather than the self-calibration's.
+struct Candidate {
+    rec: MetricReconstruction,
+    source: &'static str,
+    is_prior: bool,
+}
+
+/// The frames from the priors alone and from the focal hypotheses (see `hypotheses`), which
+/// critical motion (eq. 26 leaves the focal length free) or a rejected self-calibration calls for.
+fn fallback_candidates(
+    ctx: &Context,
+    model: &ProjectiveModel,
+    report: &metric::SelfCalibrationReport,
+    estimate_aspect: bool,
+) -> Vec<Candidate> {
+    let mut out = Vec::new();
+    if !report.used_prior_fallback {
+        if let Ok(rec) = metric::prior_frame(ctx, model, estimate_aspect) {
+            out.push(Candidate {
+                rec,
+                source: "priors",
+                is_prior: true,
+            });
+        }
+    }
+    // An independent source: the focal length the verified pairs give one by one (Bougnoux).
+    if let Some(h) = hypotheses::two_view_focal(ctx, model)
+        .and_then(|f| hypotheses::known_focal_upgrade(model, f))
+        .filter(|h| !h.clamped)
+    {
+        tracing::debug!(focal = h.focal, "two-view focal hypothesis");
+        if let Ok(rec) = metric::from_transform(ctx, model, &h.t, estimate_aspect) {
+            out.push(Candidate {
+                rec,
+                source: "two-view focal length",
+                is_prior: true,
+            });
+        }
+    }
+    for h in hypotheses::focal_hypotheses(model, 3) {
+        tracing::debug!(focal = h.focal, residual = h.residual, "focal hypothesis");
+        if let Ok(rec) = metric::from_transform(ctx, model, &h.t, estimate_aspect) {
+            out.push(Candidate {
+                rec,
+                source: "focal hypothesis",
+                is_prior: true,
+            });
+        }
+    }
+    out
+}
+
+/// The adjusted metric model, whether its frame came from the priors (or a focal hypothesis)
+/// rather than from the self-calibration, the self-calibration report (with every candidate
+/// tried) and the adjustments.
+///
+/// A known calibration gives the upgrade itself (eq. 26 with `K` given), whatever the motion; the
+/// self-calibrated candidates are built only without one, or if it is inconsistent with the
+/// cameras. When the linear self-calibration is doubtful (critical motion, or an `Ω*` that is not
+/// semi-definite), the frame from the priors alone and the focal hypotheses are candidates too:
+/// the paper's "fall back on the priors" without trusting either blindly. Every candidate gets the
+/// full adjustment, [`crate::guard`] judges what that did, and the sound one with the best score
+/// is kept; a rejected self-calibration gives way to the fallbacks. When none survives, the step fails with what was tried, and no model is reported.
+pub(crate) fn adjust_metric_frame(
+    ctx: &Context,
+    model: &ProjectiveModel,
+    up: Upgraded,
+    estimate_aspect: bool,
+) -> Result<
+    (
+        MetricReconstruction,
+        bool,
+        metric::SelfCalibrationReport,
+        Vec<metric_ba::MetricBaRecord>,
+    ),
+    StepError,
+> {
+    let mut report = up.report;
+    let known = ctx.opts.known_intrinsics.and_then(|k| {
+        let focal = 0.5 * (k.fx + k.fy) * ctx.scale.first().copied().unwrap_or(f64::NAN);
+        let h = hypotheses::known_focal_upgrade(model, focal).filter(|h| !h.clamped)?;
+        metric::from_transform(ctx, model, &h.t, estimate_aspect).ok()
+    });
+    let from_known = known.is_some();
+    let source = match (from_known, report.used_prior_fallback) {
+        (true, _) => "known calibration",
+        (false, true) => "priors",
+        (false, false) => "self-calibration",
+    };
+    let mut candidates = vec![Candidate {
+        rec: known.unwrap_or(up.rec),
+        source,
+        is_prior: false,
+    }];
+    let mut expanded = report.degenerate.is_some() && !from_known;
+    if expanded {
+        candidates.extend(fallback_candidates(ctx, model, &report, estimate_aspect));
+    }
+    let projective_rms = model.ba.last().map(|r| r.final_rms_px);
+    let mut tried = Vec::new();
+    loop {
+        // One candidate: adjust it. Several: all get the full adjustment, and the sound one that
+        // it explains best is kept.
+        let found = guard::choose(
+            candidates.len() > 1,
+            candidates.iter().map(|c| (c, c.source, &c.rec)),
+            projective_rms,
+            |rec| metric_ba::refine_metric(ctx, rec, estimate_aspect),
+            &mut tried,
+        );
+        if let Some((c, rec, adjustments)) = found {
+            let (mut rec, mut adjustments, mut is_prior) = (rec, adjustments, c.is_prior);
+            let mut ambiguity = guard::focal_ambiguity(&tried);
+            if ambiguity.is_none() && !expanded && ctx.opts.known_intrinsics.is_none() {
+                if let Some(why) = guard::translation_only(&rec) {
+                    // Nearly pure translation is nearly critical: the other frames are adjusted
+                    // too, as probes. They decide whether the focal length is determined, and a
+                    // sound probe that explains the images better than the kept frame replaces
+                    // it: every frame has had the full adjustment, which decides (the rule of
+                    // `guard::best_sound`).
+                    tracing::info!("{why}; probing the focal length with the other frames");
+                    for p in &fallback_candidates(ctx, model, &report, estimate_aspect) {
+                        if let Some((p, r, a)) = guard::challenge(
+                            (p, p.source, &p.rec),
+                            projective_rms,
+                            |r| metric_ba::refine_metric(ctx, r, estimate_aspect),
+                            &mut tried,
+                            true,
+                            &format!("a probe of the focal length only ({why})"),
+                            "a probe of the focal length explained the images better",
+                        ) {
+                            (rec, adjustments, is_prior) = (r, a, p.is_prior);
+                        }
+                    }
+                    ambiguity = guard::focal_ambiguity(&tried);
+                }
+            }
+            let mut flat = None;
+            if ctx.opts.known_intrinsics.is_none() {
+                // The fit along the focal length. Where holding it 20 % away fits clearly better,
+                // the adjustment stopped on a slope, not at a minimum (a near-critical motion's
+                // long valley): that held model, with its focal length freed again, is one more
+                // candidate, kept when its full adjustment scores better. Then the profile of
+                // what is kept decides whether the focal length is determined.
+                for descents in 0..=MAX_PROFILE_DESCENTS {
+                    let t_profile = Instant::now();
+                    let ratios = match metric_ba::focal_profile(ctx, &rec, estimate_aspect) {
+                        Ok(p) => p,
+                        Err(e) => {
+                            tracing::debug!("{e}");
+                            break;
+                        }
+                    };
+                    tracing::debug!(
+                        ?ratios,
+                        seconds = t_profile.elapsed().as_secs_f64(),
+                        "focal profile"
+                    );
+                    report.focal_profile = Some(ratios);
+                    flat = guard::flat_profile(&rec, ratios);
+                    let k = usize::from(ratios[1] < ratios[0]);
+                    if descents == MAX_PROFILE_DESCENTS
+                        || ratios[k] >= 1.0 - guard::MIN_PROFILE_INCREASE
+                    {
+                        break;
+                    }
+                    let scale = if k == 0 {
+                        1.0 - metric_ba::PROFILE_STEP
+                    } else {
+                        1.0 + metric_ba::PROFILE_STEP
+                    };
+                    let start =
+                        match metric_ba::held_adjustment(ctx, &rec, estimate_aspect, Some(scale)) {
+                            Ok((_, r)) => r,
+                            Err(e) => {
+                                tracing::debug!("{e}");
+                                break;
+                            }
+                        };
+                    match guard::challenge(
+                        (&(), "focal profile", &start),
+                        projective_rms,
+                        |r| metric_ba::refine_metric(ctx, r, estimate_aspect),
+                        &mut tried,
+                        false,
+                        "scored below the kept frame",
+                        "the frame found along the focal profile explained the images better",
+                    ) {
+                        Some((_, r, a)) => (rec, adjustments, is_prior) = (r, a, true),
+                        None => break,
+                    }
+                }
+            }
+            // Judged again against what is kept now: other frames first, then the profile.
+            if ambiguity.is_some() || flat.is_some() {
+                ambiguity = guard::focal_ambiguity(&tried).or(flat);
+            }
+            report.focal_ambiguity = ambiguity;
+            if let Some(w) = &report.focal_ambiguity {
+                tracing::warn!("{w}");
+            }
+            report.candidates = tried;
+            return Ok((rec, is_prior, report, adjustments));
+        }
+        if expanded || from_known {
+            break;
+        }
+        // The self-calibrated frame was rejected: the priors and the focal hypotheses now.
+        expanded = true;
+        candidates = fallback_candidates(ctx, model, &report, estimate_aspect);
+        if candidates.is_empty() {
+            break;
+        }
+    }
+    let advice = if ctx.opts.known_intrinsics.is_some() {
+        "check the calibration given with --intrinsics (FX,FY,CX,CY in pixels, COLMAP's convention)"
+    } else {
+        "the focal length cannot be found from these images: give the calibration with --intrinsics FX,FY,CX,CY"
+    };
+    Err(StepError::MetricAdjustment(format!(
+        "no metric frame survived its bundle adjustment ({}); {advice}",
+        guard::describe_rejections(&tried)
+    )))
+}
