@@ -54,6 +54,8 @@ pub enum Command {
     Mesh(MeshStageArgs),
     /// Dense matching of one already-rectified pair (§4.2): the left view's disparity as PFM.
     Stereo(crate::bench::StereoArgs),
+    /// New views rendered from the images and depth maps (§5.2): one view to PNG, a path to mp4.
+    Render(crate::render::RenderArgs),
     /// Benchmarks; each prints one JSON object (use with --json).
     Bench(BenchArgs),
 }
@@ -76,6 +78,8 @@ pub enum BenchCommand {
     Stereo(crate::bench::BenchStereoArgs),
     /// Dense targets: multi-view linking curve, polar rectification, pair speed.
     Dense(crate::bench::BenchDenseArgs),
+    /// Novel views: every N-th image held out, each method scored by PSNR/SSIM; speed.
+    Render(crate::bench::BenchRenderArgs),
 }
 
 /// The demo's defaults, from the library.

@@ -326,3 +326,45 @@ pub fn bench_stereo(a: &BenchStereoArgs, g: &GlobalArgs) -> Result<()> {
         lines.join("\n")
     })
 }
+
+#[derive(Debug, Args)]
+pub struct BenchRenderArgs {
+    /// A workspace reconstructed through the sparse stage (the benchmark reruns dense and mesh
+    /// without the held-out images, in WORKSPACE/bench/render-every-N/).
+    pub workspace: PathBuf,
+    /// Hold out every N-th registered image (by name, starting with the first).
+    #[arg(long, default_value_t = bench::RenderBenchOptions::default().every)]
+    pub every: usize,
+    /// Frames of the speed run along the fly-through.
+    #[arg(long, default_value_t = bench::RenderBenchOptions::default().speed_frames)]
+    pub speed_frames: usize,
+    /// Redo the benchmark's dense and mesh stages.
+    #[arg(long)]
+    pub force: bool,
+    /// The k best views of the unstructured-lumigraph weights.
+    #[arg(long, default_value_t = handheld_render::IbrOptions::default().ulr_k)]
+    pub ulr_k: usize,
+    /// Split a triangle when its plane is off the scene by more than this (source pixels).
+    #[arg(long, default_value_t = handheld_render::IbrOptions::default().subdivision_px)]
+    pub subdivision_px: f64,
+    /// Triangles are not split below this edge length (pixels).
+    #[arg(long, default_value_t = handheld_render::IbrOptions::default().min_triangle_px)]
+    pub min_triangle_px: f64,
+}
+
+pub fn render(a: &BenchRenderArgs, g: &GlobalArgs, bars: &crate::ui::Bars) -> Result<()> {
+    let o = bench::RenderBenchOptions {
+        workspace: a.workspace.clone(),
+        every: a.every,
+        speed_frames: a.speed_frames,
+        force: a.force,
+        ibr: handheld_render::IbrOptions {
+            ulr_k: a.ulr_k,
+            subdivision_px: a.subdivision_px,
+            min_triangle_px: a.min_triangle_px,
+            ..Default::default()
+        },
+        ..Default::default()
+    };
+    print(g, &bench::bench_render(&o, bars)?, pretty)
+}

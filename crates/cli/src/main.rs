@@ -4,6 +4,7 @@
 mod args;
 mod bench;
 mod demo;
+mod render;
 mod ui;
 
 use std::process::ExitCode;
@@ -66,8 +67,10 @@ fn run(cmd: &Command, g: &GlobalArgs) -> anyhow::Result<()> {
             BenchCommand::Sparse(a) => bench::sparse(a, g, &bars),
             BenchCommand::Stereo(a) => bench::bench_stereo(a, g),
             BenchCommand::Dense(a) => bench::dense(a, g),
+            BenchCommand::Render(a) => bench::render(a, g, &bars),
         },
         Command::Stereo(a) => bench::stereo(a, g),
+        Command::Render(a) => render::run(a, g, &bars),
         Command::Mesh(a) => {
             let summary = handheld_pipeline::stages::mesh::mesh_dense_folder(
                 &a.depth_maps,

@@ -18,6 +18,7 @@ pub mod manifest;
 pub mod options;
 pub mod policy;
 pub mod preview;
+pub mod render;
 pub mod stage;
 pub mod stages;
 

@@ -6,6 +6,7 @@ pub mod colmap;
 pub mod dense;
 pub mod matching;
 pub mod pycolmap;
+pub mod render;
 pub mod sparse;
 pub mod stereo;
 
@@ -16,6 +17,7 @@ pub use colmap::{run_colmap, ColmapReport};
 pub use dense::{bench_dense, DenseBenchOptions, DenseBenchReport};
 pub use matching::{bench_matching, MatchingBenchOptions, MatchingBenchReport};
 pub use pycolmap::{pycolmap_version, run_pycolmap_sparse, PycolmapSparseRun};
+pub use render::{bench_render, RenderBenchOptions, RenderBenchReport};
 pub use sparse::{
     bench_sparse, ColmapSparseRun, HandheldSparseRun, SparseBenchOptions, SparseBenchReport,
     SparseRatios, TARGET_TOTAL_RATIO,

@@ -226,8 +226,20 @@ impl IbrScene {
         } else {
             depth_samples(views)
         };
-        let plane = support::fit_plane(&samples).ok_or(IbrError::NoPlane)?;
         let bounds = robust_bounds(&samples);
+        // The least-squares plane of the points inside the percentile box (far outliers of a
+        // sparse model would tilt it).
+        let inner: Vec<Point3<f64>> = {
+            let (lo, hi) = (bounds.0, bounds.1);
+            let m = (hi - lo) / 6.0; // undo the widening by a quarter on each side
+            samples
+                .iter()
+                .filter(|p| (0..3).all(|k| p[k] >= lo[k] + m[k] && p[k] <= hi[k] - m[k]))
+                .copied()
+                .collect()
+        };
+        let plane = support::fit_plane(if inner.len() >= 3 { &inner } else { &samples })
+            .ok_or(IbrError::NoPlane)?;
         Ok(Self {
             sources,
             plane,
@@ -632,6 +644,29 @@ fn ulr_blend(virt: &Virtual, x: &Vector3<f64>, sources: &[Source], opts: &IbrOpt
     b
 }
 
+/// A weighted colour sum.
+#[derive(Clone, Copy, Default)]
+struct Sum {
+    colour: [f32; 3],
+    weight: f32,
+}
+
+impl Sum {
+    #[inline]
+    fn add(&mut self, c: [f32; 3], w: f32) {
+        for k in 0..3 {
+            self.colour[k] += w * c[k];
+        }
+        self.weight += w;
+    }
+}
+
+#[derive(Clone, Copy, Default)]
+struct Acc {
+    visible: Sum,
+    all: Sum,
+}
+
 /// Everything the per-pixel loop reads.
 struct Shade<'a> {
     scene: &'a IbrScene,
@@ -666,9 +701,11 @@ impl Shade<'_> {
         let lambda = leaf.plane.ray_parameter(&self.virt.center, &dir)?;
         let xw = self.virt.center + dir * lambda;
         let z = lambda; // ray direction has unit z in the virtual camera (K⁻¹ p̃).
-        let mut acc = [0.0f32; 3];
-        let mut total = 0.0f32;
-        let sample = |s: usize, wt: f32, acc: &mut [f32; 3], total: &mut f32| {
+        // Samples whose point is visible in their view, and all samples (used when every view
+        // hides the point: the geometry is then off, and a ghost beats a hole).
+        let mut acc = Acc::default();
+        let check = matches!(self.method, IbrMethod::Subdivided | IbrMethod::Ulr);
+        let sample = |s: usize, wt: f32, acc: &mut Acc| {
             if wt <= 1e-4 {
                 return;
             }
@@ -677,16 +714,16 @@ impl Shade<'_> {
             let Some(px) = src.pixel_of_cam(&yc) else {
                 return;
             };
-            if let Some(d) = src.depth_at(&px) {
-                if yc.z > d * (1.0 + self.opts.occlusion_tolerance) {
-                    return;
+            let c = src.colour(&px);
+            acc.all.add(c, wt);
+            if check {
+                if let Some(d) = src.depth_at(&px) {
+                    if yc.z > d * (1.0 + self.opts.occlusion_tolerance) {
+                        return;
+                    }
                 }
             }
-            let c = src.colour(&px);
-            for k in 0..3 {
-                acc[k] += wt * c[k];
-            }
-            *total += wt;
+            acc.visible.add(c, wt);
         };
         if self.method == IbrMethod::Ulr {
             let (grid, gw, g) = self.grid;
@@ -717,7 +754,7 @@ impl Shade<'_> {
                 }
             }
             for &(s, wt) in &srcs[..n] {
-                sample(s, wt, &mut acc, &mut total);
+                sample(s, wt, &mut acc);
             }
         } else {
             let root = &self.roots[leaf.root as usize];
@@ -725,21 +762,25 @@ impl Shade<'_> {
             for (j, &vi) in root.v.iter().enumerate() {
                 let wv = bary[j].clamp(0.0, 1.0) as f32;
                 for (s, wt) in self.vertices[vi].blend.iter() {
-                    sample(s, wv * wt, &mut acc, &mut total);
+                    sample(s, wv * wt, &mut acc);
                 }
             }
         }
-        if total <= 1e-3 {
+        if acc.visible.weight <= 1e-3 {
             // No triangle camera sees the point: the nearest view that does.
-            acc = [0.0; 3];
-            total = 0.0;
+            let all = acc.all;
+            acc = Acc::default();
             for &s in self.order.iter().take(8) {
-                sample(s, 1.0, &mut acc, &mut total);
-                if total > 0.0 {
+                sample(s, 1.0, &mut acc);
+                if acc.visible.weight > 0.0 {
                     break;
                 }
             }
+            if acc.visible.weight <= 0.0 {
+                acc.visible = if all.weight > 1e-3 { all } else { acc.all };
+            }
         }
-        (total > 0.0).then(|| (acc.map(|v| v / total), z))
+        let v = acc.visible;
+        (v.weight > 0.0).then(|| (v.colour.map(|c| c / v.weight), z))
     }
 }

@@ -358,7 +358,12 @@ pub fn search_depth_best(
     range: (f64, f64),
     opts: &IbrOptions,
 ) -> Option<(Vector3<f64>, usize)> {
-    let x0 = virt.hit(p, start)?.0;
+    // Rank the views at the plane's point, or at mid-range when the plane is missed.
+    let dir = virt.ray(p);
+    let x0 = match virt.hit(p, start) {
+        Some((x, l)) if l >= range.0 && l <= range.1 => x,
+        _ => virt.center + dir * (2.0 / (1.0 / range.0 + 1.0 / range.1)),
+    };
     let mut ranked: [(f64, usize); 3] = [(f64::NEG_INFINITY, usize::MAX); 3];
     let dv = (x0 - virt.center).normalize();
     for (i, s) in sources.iter().enumerate() {
