@@ -68,7 +68,7 @@ pub fn run(a: &RenderArgs, g: &GlobalArgs, bars: &ui::Bars) -> Result<()> {
         };
         o.validate()?;
         let scene = RenderScene::load(&ws, &[], 1600)?;
-        serde_json::to_value(render_flight(&scene, &o, &a.output, bars)?)?
+        serde_json::to_value(render_flight(&scene, &o, &a.output, bars)?.0)?
     } else {
         let spec = match (&a.view, &a.pose) {
             (Some(v), _) => ViewSpec::Image(v.clone()),

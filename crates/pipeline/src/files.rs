@@ -35,6 +35,7 @@ pub mod stage {
     pub const SPARSE: &str = "sparse";
     pub const DENSE: &str = "dense";
     pub const MESH: &str = "mesh";
+    pub const RENDER: &str = "render";
 }
 
 /// `ingest/images.json`: the ingested images in pipeline order.

@@ -21,6 +21,7 @@ pub struct PipelineOptions {
     pub sparse: SparseStageOptions,
     pub dense: DenseStageOptions,
     pub mesh: MeshStageOptions,
+    pub render: crate::stages::render::RenderStageOptions,
 }
 
 impl PipelineOptions {
@@ -31,6 +32,7 @@ impl PipelineOptions {
         self.matches.validate()?;
         self.sparse.validate()?;
         self.dense.validate()?;
-        self.mesh.validate()
+        self.mesh.validate()?;
+        self.render.validate()
     }
 }

@@ -28,16 +28,20 @@ pub enum RenderMethod {
     Planes,
     Subdivided,
     Ulr,
+    /// Unstructured-lumigraph weights with the reconstructed mesh as the geometric proxy where
+    /// it covers the view (the subdivided planes elsewhere).
+    UlrMesh,
     /// The mesh stage's textured model through the rasteriser.
     Mesh,
 }
 
 impl RenderMethod {
-    pub const ALL: [RenderMethod; 5] = [
+    pub const ALL: [RenderMethod; 6] = [
         Self::Plane,
         Self::Planes,
         Self::Subdivided,
         Self::Ulr,
+        Self::UlrMesh,
         Self::Mesh,
     ];
 
@@ -47,6 +51,7 @@ impl RenderMethod {
             Self::Planes => "planes",
             Self::Subdivided => "subdivided",
             Self::Ulr => "ulr",
+            Self::UlrMesh => "ulr_mesh",
             Self::Mesh => "mesh",
         }
     }
@@ -56,7 +61,7 @@ impl RenderMethod {
             Self::Plane => Some(IbrMethod::Plane),
             Self::Planes => Some(IbrMethod::Planes),
             Self::Subdivided => Some(IbrMethod::Subdivided),
-            Self::Ulr => Some(IbrMethod::Ulr),
+            Self::Ulr | Self::UlrMesh => Some(IbrMethod::Ulr),
             Self::Mesh => None,
         }
     }
@@ -68,14 +73,14 @@ impl RenderMethod {
             .ok_or_else(|| {
                 PipelineError::option(
                     "--method",
-                    format!("unknown method `{s}`; use plane, planes, subdivided, ulr or mesh"),
+                    format!("unknown method `{s}`; use plane, planes, subdivided, ulr, ulr_mesh or mesh"),
                 )
             })
     }
 }
 
 /// The default method (measured by `handheld bench render`; see the README).
-pub const DEFAULT_METHOD: RenderMethod = RenderMethod::Ulr;
+pub const DEFAULT_METHOD: RenderMethod = RenderMethod::UlrMesh;
 
 /// The recorded views of a workspace, ready for rendering.
 pub struct RenderScene {
@@ -161,10 +166,11 @@ impl RenderScene {
 
     /// Whether a method can use its geometry here (else it falls back to the fixed plane).
     pub fn effective(&self, method: RenderMethod) -> RenderMethod {
-        if method != RenderMethod::Mesh && !self.scene.has_depth {
-            RenderMethod::Plane
-        } else {
-            method
+        match method {
+            RenderMethod::Mesh => method,
+            _ if !self.scene.has_depth => RenderMethod::Plane,
+            RenderMethod::UlrMesh if self.mesh.is_none() => RenderMethod::Ulr,
+            _ => method,
         }
     }
 
@@ -178,10 +184,17 @@ impl RenderScene {
         opts: &IbrOptions,
         out: &mut Rendered,
     ) -> Result<()> {
-        match self.effective(method).ibr() {
+        let method = self.effective(method);
+        match method.ibr() {
             Some(m) => {
+                let proxy = match (&self.mesh, method) {
+                    (Some((mesh, _)), RenderMethod::UlrMesh) => {
+                        Some(handheld_render::render_mesh(mesh, None, camera, pose).depth)
+                    }
+                    _ => None,
+                };
                 renderer
-                    .render_into(&self.scene, camera, pose, m, opts, out)
+                    .render_with_proxy(&self.scene, camera, pose, m, opts, proxy.as_ref(), out)
                     .map_err(|e| PipelineError::option("--method", e.to_string()))?;
             }
             None => {
@@ -431,12 +444,14 @@ pub fn flight_poses(scene: &RenderScene, opts: &FlightOptions) -> (Camera, Vec<R
 
 /// Renders a camera path and encodes it as H.264 at `output` (written under a temporary name and
 /// renamed when complete).
+/// Returns the summary and the middle frame. When the `ffmpeg` program cannot be run, the video
+/// is skipped with a warning (the frames were rendered; `output` does not exist).
 pub fn render_flight(
     scene: &RenderScene,
     opts: &FlightOptions,
     output: &Path,
     progress: &dyn Progress,
-) -> Result<FlightSummary> {
+) -> Result<(FlightSummary, Option<RgbImage>)> {
     opts.validate()?;
     let (camera, poses) = flight_poses(scene, opts);
     let mut renderer = Renderer::new();
@@ -451,30 +466,45 @@ pub fn render_flight(
     progress.start("rendering the fly-through", poses.len() as u64);
     for pose in &poses {
         let t = std::time::Instant::now();
-        scene.render(&mut renderer, &camera, pose, opts.method, &opts.ibr, &mut out)?;
+        scene.render(
+            &mut renderer,
+            &camera,
+            pose,
+            opts.method,
+            &opts.ibr,
+            &mut out,
+        )?;
         times.push(t.elapsed().as_secs_f64());
         covered += out.covered.iter().filter(|c| **c).count() as f64 / out.covered.len() as f64;
         frames.push(out.image.clone());
         progress.inc(1);
     }
     progress.finish();
-    handheld_io::video::encode::encode_h264_frames(
+    let mut warnings = scene.warnings.clone();
+    let encoded = handheld_io::video::encode::encode_h264_frames(
         frames.iter(),
         output,
         &handheld_io::video::encode::EncodeOptions {
             fps: opts.fps,
             crf: 18,
         },
-    )?;
+    );
+    match encoded {
+        Ok(()) => {}
+        Err(e @ handheld_io::IoError::FfmpegMissing { .. }) => {
+            warnings.push(format!("the fly-through video was not written: {e}"));
+        }
+        Err(e) => return Err(e.into()),
+    }
     times.sort_by(f64::total_cmp);
-    let mut warnings = scene.warnings.clone();
     if scene.effective(opts.method) != opts.method {
         warnings.push(format!(
             "method {} fell back to the fixed plane (no depth maps)",
             opts.method.name()
         ));
     }
-    Ok(FlightSummary {
+    let middle = frames.get(frames.len() / 2).cloned();
+    let summary = FlightSummary {
         output: output.to_path_buf(),
         method: scene.effective(opts.method),
         path: opts.path,
@@ -485,7 +515,8 @@ pub fn render_flight(
         max_frame_seconds: times[times.len() - 1],
         mean_covered_fraction: covered / frames.len().max(1) as f64,
         warnings,
-    })
+    };
+    Ok((summary, middle))
 }
 
 /// Writes a rendering as PNG, atomically.
@@ -548,12 +579,16 @@ pub fn render_view(
                 Some(e) => (e.camera, e.cam_from_world),
                 None => {
                     let rec = ws.read_sparse_model()?;
-                    let v = rec.views.values().find(|v| &v.name == name).ok_or_else(|| {
-                        PipelineError::option(
-                            "--view",
-                            format!("{name}: not a registered image of the workspace"),
-                        )
-                    })?;
+                    let v = rec
+                        .views
+                        .values()
+                        .find(|v| &v.name == name)
+                        .ok_or_else(|| {
+                            PipelineError::option(
+                                "--view",
+                                format!("{name}: not a registered image of the workspace"),
+                            )
+                        })?;
                     let cam = rec.cameras.get(&v.camera_id).ok_or_else(|| {
                         PipelineError::workspace(&v.name, "camera missing from the sparse model")
                     })?;

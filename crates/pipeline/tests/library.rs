@@ -8,6 +8,7 @@ use std::path::Path;
 
 use handheld_core::{NoProgress, Rigid3};
 use handheld_pipeline::files::{stage, write_json};
+use handheld_pipeline::render::{render_view, RenderMethod, RenderScene, ViewSpec};
 use handheld_pipeline::{
     Pipeline, PipelineOptions, Produced, Stage, StageContext, StageStatus, Workspace,
 };
@@ -136,6 +137,20 @@ fn the_stage_graph_runs_through_the_library() {
         .collect();
     let err = relative_rotation_error_deg(&est, &seq);
     assert!(err < 0.5, "relative rotation error {err}°");
+    // Rendering before the dense stage falls back to the fixed plane, and says so.
+    let plane_only = RenderScene::load(&ws, &[], 1600).expect("scene without depth");
+    assert!(
+        plane_only
+            .warnings
+            .iter()
+            .any(|w| w.contains("fixed plane")),
+        "{:?}",
+        plane_only.warnings
+    );
+    assert_eq!(
+        plane_only.effective(RenderMethod::Subdivided),
+        RenderMethod::Plane
+    );
 
     // 2. A stage registered from outside, reading only sparse, runs on this workspace.
     let mut pipeline = Pipeline::standard(&input, &options).expect("graph");
@@ -171,12 +186,12 @@ fn the_stage_graph_runs_through_the_library() {
         .collect();
     for (name, status) in &ran {
         let expect = match *name {
-            "dense" | "mesh" => StageStatus::Ran,
+            "dense" | "mesh" | "render" => StageStatus::Ran,
             _ => StageStatus::UpToDate,
         };
         assert_eq!(*status, expect, "{name}");
     }
-    assert_eq!(ran.len(), 7);
+    assert_eq!(ran.len(), 8);
     let dense: handheld_pipeline::stages::dense::DenseStageSummary =
         ws.summary(stage::DENSE).expect("parses").expect("ran");
     assert_eq!(dense.views, seq.images.len());
@@ -190,6 +205,43 @@ fn the_stage_graph_runs_through_the_library() {
         hold.mean_absolute_difference
     );
     assert!(ws_path.join("mesh/model.glb").exists());
+    let flight: handheld_pipeline::render::FlightSummary =
+        ws.summary(stage::RENDER).expect("parses").expect("ran");
+    assert_eq!(flight.frames, 48);
+    assert!(flight.mean_covered_fraction > 0.9, "{flight:?}");
+    assert!(ws_path.join("render/flight.png").exists());
+
+    // 3b. One held-out view, image-based, against its photo; a pose file that is not one.
+    let png = dir.path().join("view.png");
+    let view = render_view(
+        &ws,
+        &ViewSpec::Image("frame_0003.png".into()),
+        RenderMethod::Ulr,
+        0,
+        &Default::default(),
+        &png,
+    )
+    .expect("one view");
+    assert!(view.covered_fraction > 0.9, "{view:?}");
+    let rendered = image::open(&png).expect("png").to_rgb8();
+    let mask = vec![true; (rendered.width() * rendered.height()) as usize];
+    let q = handheld_render::quality(&rendered, &seq.images[3], &mask);
+    assert!(q.psnr > 20.0, "PSNR {} against the photo", q.psnr);
+    let bad = dir.path().join("pose.json");
+    std::fs::write(&bad, "{\"rotation\": [1, 0, 0]}").expect("write");
+    let err = render_view(
+        &ws,
+        &ViewSpec::PoseFile(bad.clone()),
+        RenderMethod::Ulr,
+        0,
+        &Default::default(),
+        &png,
+    )
+    .expect_err("not a pose");
+    assert!(
+        err.to_string().contains("pose.json") && err.to_string().contains("rotation"),
+        "{err}"
+    );
 
     // 4. Changed options redo exactly the stages below the change.
     let mut finer = options.clone();
@@ -202,7 +254,7 @@ fn the_stage_graph_runs_through_the_library() {
         .filter(|r| r.status == StageStatus::Ran)
         .map(|r| r.stage.as_str())
         .collect();
-    assert_eq!(ran, ["mesh"]);
+    assert_eq!(ran, ["mesh", "render"]);
 }
 
 #[test]
@@ -221,7 +273,7 @@ fn out_of_range_options_are_named() {
     assert_eq!(err.invalid_option(), Some("--ratio"), "{err}");
     let err = Pipeline::standard(Path::new("nowhere"), &PipelineOptions::default())
         .expect("graph")
-        .plan("render")
+        .plan("paint")
         .expect_err("no such stage");
     assert!(err.to_string().contains("ingest, features"), "{err}");
 }

@@ -159,8 +159,11 @@ pub fn bench_render(o: &RenderBenchOptions, progress: &dyn Progress) -> Result<R
     let ws = Workspace::open(&o.workspace)?;
     let rec = ws.read_sparse_model()?;
     let paths = ws.image_paths()?;
-    let mut names: Vec<(String, ImageId)> =
-        rec.views.iter().map(|(id, v)| (v.name.clone(), *id)).collect();
+    let mut names: Vec<(String, ImageId)> = rec
+        .views
+        .iter()
+        .map(|(id, v)| (v.name.clone(), *id))
+        .collect();
     names.sort();
     if names.len() < o.every.max(3) {
         return Err(EvalError::option(
@@ -183,7 +186,10 @@ pub fn bench_render(o: &RenderBenchOptions, progress: &dyn Progress) -> Result<R
         .filter(|n| !held.contains(&n.0))
         .map(|n| n.1)
         .collect();
-    let dir = ws.root.join("bench").join(format!("render-every-{}", o.every));
+    let dir = ws
+        .root
+        .join("bench")
+        .join(format!("render-every-{}", o.every));
     let dense_dir = dir.join("dense");
     let mesh_dir = dir.join("mesh");
     let images_dir = dir.join("images");
@@ -270,7 +276,14 @@ pub fn bench_render(o: &RenderBenchOptions, progress: &dyn Progress) -> Result<R
             let mut out = empty();
             let t = Instant::now();
             scene
-                .render(&mut renderer, &camera, &view.cam_from_world, method, &o.ibr, &mut out)
+                .render(
+                    &mut renderer,
+                    &camera,
+                    &view.cam_from_world,
+                    method,
+                    &o.ibr,
+                    &mut out,
+                )
                 .ok()?;
             Some(FullSize {
                 width: camera.width,
@@ -312,13 +325,18 @@ fn held_out_photo(
     max_size: u32,
 ) -> Result<(Camera, RgbImage)> {
     let path = paths.get(name).ok_or_else(|| {
-        EvalError::option("--workspace", format!("{name}: not among the ingested images"))
+        EvalError::option(
+            "--workspace",
+            format!("{name}: not among the ingested images"),
+        )
     })?;
     let opts = handheld_io::images::ImageIngestOptions {
         min_dimension: 1,
         ..Default::default()
     };
-    let img = handheld_io::images::load_image(path, &opts)?.image.to_rgb8();
+    let img = handheld_io::images::load_image(path, &opts)?
+        .image
+        .to_rgb8();
     let longer = img.width().max(img.height());
     if max_size > 0 && longer > max_size {
         let s = f64::from(max_size) / f64::from(longer);
@@ -421,7 +439,8 @@ fn summarise(views: &[HeldOutView]) -> Vec<MethodSummary> {
                 return None;
             }
             let n = scores.len() as f64;
-            let mean = |f: &dyn Fn(&MethodScore) -> f64| scores.iter().map(|s| f(s)).sum::<f64>() / n;
+            let mean =
+                |f: &dyn Fn(&MethodScore) -> f64| scores.iter().map(|s| f(s)).sum::<f64>() / n;
             let vs: Vec<&VersusMesh> = scores.iter().filter_map(|s| s.vs_mesh.as_ref()).collect();
             let mesh_cov = views
                 .iter()

@@ -1,18 +1,20 @@
 //! The standard stages, one file each, and the standard graph:
 //!
 //! ```text
-//! ingest ─▶ features ─▶ matches ─▶ sparse ─▶ dense ─▶ mesh
-//!    └─────────┴───────────┴─────────┴─────────┴───────┘  (every stage also reads ingest's image list)
+//! ingest ─▶ features ─▶ matches ─▶ sparse ─▶ dense ─▶ mesh ─▶ render
+//!    └─────────┴───────────┴─────────┴─────────┴───────┴────────┘  (every stage also reads ingest's image list)
 //! ```
 //!
 //! `dense` reads `sparse` (and `features` for a video's key-frames); `mesh` reads `dense` only
-//! (plus the image list), so a stage that needs the sparse model never waits for a mesh.
+//! (plus the image list), so a stage that needs the sparse model never waits for a mesh;
+//! `render` reads sparse, dense and mesh.
 
 pub mod dense;
 pub mod features;
 pub mod ingest;
 pub mod matches;
 pub mod mesh;
+pub mod render;
 pub mod sparse;
 pub mod tracks;
 
@@ -46,6 +48,9 @@ impl Pipeline {
         })?
         .register(mesh::Mesh {
             options: o.mesh.clone(),
+        })?
+        .register(render::Render {
+            options: o.render.clone(),
         })?;
         Ok(p)
     }

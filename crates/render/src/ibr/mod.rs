@@ -371,6 +371,32 @@ impl Renderer {
         opts: &IbrOptions,
         out: &mut Rendered,
     ) -> Result<FrameStats, IbrError> {
+        self.render_with_proxy(scene, camera, cam_from_world, method, opts, None, out)
+    }
+
+    /// [`Self::render_into`] with a geometric proxy: the camera-frame depth of every output
+    /// pixel (e.g. the reconstructed mesh rendered from the virtual camera; `NaN` where it has
+    /// none). Where the proxy has a depth, it replaces the support mesh's planes (Buehler et al.
+    /// 2001 render with such a proxy); elsewhere the planes stay.
+    #[allow(clippy::too_many_arguments)]
+    pub fn render_with_proxy(
+        &mut self,
+        scene: &IbrScene,
+        camera: &Camera,
+        cam_from_world: &Rigid3,
+        method: IbrMethod,
+        opts: &IbrOptions,
+        proxy: Option<&FloatMap>,
+        out: &mut Rendered,
+    ) -> Result<FrameStats, IbrError> {
+        if let Some(p) = proxy {
+            if (p.width, p.height) != (camera.width as usize, camera.height as usize) {
+                return Err(IbrError::Camera(format!(
+                    "the proxy depth is {}x{} but the camera {}x{}",
+                    p.width, p.height, camera.width, camera.height
+                )));
+            }
+        }
         let start = std::time::Instant::now();
         camera.intrinsics.validate().map_err(IbrError::Camera)?;
         let (w, h) = (camera.width as usize, camera.height as usize);
@@ -492,6 +518,7 @@ impl Renderer {
             grid: (&self.grid, gw, g),
             order: &self.order,
             ideal: distorted.then_some(&self.ideal[..]),
+            proxy,
         };
         let Rendered {
             image,
@@ -683,6 +710,7 @@ struct Shade<'a> {
     grid: (&'a [Blend], usize, usize),
     order: &'a [usize],
     ideal: Option<&'a [Vector2<f32>]>,
+    proxy: Option<&'a FloatMap>,
 }
 
 impl Shade<'_> {
@@ -698,11 +726,18 @@ impl Shade<'_> {
         let li = self.ids[cy * self.dw + cx];
         let leaf = self.leaves.get(li as usize)?;
         let dir = self.virt.ray(&p);
-        let lambda = leaf.plane.ray_parameter(&self.virt.center, &dir)?;
+        let from_proxy = self
+            .proxy
+            .map(|d| f64::from(d.data[y * w + x]))
+            .filter(|z| z.is_finite() && *z > 0.0);
+        let lambda = match from_proxy {
+            Some(z) => z,
+            None => leaf.plane.ray_parameter(&self.virt.center, &dir)?,
+        };
         let xw = self.virt.center + dir * lambda;
         let z = lambda; // ray direction has unit z in the virtual camera (K⁻¹ p̃).
-        // Samples whose point is visible in their view, and all samples (used when every view
-        // hides the point: the geometry is then off, and a ghost beats a hole).
+                        // Samples whose point is visible in their view, and all samples (used when every view
+                        // hides the point: the geometry is then off, and a ghost beats a hole).
         let mut acc = Acc::default();
         let check = matches!(self.method, IbrMethod::Subdivided | IbrMethod::Ulr);
         let sample = |s: usize, wt: f32, acc: &mut Acc| {
