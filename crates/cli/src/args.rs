@@ -80,6 +80,8 @@ pub enum BenchCommand {
     Dense(crate::bench::BenchDenseArgs),
     /// Novel views: every N-th image held out, each method scored by PSNR/SSIM; speed.
     Render(crate::bench::BenchRenderArgs),
+    /// View-dependent highlights: a glossy sphere, held-out views, PSNR over the highlight.
+    Specular(crate::bench::BenchSpecularArgs),
 }
 
 /// The demo's defaults, from the library.

@@ -368,3 +368,30 @@ pub fn render(a: &BenchRenderArgs, g: &GlobalArgs, bars: &crate::ui::Bars) -> Re
     };
     print(g, &bench::bench_render(&o, bars)?, pretty)
 }
+
+#[derive(Debug, Args)]
+pub struct BenchSpecularArgs {
+    /// Image width (height 3/4 of it).
+    #[arg(long, default_value_t = bench::SpecularBenchOptions::default().width)]
+    pub width: u32,
+    /// Frames of the orbit.
+    #[arg(long, default_value_t = bench::SpecularBenchOptions::default().frames)]
+    pub frames: usize,
+    /// Seed of the scene.
+    #[arg(long, default_value_t = bench::SpecularBenchOptions::default().seed)]
+    pub seed: u64,
+    /// Write each held-out view (photo | subdivided | ulr | ulr_mesh | mesh) to this folder.
+    #[arg(long)]
+    pub images: Option<PathBuf>,
+}
+
+pub fn specular(a: &BenchSpecularArgs, g: &GlobalArgs) -> Result<()> {
+    let o = bench::SpecularBenchOptions {
+        width: a.width,
+        frames: a.frames,
+        seed: a.seed,
+        images: a.images.clone(),
+        ..Default::default()
+    };
+    print(g, &bench::bench_specular(&o)?, pretty)
+}

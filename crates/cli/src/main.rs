@@ -68,6 +68,7 @@ fn run(cmd: &Command, g: &GlobalArgs) -> anyhow::Result<()> {
             BenchCommand::Stereo(a) => bench::bench_stereo(a, g),
             BenchCommand::Dense(a) => bench::dense(a, g),
             BenchCommand::Render(a) => bench::render(a, g, &bars),
+            BenchCommand::Specular(a) => bench::specular(a, g),
         },
         Command::Stereo(a) => bench::stereo(a, g),
         Command::Render(a) => render::run(a, g, &bars),

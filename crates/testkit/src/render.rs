@@ -32,7 +32,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 
-use crate::scene::{Landmark, Scene};
+use crate::scene::{Hit, Landmark, Scene};
 pub use crate::sequence::SequenceOptions;
 use crate::texture::LANDMARK_DARK;
 use crate::util::{gaussian, hash_words};
@@ -79,6 +79,53 @@ pub fn pixel_ray(
     )
 }
 
+/// Blinn–Phong exponent of the glossy highlights.
+pub const SHININESS: f64 = 80.0;
+
+/// The specular term at a hit seen along `dir`: `gloss · max(0, n·h)^SHININESS`, `h` halfway
+/// between the light and the viewer (white, added to the diffuse shading). It moves over the
+/// surface as the viewpoint moves.
+pub fn highlight(scene: &Scene, hit: &Hit, dir: &Vector3<f64>, light: &Vector3<f64>) -> f64 {
+    let g = scene.gloss(hit);
+    if g <= 0.0 {
+        return 0.0;
+    }
+    let v = -dir.normalize();
+    let n = if hit.normal.dot(&v) < 0.0 {
+        -hit.normal
+    } else {
+        hit.normal
+    };
+    let h = (v + light).normalize();
+    g * n.dot(&h).max(0.0).powf(SHININESS)
+}
+
+/// The specular term through each pixel centre of a view (0 where there is none): the mask of
+/// the highlights.
+pub fn highlight_map(scene: &Scene, camera: &Camera, cam_from_world: &Rigid3) -> FloatMap {
+    let (w, h) = (camera.width as usize, camera.height as usize);
+    let light = light_dir();
+    let data = (0..w * h)
+        .into_par_iter()
+        .map(|i| {
+            let (o, dir) = pixel_ray(
+                camera,
+                cam_from_world,
+                Vector2::new((i % w) as f64, (i / w) as f64),
+            );
+            scene
+                .intersect(&o, &dir)
+                .map_or(0.0, |hit| highlight(scene, &hit, &dir, &light) as f32)
+        })
+        .collect();
+    FloatMap {
+        width: w,
+        height: h,
+        channels: 1,
+        data,
+    }
+}
+
 /// Linear radiance in `[0, 1]` of the first hit along a ray, or of the sky.
 fn radiance(
     scene: &Scene,
@@ -90,7 +137,8 @@ fn radiance(
         Some(hit) => {
             let a = scene.albedo(&hit);
             let s = AMBIENT + DIFFUSE * hit.normal.dot(light).abs();
-            ([a[0] * s, a[1] * s, a[2] * s], hit.t)
+            let h = highlight(scene, &hit, dir, light);
+            ([a[0] * s + h, a[1] * s + h, a[2] * s + h], hit.t)
         }
         None => {
             let g = 0.5 + 0.15 * dir.z / dir.norm();

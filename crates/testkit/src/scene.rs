@@ -108,6 +108,8 @@ pub struct Scene {
     prepared: Vec<Prepared>,
     textures: Vec<Vec<FaceTexture>>,
     landmarks: Vec<Landmark>,
+    /// Per primitive: the strength of its specular (Blinn–Phong) highlight, 0 for matte.
+    gloss: Vec<f64>,
 }
 
 /// Tangent axes of box face `face`: (normal axis, positive side, u axis, v axis), with `u × v` outward.
@@ -213,11 +215,13 @@ impl Scene {
                 }
             }
         }
+        let gloss = vec![0.0; primitives.len()];
         let mut scene = Self {
             primitives,
             prepared,
             textures,
             landmarks: Vec::new(),
+            gloss,
         };
         scene.landmarks = scene.place_landmarks();
         Ok(scene)
@@ -225,6 +229,31 @@ impl Scene {
 
     pub fn primitives(&self) -> &[Primitive] {
         &self.primitives
+    }
+
+    /// Makes primitive `k` glossy: a white Blinn–Phong highlight of `strength` (0 = matte) is
+    /// added to its shading, so its appearance depends on the viewpoint (non-Lambertian).
+    pub fn with_gloss(mut self, k: usize, strength: f64) -> Self {
+        if let Some(g) = self.gloss.get_mut(k) {
+            *g = strength.max(0.0);
+        }
+        self
+    }
+
+    /// The specular strength of the primitive a ray hit.
+    pub fn gloss(&self, hit: &Hit) -> f64 {
+        self.gloss.get(hit.primitive).copied().unwrap_or(0.0)
+    }
+
+    /// The default scene with its first sphere glossy (issue #19's view-dependent highlight).
+    pub fn glossy_scene(seed: u64) -> Self {
+        let scene = Self::default_scene(seed);
+        let k = scene
+            .primitives
+            .iter()
+            .position(|p| matches!(p, Primitive::Sphere { .. }))
+            .unwrap_or(0);
+        scene.with_gloss(k, 0.9)
     }
 
     /// The rectangle of face `face` of primitive `k` (`None` for spheres and invalid indices).

@@ -8,6 +8,7 @@ pub mod matching;
 pub mod pycolmap;
 pub mod render;
 pub mod sparse;
+pub mod specular;
 pub mod stereo;
 
 pub use bundle::{
@@ -22,6 +23,7 @@ pub use sparse::{
     bench_sparse, ColmapSparseRun, HandheldSparseRun, SparseBenchOptions, SparseBenchReport,
     SparseRatios, TARGET_TOTAL_RATIO,
 };
+pub use specular::{bench_specular, SpecularBenchOptions, SpecularReport};
 pub use stereo::{
     bench_stereo, stereo_pair, StereoBenchOptions, StereoBenchReport, StereoPairOptions,
     StereoPairReport,
