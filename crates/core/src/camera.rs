@@ -67,11 +67,13 @@ impl Intrinsics {
     }
 
     /// True when there is no radial distortion.
+    #[inline]
     pub fn is_undistorted(&self) -> bool {
         self.k1 == 0.0 && self.k2 == 0.0
     }
 
     /// Radial distortion of eq. 3 on normalised coordinates.
+    #[inline]
     pub fn distort(&self, xn: Vector2<f64>) -> Vector2<f64> {
         let r2 = xn.norm_squared();
         xn * (1.0 + self.k1 * r2 + self.k2 * r2 * r2)
@@ -106,6 +108,7 @@ impl Intrinsics {
     }
 
     /// Normalised (undistorted) image coordinates → pixel: distortion, then `K`.
+    #[inline]
     pub fn normalized_to_pixel(&self, xn: Vector2<f64>) -> Vector2<f64> {
         let d = self.distort(xn);
         Vector2::new(

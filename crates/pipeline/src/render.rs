@@ -183,7 +183,7 @@ impl RenderScene {
         method: RenderMethod,
         opts: &IbrOptions,
         out: &mut Rendered,
-    ) -> Result<()> {
+    ) -> Result<Option<handheld_render::FrameStats>> {
         let method = self.effective(method);
         match method.ibr() {
             Some(m) => {
@@ -193,9 +193,10 @@ impl RenderScene {
                     }
                     _ => None,
                 };
-                renderer
+                let stats = renderer
                     .render_with_proxy(&self.scene, camera, pose, m, opts, proxy.as_ref(), out)
                     .map_err(|e| PipelineError::option("--method", e.to_string()))?;
+                Ok(Some(stats))
             }
             None => {
                 let (mesh, tex) = self.mesh.as_ref().ok_or_else(|| {
@@ -205,9 +206,9 @@ impl RenderScene {
                     )
                 })?;
                 *out = handheld_render::render_mesh(mesh, tex.as_ref(), camera, pose);
+                Ok(None)
             }
         }
-        Ok(())
     }
 }
 

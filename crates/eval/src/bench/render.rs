@@ -108,6 +108,10 @@ pub struct SpeedReport {
     pub frames: usize,
     pub median_seconds: f64,
     pub fps: f64,
+    /// Median seconds of the support mesh (triangulation, depth search, subdivision) per frame,
+    /// and median leaves (drawn triangles).
+    pub median_support_seconds: f64,
+    pub median_leaves: usize,
     /// One held-out view at the dense stage's resolution.
     pub full_size: Option<FullSize>,
     pub threads: usize,
@@ -480,11 +484,19 @@ fn speed_run(
     let (camera, poses) = flight_poses(scene, &fo);
     let mut out = empty();
     let mut times = Vec::with_capacity(poses.len());
+    let mut support = Vec::with_capacity(poses.len());
+    let mut leaves = Vec::with_capacity(poses.len());
     for pose in &poses {
         let t = Instant::now();
-        scene.render(renderer, &camera, pose, method, &o.ibr, &mut out)?;
+        let stats = scene.render(renderer, &camera, pose, method, &o.ibr, &mut out)?;
         times.push(t.elapsed().as_secs_f64());
+        if let Some(s) = stats {
+            support.push(s.seconds_support);
+            leaves.push(s.leaves);
+        }
     }
+    support.sort_by(f64::total_cmp);
+    leaves.sort_unstable();
     times.sort_by(f64::total_cmp);
     let median = times.get(times.len() / 2).copied().unwrap_or(f64::NAN);
     let _ = NoProgress;
@@ -495,6 +507,8 @@ fn speed_run(
         frames: times.len(),
         median_seconds: median,
         fps: 1.0 / median,
+        median_support_seconds: support.get(support.len() / 2).copied().unwrap_or(f64::NAN),
+        median_leaves: leaves.get(leaves.len() / 2).copied().unwrap_or(0),
         full_size,
         threads: rayon::current_num_threads(),
     })

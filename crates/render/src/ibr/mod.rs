@@ -337,6 +337,8 @@ pub struct FrameStats {
     pub leaves: usize,
     pub covered_fraction: f64,
     pub seconds: f64,
+    /// Of which the support mesh (triangulation, depth searches, subdivision).
+    pub seconds_support: f64,
 }
 
 /// Renders virtual views of one scene; keeps its buffers from frame to frame.
@@ -451,6 +453,7 @@ impl Renderer {
             )
         };
         let (lo, hi) = (lo.map(|v| v.floor() - 1.0), hi.map(|v| v.ceil() + 1.0));
+        let t_support = std::time::Instant::now();
         let support = support::build(
             &virt,
             (lo, hi),
@@ -463,6 +466,7 @@ impl Renderer {
             &mut self.roots,
             &mut self.leaves,
         );
+        let seconds_support = t_support.elapsed().as_secs_f64();
         // Leaf index per ideal pixel.
         let (dw, dh) = ((hi.x - lo.x) as usize + 1, (hi.y - lo.y) as usize + 1);
         self.ids.clear();
@@ -555,6 +559,7 @@ impl Renderer {
             leaves: support.leaves,
             covered_fraction: covered_n as f64 / (w * h) as f64,
             seconds: start.elapsed().as_secs_f64(),
+            seconds_support,
         })
     }
 
@@ -794,11 +799,23 @@ impl Shade<'_> {
         } else {
             let root = &self.roots[leaf.root as usize];
             let bary = root.bary * Vector3::new(p.x, p.y, 1.0);
+            // Corners that share a view are sampled once, with their weights summed.
+            let mut srcs = [(usize::MAX, 0.0f32); 3 * support::MAX_BLEND];
+            let mut n = 0;
             for (j, &vi) in root.v.iter().enumerate() {
                 let wv = bary[j].clamp(0.0, 1.0) as f32;
                 for (s, wt) in self.vertices[vi].blend.iter() {
-                    sample(s, wv * wt, &mut acc);
+                    match srcs[..n].iter_mut().find(|e| e.0 == s) {
+                        Some(e) => e.1 += wv * wt,
+                        None => {
+                            srcs[n] = (s, wv * wt);
+                            n += 1;
+                        }
+                    }
                 }
+            }
+            for &(s, wt) in &srcs[..n] {
+                sample(s, wt, &mut acc);
             }
         }
         if acc.visible.weight <= 1e-3 {
