@@ -56,6 +56,8 @@ pub enum Command {
     Stereo(crate::bench::StereoArgs),
     /// New views rendered from the images and depth maps (§5.2): one view to PNG, a path to mp4.
     Render(crate::render::RenderArgs),
+    /// A virtual object composited into a video (§5.3), and the camera track (glTF, .chan).
+    Augment(crate::augment::AugmentArgs),
     /// Benchmarks; each prints one JSON object (use with --json).
     Bench(BenchArgs),
 }
@@ -119,6 +121,10 @@ pub struct DemoArgs {
     /// tracks, GRIC key-frames, a pose for every frame.
     #[arg(long)]
     pub video: bool,
+    /// Place the shipped box on the ground, composite it into every frame (§5.3) and score its
+    /// projection against the exact cameras (use with --video).
+    #[arg(long)]
+    pub augment: bool,
 }
 
 /// The library's defaults: every default below is read from here, never written twice.

@@ -18,6 +18,7 @@ pub fn run(a: &DemoArgs, g: &GlobalArgs, bars: &Bars) -> Result<()> {
         force: a.force,
         aspect_ratio: a.aspect_ratio,
         video: a.video,
+        augment: a.augment,
     };
     let r = handheld_eval::run_demo(&o, bars)?;
     let value = serde_json::to_value(&r)?;
@@ -27,7 +28,7 @@ pub fn run(a: &DemoArgs, g: &GlobalArgs, bars: &Bars) -> Result<()> {
         .iter()
         .map(|s| format!("{} ({}, {:.2} s)", s.stage, s.status, s.seconds))
         .collect();
-    let human = format!(
+    let mut human = format!(
         "demo: {} frames {}×{} in {}\n  rendering + ground truth: {:.2} s\n  stages: {}\n  matching accuracy: {}\n  camera accuracy (uncalibrated): {}\n  depth accuracy: {}\n  mesh accuracy: {}",
         r.frames,
         r.width,
@@ -40,6 +41,12 @@ pub fn run(a: &DemoArgs, g: &GlobalArgs, bars: &Bars) -> Result<()> {
         acc["dense"],
         acc["mesh"],
     );
+    if a.augment {
+        human.push_str(&format!(
+            "\n  augmented video (object vs exact cameras): {}",
+            acc["augment"]
+        ));
+    }
     print_result(g, &value, &human);
     Ok(())
 }

@@ -2,6 +2,7 @@
 //! writes results; all the work lives in the stage crates.
 
 mod args;
+mod augment;
 mod bench;
 mod demo;
 mod render;
@@ -72,6 +73,7 @@ fn run(cmd: &Command, g: &GlobalArgs) -> anyhow::Result<()> {
         },
         Command::Stereo(a) => bench::stereo(a, g),
         Command::Render(a) => render::run(a, g, &bars),
+        Command::Augment(a) => augment::run(a, g, &bars),
         Command::Mesh(a) => {
             let summary = handheld_pipeline::stages::mesh::mesh_dense_folder(
                 &a.depth_maps,
@@ -123,7 +125,7 @@ fn run_until(
     Ok(())
 }
 
-fn report_stages(g: &GlobalArgs, workspace: &std::path::Path, reports: &[StageReport]) {
+pub(crate) fn report_stages(g: &GlobalArgs, workspace: &std::path::Path, reports: &[StageReport]) {
     let value = serde_json::json!({ "workspace": workspace, "stages": reports });
     let mut human = format!("workspace: {}", workspace.display());
     for r in reports {

@@ -20,6 +20,7 @@ pub mod ingest;
 pub mod obj;
 pub mod pfm;
 pub mod ply;
+pub mod track;
 pub mod video;
 
 pub use error::{IoError, Result};

@@ -36,6 +36,7 @@ pub mod stage {
     pub const DENSE: &str = "dense";
     pub const MESH: &str = "mesh";
     pub const RENDER: &str = "render";
+    pub const AUGMENT: &str = "augment";
 }
 
 /// `ingest/images.json`: the ingested images in pipeline order.

@@ -12,6 +12,7 @@
 //! # Ok(()) }
 //! ```
 
+pub mod augment;
 pub mod error;
 pub mod files;
 pub mod manifest;

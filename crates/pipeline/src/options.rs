@@ -22,6 +22,9 @@ pub struct PipelineOptions {
     pub dense: DenseStageOptions,
     pub mesh: MeshStageOptions,
     pub render: crate::stages::render::RenderStageOptions,
+    /// The augment stage runs (and is in the graph) only when an object is given.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub augment: Option<crate::augment::AugmentOptions>,
 }
 
 impl PipelineOptions {
@@ -33,6 +36,10 @@ impl PipelineOptions {
         self.sparse.validate()?;
         self.dense.validate()?;
         self.mesh.validate()?;
-        self.render.validate()
+        self.render.validate()?;
+        if let Some(a) = &self.augment {
+            a.validate()?;
+        }
+        Ok(())
     }
 }

@@ -8,6 +8,7 @@
 //! - [`metrics`]: PSNR and SSIM against a photo over a mask (the novel-view protocol);
 //! - [`path`]: camera paths for fly-throughs.
 
+pub mod augment;
 pub mod ibr;
 pub mod metrics;
 pub mod path;

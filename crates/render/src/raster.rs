@@ -16,19 +16,46 @@ pub struct Rendered {
     pub depth: FloatMap,
 }
 
-/// Renders `mesh` seen by `camera` at `cam_from_world`. With `texture`, colours come from it at
-/// the vertices' UVs (v = 0 at the top row); otherwise from the vertex colours (grey without).
-pub fn render_mesh(
+/// A fragment of [`rasterise`]: the sample it covers, its camera depth, the face and the
+/// perspective-correct barycentric weights of the face's vertices.
+#[derive(Clone, Copy, Debug)]
+pub struct Fragment {
+    /// Sample column and row on the supersampled grid (`sub` samples per pixel and axis).
+    pub sx: usize,
+    pub sy: usize,
+    pub z: f64,
+    pub face: usize,
+    pub weights: [f64; 3],
+}
+
+/// Rasterises `mesh` through `camera` at `cam_from_world` on a grid of `sub × sub` samples per
+/// pixel (sample `(sx, sy)` sits at pixel position `((sx + ½)/sub − ½, (sy + ½)/sub − ½)`; with
+/// `sub = 1`, the pixel centres), inside the sample window `window` (x0, y0, x1, y1, exclusive
+/// ends; clipped to the image). Vertices are projected exactly, distortion included; a triangle's
+/// interior is linear between its projected vertices. `zbuf` (the window's size, reset to +∞ here)
+/// keeps the nearest fragment: `frag` is called for each fragment nearer than what the sample
+/// held, so the last call for a sample is its visible surface.
+pub fn rasterise(
     mesh: &TriMesh,
-    texture: Option<&RgbImage>,
     camera: &Camera,
     cam_from_world: &Rigid3,
-) -> Rendered {
-    let (w, h) = (camera.width as usize, camera.height as usize);
-    let mut image = RgbImage::new(camera.width, camera.height);
-    let mut covered = vec![false; w * h];
-    let mut zbuf = FloatMap::filled(w, h, 1, f32::INFINITY);
-    // Project every vertex once: pixel position and camera depth.
+    sub: usize,
+    window: (usize, usize, usize, usize),
+    zbuf: &mut Vec<f32>,
+    mut frag: impl FnMut(&Fragment),
+) {
+    let sub = sub.max(1);
+    let (sw, sh) = (camera.width as usize * sub, camera.height as usize * sub);
+    let (wx0, wy0) = (window.0.min(sw), window.1.min(sh));
+    let (wx1, wy1) = (window.2.min(sw), window.3.min(sh));
+    if wx0 >= wx1 || wy0 >= wy1 {
+        return;
+    }
+    let ww = wx1 - wx0;
+    zbuf.clear();
+    zbuf.resize(ww * (wy1 - wy0), f32::INFINITY);
+    let s = sub as f64;
+    // Project every vertex once: sample-grid position and camera depth.
     let proj: Vec<Option<(Vector2<f64>, f64)>> = mesh
         .vertices
         .positions
@@ -43,13 +70,11 @@ pub fn render_mesh(
                 let m = camera
                     .intrinsics
                     .normalized_to_pixel(Vector2::new(q.x / q.z, q.y / q.z));
-                (m, q.z)
+                ((m.add_scalar(0.5)) * s - Vector2::repeat(0.5), q.z)
             })
         })
         .collect();
-    let use_uv = texture.is_some() && mesh.uvs.len() == mesh.vertices.len();
-    let colours = &mesh.vertices.colors;
-    for f in &mesh.faces {
+    for (fi, f) in mesh.faces.iter().enumerate() {
         let idx = f.map(|i| i as usize);
         let Some(v) = idx
             .iter()
@@ -63,10 +88,10 @@ pub fn render_mesh(
         if area.abs() < 1e-12 {
             continue;
         }
-        let x0 = a.x.min(b.x).min(c.x).ceil().max(0.0);
-        let x1 = a.x.max(b.x).max(c.x).floor().min(w as f64 - 1.0);
-        let y0 = a.y.min(b.y).min(c.y).ceil().max(0.0);
-        let y1 = a.y.max(b.y).max(c.y).floor().min(h as f64 - 1.0);
+        let x0 = a.x.min(b.x).min(c.x).ceil().max(wx0 as f64);
+        let x1 = a.x.max(b.x).max(c.x).floor().min(wx1 as f64 - 1.0);
+        let y0 = a.y.min(b.y).min(c.y).ceil().max(wy0 as f64);
+        let y1 = a.y.max(b.y).max(c.y).floor().min(wy1 as f64 - 1.0);
         if x0 > x1 || y0 > y1 {
             continue;
         }
@@ -82,49 +107,86 @@ pub fn render_mesh(
                 }
                 let iz = l0 * inv_z[0] + l1 * inv_z[1] + l2 * inv_z[2];
                 let z = 1.0 / iz;
-                let k = y * w + x;
-                if z as f32 >= zbuf.data[k] {
+                let k = (y - wy0) * ww + (x - wx0);
+                if z as f32 >= zbuf[k] {
                     continue;
                 }
-                zbuf.data[k] = z as f32;
-                covered[k] = true;
-                // Perspective-correct weights.
-                let wts = [l0 * inv_z[0] * z, l1 * inv_z[1] * z, l2 * inv_z[2] * z];
-                let rgb = if let (true, Some(tex)) = (use_uv, texture) {
-                    let mut u = 0.0;
-                    let mut vv = 0.0;
-                    for j in 0..3 {
-                        let t = mesh.uvs[idx[j]];
-                        u += wts[j] * f64::from(t[0]);
-                        vv += wts[j] * f64::from(t[1]);
-                    }
-                    sample(
-                        tex,
-                        u * tex.width() as f64 - 0.5,
-                        vv * tex.height() as f64 - 0.5,
-                    )
-                } else if colours.len() == mesh.vertices.len() {
-                    let mut acc = [0.0f64; 3];
-                    for j in 0..3 {
-                        for (ch, a) in acc.iter_mut().enumerate() {
-                            *a += wts[j] * f64::from(colours[idx[j]][ch]);
-                        }
-                    }
-                    acc.map(|v| v.round().clamp(0.0, 255.0) as u8)
-                } else {
-                    [180, 180, 180]
-                };
-                image.put_pixel(x as u32, y as u32, image::Rgb(rgb));
+                zbuf[k] = z as f32;
+                frag(&Fragment {
+                    sx: x,
+                    sy: y,
+                    z,
+                    face: fi,
+                    weights: [l0 * inv_z[0] * z, l1 * inv_z[1] * z, l2 * inv_z[2] * z],
+                });
             }
         }
     }
+}
+
+/// The colour of a fragment: the texture at its interpolated UV, else its vertex colours, else grey.
+pub fn fragment_colour(mesh: &TriMesh, texture: Option<&RgbImage>, f: &Fragment) -> [f64; 3] {
+    let idx = mesh.faces[f.face].map(|i| i as usize);
+    let wts = f.weights;
+    if let Some(tex) = texture.filter(|_| mesh.uvs.len() == mesh.vertices.len()) {
+        let (mut u, mut v) = (0.0, 0.0);
+        for j in 0..3 {
+            let t = mesh.uvs[idx[j]];
+            u += wts[j] * f64::from(t[0]);
+            v += wts[j] * f64::from(t[1]);
+        }
+        sample(
+            tex,
+            u * tex.width() as f64 - 0.5,
+            v * tex.height() as f64 - 0.5,
+        )
+        .map(f64::from)
+    } else if mesh.vertices.colors.len() == mesh.vertices.len() {
+        let mut acc = [0.0f64; 3];
+        for j in 0..3 {
+            for (ch, a) in acc.iter_mut().enumerate() {
+                *a += wts[j] * f64::from(mesh.vertices.colors[idx[j]][ch]);
+            }
+        }
+        acc
+    } else {
+        [180.0; 3]
+    }
+}
+
+/// Renders `mesh` seen by `camera` at `cam_from_world`. With `texture`, colours come from it at
+/// the vertices' UVs (v = 0 at the top row); otherwise from the vertex colours (grey without).
+pub fn render_mesh(
+    mesh: &TriMesh,
+    texture: Option<&RgbImage>,
+    camera: &Camera,
+    cam_from_world: &Rigid3,
+) -> Rendered {
+    let (w, h) = (camera.width as usize, camera.height as usize);
+    let mut image = RgbImage::new(camera.width, camera.height);
+    let mut covered = vec![false; w * h];
+    let mut zbuf = Vec::new();
+    rasterise(
+        mesh,
+        camera,
+        cam_from_world,
+        1,
+        (0, 0, w, h),
+        &mut zbuf,
+        |f| {
+            let rgb = fragment_colour(mesh, texture, f).map(|v| v.round().clamp(0.0, 255.0) as u8);
+            covered[f.sy * w + f.sx] = true;
+            image.put_pixel(f.sx as u32, f.sy as u32, image::Rgb(rgb));
+        },
+    );
     let depth = FloatMap {
+        width: w,
+        height: h,
+        channels: 1,
         data: zbuf
-            .data
             .iter()
             .map(|z| if z.is_finite() { *z } else { f32::NAN })
             .collect(),
-        ..zbuf
     };
     Rendered {
         image,

@@ -3,6 +3,7 @@
 //! video of the frames) and score each stage against the ground truth.
 
 pub mod accuracy;
+pub mod augment;
 pub mod dense;
 pub mod sequence;
 
@@ -59,6 +60,9 @@ pub struct DemoOptions {
     /// Encode the frames as an H.264 video (needs ffmpeg) and reconstruct that in video mode.
     /// Default false.
     pub video: bool,
+    /// Place the shipped box automatically, composite it into every frame, and score its
+    /// projection against the exact cameras (§5.3). Default false.
+    pub augment: bool,
 }
 
 impl Default for DemoOptions {
@@ -73,6 +77,7 @@ impl Default for DemoOptions {
             force: false,
             aspect_ratio: 1.0,
             video: false,
+            augment: false,
         }
     }
 }
@@ -142,6 +147,8 @@ pub struct DemoAccuracy {
     pub sparse: Scored<SparseAccuracy>,
     pub dense: Scored<DenseAccuracy>,
     pub mesh: Scored<MeshAccuracy>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub augment: Option<Scored<augment::AugmentAccuracy>>,
 }
 
 /// What one demo run did and how accurate each stage was.
@@ -220,6 +227,9 @@ pub fn run_demo(o: &DemoOptions, progress: &dyn Progress) -> Result<DemoReport> 
     };
     let mut options = PipelineOptions::default();
     options.sparse.sfm.seed = o.seed;
+    if o.augment {
+        options.augment = Some(handheld_pipeline::augment::AugmentOptions::default());
+    }
     let stages =
         handheld_pipeline::reconstruct(&input, &workspace, &options, None, o.force, progress)?;
     let (out, ws, video) = (&o.output, &workspace, o.video);
@@ -228,6 +238,9 @@ pub fn run_demo(o: &DemoOptions, progress: &dyn Progress) -> Result<DemoReport> 
         sparse: Scored::of(sparse_accuracy(out, ws, video)),
         dense: Scored::of(dense_accuracy(out, ws, video)),
         mesh: Scored::of(mesh_accuracy(out, ws, video)),
+        augment: o
+            .augment
+            .then(|| Scored::of(augment::augment_accuracy(out, ws, video))),
     };
     Ok(DemoReport {
         demo: o.output.clone(),

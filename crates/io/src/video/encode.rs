@@ -197,3 +197,136 @@ pub fn encode_h264_frames<'a>(
     }
     finish(child, stderr, &tmp, output)
 }
+
+/// An H.264 video written frame by frame (frames streamed to `ffmpeg` as raw RGB, none kept in
+/// memory), optionally with the audio of another file (the input video's, copied through
+/// `-map 1:a?`: a source without audio gives a silent video). The video is written next to its
+/// final name and renamed by [`VideoWriter::finish`]; dropped unfinished, it is removed.
+pub struct VideoWriter {
+    child: Option<std::process::Child>,
+    stdin: Option<std::process::ChildStdin>,
+    stderr: Option<std::thread::JoinHandle<Vec<u8>>>,
+    tmp: PathBuf,
+    output: PathBuf,
+    size: (u32, u32),
+    frames: usize,
+}
+
+impl VideoWriter {
+    /// Starts ffmpeg for `width × height` frames (even sizes) at `fps` frames per second.
+    pub fn create(
+        output: &Path,
+        width: u32,
+        height: u32,
+        fps: f64,
+        crf: u8,
+        audio_from: Option<&Path>,
+    ) -> Result<Self> {
+        let input = |reason: String| IoError::Input {
+            path: output.to_path_buf(),
+            reason,
+        };
+        if width == 0 || height == 0 || width % 2 != 0 || height % 2 != 0 {
+            return Err(input(format!(
+                "frames of {width}×{height} cannot be encoded: H.264 in yuv420p needs an even, non-zero width and height"
+            )));
+        }
+        if !(fps.is_finite() && fps > 0.0) {
+            return Err(IoError::InvalidOption {
+                option: "fps",
+                reason: format!("must be positive, got {fps}"),
+            });
+        }
+        let opts = EncodeOptions { fps: 1, crf };
+        opts.validate()?;
+        let program = ffmpeg_program();
+        let tmp = temporary_path(output);
+        let mut cmd = Command::new(&program);
+        cmd.args([
+            "-y",
+            "-loglevel",
+            "error",
+            "-f",
+            "rawvideo",
+            "-pix_fmt",
+            "rgb24",
+        ])
+        .args([
+            "-s",
+            &format!("{width}x{height}"),
+            "-framerate",
+            &format!("{fps}"),
+        ])
+        .args(["-i", "pipe:0"]);
+        if let Some(a) = audio_from {
+            cmd.arg("-i").arg(a).args([
+                "-map",
+                "0:v:0",
+                "-map",
+                "1:a?",
+                "-c:a",
+                "aac",
+                "-shortest",
+            ]);
+        }
+        cmd.stdin(Stdio::piped());
+        h264_args(&mut cmd, &opts, &tmp);
+        let (mut child, stderr) = spawn(cmd, &program)?;
+        let stdin = child.stdin.take();
+        Ok(Self {
+            child: Some(child),
+            stdin,
+            stderr: Some(stderr),
+            tmp,
+            output: output.to_path_buf(),
+            size: (width, height),
+            frames: 0,
+        })
+    }
+
+    /// Sends one frame (it must have the writer's size).
+    pub fn push(&mut self, frame: &RgbImage) -> Result<()> {
+        if frame.dimensions() != self.size {
+            return Err(IoError::Input {
+                path: self.output.clone(),
+                reason: format!(
+                    "frame {} is {}×{}, the video {}×{}",
+                    self.frames,
+                    frame.width(),
+                    frame.height(),
+                    self.size.0,
+                    self.size.1
+                ),
+            });
+        }
+        if let Some(stdin) = self.stdin.as_mut() {
+            if stdin.write_all(frame.as_raw()).is_err() {
+                // ffmpeg stopped; `finish` reports its own message.
+                self.stdin = None;
+            }
+        }
+        self.frames += 1;
+        Ok(())
+    }
+
+    /// Closes the stream, waits for ffmpeg and renames the video to its final name.
+    pub fn finish(mut self) -> Result<usize> {
+        self.stdin = None;
+        let (Some(child), Some(stderr)) = (self.child.take(), self.stderr.take()) else {
+            return Ok(self.frames);
+        };
+        finish(child, stderr, &self.tmp, &self.output)?;
+        Ok(self.frames)
+    }
+}
+
+impl Drop for VideoWriter {
+    fn drop(&mut self) {
+        self.stdin = None;
+        if let Some(mut child) = self.child.take() {
+            let _ = child.kill();
+            let _ = child.wait();
+            let _ = std::fs::remove_file(&self.tmp);
+        }
+    }
+}

@@ -9,6 +9,7 @@
 //! (plus the image list), so a stage that needs the sparse model never waits for a mesh;
 //! `render` reads sparse, dense and mesh.
 
+pub mod augment;
 pub mod dense;
 pub mod features;
 pub mod ingest;
@@ -52,6 +53,9 @@ impl Pipeline {
         .register(render::Render {
             options: o.render.clone(),
         })?;
+        if let Some(a) = &o.augment {
+            p.register(augment::Augment { options: a.clone() })?;
+        }
         Ok(p)
     }
 }

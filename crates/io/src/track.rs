@@ -1,0 +1,338 @@
+//! A camera track for the tools people use (§5.3's match-moving):
+//! - binary glTF 2.0 with one animated camera (translation and rotation channels, one key per
+//!   frame at `time = frame / fps`, linear interpolation) and the sparse points as a point cloud
+//!   (a `POINTS` primitive with `COLOR_0`), for Blender, three.js and most DCC tools;
+//! - a Nuke `.chan` file: one line per frame.
+//!
+//! Axis conventions. Handheld's cameras look down +Z with +Y down (`p_cam = R·p + t`). glTF and
+//! Nuke cameras look down −Z with +Y up, so a glTF/Nuke camera's orientation in the world is
+//! `R_world_from_cam · diag(1, −1, −1)`. The world frame is the sparse model's, unchanged. Both
+//! files store the camera's pose in the world (where it is and how it turns), not the
+//! world → camera transform.
+//!
+//! glTF animation outputs are 32-bit floats; to keep them precise far from the origin, the
+//! camera and the points hang under a root node whose translation (written in the JSON, full
+//! precision) is the cameras' mean centre.
+
+use std::path::Path;
+
+use handheld_core::Rigid3;
+use nalgebra::{Matrix3, Rotation3, UnitQuaternion, Vector3};
+use serde_json::json;
+
+use crate::atomic::write_bytes_atomic;
+use crate::error::{IoError, Result};
+
+const FLOAT: u32 = 5126;
+const UNSIGNED_BYTE: u32 = 5121;
+const ARRAY_BUFFER: u32 = 34962;
+
+/// One frame of a track.
+#[derive(Clone, Copy, Debug)]
+pub struct TrackFrame {
+    /// The frame's number in the video (Nuke's frame column).
+    pub frame: u64,
+    /// Seconds from the start (glTF's key time).
+    pub time_s: f64,
+    pub cam_from_world: Rigid3,
+}
+
+/// The flip between Handheld's camera axes and glTF's / Nuke's (+Y up, looking down −Z).
+fn flip() -> Matrix3<f64> {
+    Matrix3::from_diagonal(&Vector3::new(1.0, -1.0, -1.0))
+}
+
+/// A glTF/Nuke camera's orientation in the world and its centre.
+pub fn camera_in_world(cam_from_world: &Rigid3) -> (UnitQuaternion<f64>, Vector3<f64>) {
+    let r_wc = cam_from_world.rotation.inverse().to_rotation_matrix();
+    let r = Rotation3::from_matrix_unchecked(r_wc.matrix() * flip());
+    let centre = cam_from_world.inverse().translation.vector;
+    (UnitQuaternion::from_rotation_matrix(&r), centre)
+}
+
+/// The inverse of [`camera_in_world`]: Handheld's world → camera from a glTF/Nuke camera.
+pub fn cam_from_world_of(orientation: &UnitQuaternion<f64>, centre: &Vector3<f64>) -> Rigid3 {
+    let r_wc = orientation.to_rotation_matrix().matrix() * flip();
+    let r = Rotation3::from_matrix_unchecked(r_wc.transpose());
+    handheld_core::pose::cam_from_world_from_center(&r.inverse(), &(*centre).into())
+}
+
+struct Bin {
+    bytes: Vec<u8>,
+    views: Vec<serde_json::Value>,
+    accessors: Vec<serde_json::Value>,
+}
+
+impl Bin {
+    fn push(
+        &mut self,
+        data: &[u8],
+        component: u32,
+        kind: &str,
+        count: usize,
+        target: Option<u32>,
+        extra: serde_json::Value,
+    ) -> usize {
+        while self.bytes.len() % 4 != 0 {
+            self.bytes.push(0);
+        }
+        let offset = self.bytes.len();
+        self.bytes.extend_from_slice(data);
+        let mut view = json!({"buffer": 0, "byteOffset": offset, "byteLength": data.len()});
+        if let Some(t) = target {
+            view["target"] = json!(t);
+        }
+        self.views.push(view);
+        let mut acc = json!({
+            "bufferView": self.views.len() - 1,
+            "componentType": component,
+            "count": count,
+            "type": kind,
+        });
+        if let (Some(a), Some(b)) = (acc.as_object_mut(), extra.as_object()) {
+            for (k, v) in b {
+                a.insert(k.clone(), v.clone());
+            }
+        }
+        self.accessors.push(acc);
+        self.accessors.len() - 1
+    }
+}
+
+fn f32_bytes(v: impl IntoIterator<Item = f32>) -> Vec<u8> {
+    v.into_iter().flat_map(f32::to_le_bytes).collect()
+}
+
+/// Writes the track as a `.glb`: `yfov` (radians) and `aspect` (width / height) describe the
+/// camera; `points` (model frame, with colours) become a point cloud. Errors name `path`.
+pub fn write_track_glb(
+    path: &Path,
+    frames: &[TrackFrame],
+    yfov: f64,
+    aspect: f64,
+    points: &[([f64; 3], [u8; 3])],
+) -> Result<()> {
+    if frames.is_empty() {
+        return Err(IoError::format(
+            path,
+            "a camera track needs at least one frame",
+        ));
+    }
+    let poses: Vec<(UnitQuaternion<f64>, Vector3<f64>)> = frames
+        .iter()
+        .map(|f| camera_in_world(&f.cam_from_world))
+        .collect();
+    let origin = poses.iter().map(|p| p.1).sum::<Vector3<f64>>() / poses.len() as f64;
+    let mut bin = Bin {
+        bytes: Vec::new(),
+        views: Vec::new(),
+        accessors: Vec::new(),
+    };
+    let times: Vec<f32> = frames.iter().map(|f| f.time_s as f32).collect();
+    let (tmin, tmax) = times
+        .iter()
+        .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), t| {
+            (a.min(*t), b.max(*t))
+        });
+    let t_acc = bin.push(
+        &f32_bytes(times.iter().copied()),
+        FLOAT,
+        "SCALAR",
+        times.len(),
+        None,
+        json!({"min": [tmin], "max": [tmax]}),
+    );
+    let tr_acc = bin.push(
+        &f32_bytes(poses.iter().flat_map(|(_, c)| {
+            let d = c - origin;
+            [d.x as f32, d.y as f32, d.z as f32]
+        })),
+        FLOAT,
+        "VEC3",
+        poses.len(),
+        None,
+        json!({}),
+    );
+    let rot_acc = bin.push(
+        &f32_bytes(poses.iter().flat_map(|(q, _)| {
+            let q = q.into_inner();
+            [q.i as f32, q.j as f32, q.k as f32, q.w as f32]
+        })),
+        FLOAT,
+        "VEC4",
+        poses.len(),
+        None,
+        json!({}),
+    );
+    let (q0, c0) = poses[0];
+    let d0 = c0 - origin;
+    let mut nodes = vec![
+        json!({"name": "model", "translation": [origin.x, origin.y, origin.z], "children": [1]}),
+        json!({
+            "name": "camera",
+            "camera": 0,
+            "translation": [d0.x, d0.y, d0.z],
+            "rotation": [q0.i, q0.j, q0.k, q0.w],
+        }),
+    ];
+    let mut meshes = Vec::new();
+    if !points.is_empty() {
+        let rel: Vec<[f32; 3]> = points
+            .iter()
+            .map(|(p, _)| {
+                [
+                    (p[0] - origin.x) as f32,
+                    (p[1] - origin.y) as f32,
+                    (p[2] - origin.z) as f32,
+                ]
+            })
+            .collect();
+        let mut lo = [f32::INFINITY; 3];
+        let mut hi = [f32::NEG_INFINITY; 3];
+        for p in &rel {
+            for k in 0..3 {
+                lo[k] = lo[k].min(p[k]);
+                hi[k] = hi[k].max(p[k]);
+            }
+        }
+        let pos = bin.push(
+            &f32_bytes(rel.iter().flatten().copied()),
+            FLOAT,
+            "VEC3",
+            rel.len(),
+            Some(ARRAY_BUFFER),
+            json!({"min": lo, "max": hi}),
+        );
+        let col_bytes: Vec<u8> = points
+            .iter()
+            .flat_map(|(_, c)| [c[0], c[1], c[2], 255])
+            .collect();
+        let col = bin.push(
+            &col_bytes,
+            UNSIGNED_BYTE,
+            "VEC4",
+            points.len(),
+            Some(ARRAY_BUFFER),
+            json!({"normalized": true}),
+        );
+        meshes.push(json!({
+            "name": "sparse points",
+            "primitives": [{"attributes": {"POSITION": pos, "COLOR_0": col}, "mode": 0}],
+        }));
+        nodes.push(json!({"name": "points", "mesh": 0}));
+        nodes[0]["children"] = json!([1, 2]);
+    }
+    while bin.bytes.len() % 4 != 0 {
+        bin.bytes.push(0);
+    }
+    let mut doc = json!({
+        "asset": {"version": "2.0", "generator": "handheld (camera track)"},
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": nodes,
+        "cameras": [{
+            "type": "perspective",
+            "perspective": {"yfov": yfov, "aspectRatio": aspect, "znear": 0.01},
+        }],
+        "animations": [{
+            "name": "camera track",
+            "samplers": [
+                {"input": t_acc, "output": tr_acc, "interpolation": "LINEAR"},
+                {"input": t_acc, "output": rot_acc, "interpolation": "LINEAR"},
+            ],
+            "channels": [
+                {"sampler": 0, "target": {"node": 1, "path": "translation"}},
+                {"sampler": 1, "target": {"node": 1, "path": "rotation"}},
+            ],
+        }],
+        "buffers": [{"byteLength": bin.bytes.len()}],
+        "bufferViews": bin.views,
+        "accessors": bin.accessors,
+    });
+    if !meshes.is_empty() {
+        doc["meshes"] = json!(meshes);
+    }
+    let mut text = serde_json::to_vec(&doc).map_err(|e| IoError::format(path, e.to_string()))?;
+    while text.len() % 4 != 0 {
+        text.push(b' ');
+    }
+    let total = 12 + 8 + text.len() + 8 + bin.bytes.len();
+    let mut out = Vec::with_capacity(total);
+    out.extend_from_slice(b"glTF");
+    out.extend_from_slice(&2u32.to_le_bytes());
+    out.extend_from_slice(&(total as u32).to_le_bytes());
+    out.extend_from_slice(&(text.len() as u32).to_le_bytes());
+    out.extend_from_slice(b"JSON");
+    out.extend_from_slice(&text);
+    out.extend_from_slice(&(bin.bytes.len() as u32).to_le_bytes());
+    out.extend_from_slice(b"BIN\0");
+    out.extend_from_slice(&bin.bytes);
+    write_bytes_atomic(path, &out)
+}
+
+/// Nuke's camera rotation order ZXY: `R_world_from_cam = Ry(ry) · Rx(rx) · Rz(rz)`; returns
+/// (rx, ry, rz) in degrees.
+pub fn euler_zxy_deg(r: &Matrix3<f64>) -> [f64; 3] {
+    // R = Ry Rx Rz: r[1][2] = −sin(rx).
+    let rx = (-r[(1, 2)]).clamp(-1.0, 1.0).asin();
+    let (ry, rz) = if rx.cos().abs() > 1e-9 {
+        (r[(0, 2)].atan2(r[(2, 2)]), r[(1, 0)].atan2(r[(1, 1)]))
+    } else {
+        // Gimbal lock: fold everything into ry.
+        ((-r[(2, 0)]).atan2(r[(0, 0)]), 0.0)
+    };
+    [rx.to_degrees(), ry.to_degrees(), rz.to_degrees()]
+}
+
+/// The rotation of [`euler_zxy_deg`]'s angles.
+pub fn rotation_zxy_deg(a: [f64; 3]) -> Matrix3<f64> {
+    let [rx, ry, rz] = a.map(f64::to_radians);
+    let x = Rotation3::from_axis_angle(&Vector3::x_axis(), rx);
+    let y = Rotation3::from_axis_angle(&Vector3::y_axis(), ry);
+    let z = Rotation3::from_axis_angle(&Vector3::z_axis(), rz);
+    *(y * x * z).matrix()
+}
+
+/// Writes a Nuke `.chan` file: per frame `frame tx ty tz rx ry rz vfov` (the camera's centre,
+/// its ZXY Euler angles in degrees, the vertical field of view in degrees), one line per frame.
+pub fn write_chan(path: &Path, frames: &[TrackFrame], vfov_deg: f64) -> Result<()> {
+    let mut text = String::new();
+    for f in frames {
+        let (q, c) = camera_in_world(&f.cam_from_world);
+        let [rx, ry, rz] = euler_zxy_deg(q.to_rotation_matrix().matrix());
+        text.push_str(&format!(
+            "{} {:.9} {:.9} {:.9} {:.9} {:.9} {:.9} {:.6}\n",
+            f.frame, c.x, c.y, c.z, rx, ry, rz, vfov_deg
+        ));
+    }
+    write_bytes_atomic(path, text.as_bytes())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Point3, Translation3};
+
+    fn pose(a: f64) -> Rigid3 {
+        let r = UnitQuaternion::from_euler_angles(0.3 * a, -0.7 + a, 0.2);
+        Rigid3::from_parts(Translation3::new(1.0 + a, -2.0, 30.0 * a), r)
+    }
+
+    /// The glTF camera's axes and the Euler angles round-trip; a glTF camera looks down −Z.
+    #[test]
+    fn conventions_round_trip() {
+        for a in [0.0, 0.4, 1.3] {
+            let p = pose(a);
+            let (q, c) = camera_in_world(&p);
+            let back = cam_from_world_of(&q, &c);
+            assert!((back.to_homogeneous() - p.to_homogeneous()).norm() < 1e-12);
+            // −Z of the glTF camera is +Z of ours: a point ahead of us is ahead of it.
+            let ahead = p.inverse().transform_point(&Point3::new(0.0, 0.0, 5.0));
+            let in_gltf = q.inverse() * (ahead.coords - c);
+            assert!((in_gltf - Vector3::new(0.0, 0.0, -5.0)).norm() < 1e-9);
+            let m = q.to_rotation_matrix();
+            let e = euler_zxy_deg(m.matrix());
+            assert!((rotation_zxy_deg(e) - m.matrix()).norm() < 1e-9);
+        }
+    }
+}
