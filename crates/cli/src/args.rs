@@ -84,6 +84,8 @@ pub enum BenchCommand {
     Render(crate::bench::BenchRenderArgs),
     /// View-dependent highlights: a glossy sphere, held-out views, PSNR over the highlight.
     Specular(crate::bench::BenchSpecularArgs),
+    /// Augmented video: compositing + encoding speed at 1280×720 (SfM not counted).
+    Augment(crate::bench::BenchAugmentArgs),
 }
 
 /// The demo's defaults, from the library.

@@ -395,3 +395,22 @@ pub fn specular(a: &BenchSpecularArgs, g: &GlobalArgs) -> Result<()> {
     };
     print(g, &bench::bench_specular(&o)?, pretty)
 }
+
+#[derive(Debug, Args)]
+pub struct BenchAugmentArgs {
+    #[arg(long, default_value_t = bench::AugmentBenchOptions::default().width)]
+    pub width: u32,
+    #[arg(long, default_value_t = bench::AugmentBenchOptions::default().height)]
+    pub height: u32,
+    #[arg(long, default_value_t = bench::AugmentBenchOptions::default().frames)]
+    pub frames: usize,
+}
+
+pub fn augment(a: &BenchAugmentArgs, g: &GlobalArgs) -> Result<()> {
+    let o = bench::AugmentBenchOptions {
+        width: a.width,
+        height: a.height,
+        frames: a.frames,
+    };
+    print(g, &bench::bench_augment(&o)?, pretty)
+}

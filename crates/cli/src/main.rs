@@ -70,6 +70,7 @@ fn run(cmd: &Command, g: &GlobalArgs) -> anyhow::Result<()> {
             BenchCommand::Dense(a) => bench::dense(a, g),
             BenchCommand::Render(a) => bench::render(a, g, &bars),
             BenchCommand::Specular(a) => bench::specular(a, g),
+            BenchCommand::Augment(a) => bench::augment(a, g),
         },
         Command::Stereo(a) => bench::stereo(a, g),
         Command::Render(a) => render::run(a, g, &bars),

@@ -335,4 +335,88 @@ mod tests {
             assert!((rotation_zxy_deg(e) - m.matrix()).norm() < 1e-9);
         }
     }
+
+    /// The .glb loads with the `gltf` crate; its camera, sampled at each frame's time, gives our
+    /// camera back to 1e-6 (relative to the scene's size); the .chan has one line per frame and
+    /// gives the same cameras.
+    #[test]
+    fn exported_track_reproduces_the_cameras() {
+        let dir = tempfile::tempdir().unwrap();
+        let frames: Vec<TrackFrame> = (0..25)
+            .map(|k| TrackFrame {
+                frame: 100 + k,
+                time_s: k as f64 / 29.97,
+                cam_from_world: pose(k as f64 * 0.05),
+            })
+            .collect();
+        let points = vec![
+            ([1.0, 2.0, 3.0], [255, 0, 0]),
+            ([40.0, -2.0, 8.0], [0, 255, 0]),
+        ];
+        let glb = dir.path().join("track.glb");
+        write_track_glb(&glb, &frames, 0.8, 1.5, &points).unwrap();
+        let (doc, buffers, _) = gltf::import(&glb).expect("a valid glTF");
+        let root = doc.default_scene().unwrap().nodes().next().unwrap();
+        let cam = doc.nodes().find(|n| n.camera().is_some()).unwrap();
+        let offset = Vector3::from(root.transform().decomposed().0).cast::<f64>();
+        let anim = doc.animations().next().unwrap();
+        let mut times = Vec::new();
+        let mut trans = Vec::new();
+        let mut rots = Vec::new();
+        for ch in anim.channels() {
+            assert_eq!(ch.target().node().index(), cam.index());
+            let r = ch.reader(|b| Some(&buffers[b.index()]));
+            times = r.read_inputs().unwrap().collect();
+            match r.read_outputs().unwrap() {
+                gltf::animation::util::ReadOutputs::Translations(t) => trans = t.collect(),
+                gltf::animation::util::ReadOutputs::Rotations(q) => rots = q.into_f32().collect(),
+                _ => panic!("unexpected channel"),
+            }
+        }
+        assert_eq!(times.len(), frames.len());
+        let scale = 1.0
+            + frames
+                .iter()
+                .map(|f| f.cam_from_world.inverse().translation.vector.norm())
+                .fold(0.0, f64::max);
+        for (k, f) in frames.iter().enumerate() {
+            assert!((f64::from(times[k]) - f.time_s).abs() < 1e-6);
+            let t = Vector3::from(trans[k]).cast::<f64>() + offset;
+            let q = rots[k];
+            let q = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+                f64::from(q[3]),
+                f64::from(q[0]),
+                f64::from(q[1]),
+                f64::from(q[2]),
+            ));
+            let back = cam_from_world_of(&q, &t);
+            let (qa, ca) = camera_in_world(&f.cam_from_world);
+            assert!(
+                (t - ca).norm() < 1e-6 * scale,
+                "frame {k}: {}",
+                (t - ca).norm()
+            );
+            assert!(q.angle_to(&qa) < 1e-6, "frame {k}: {}", q.angle_to(&qa));
+            assert!(
+                (back.translation.vector - f.cam_from_world.translation.vector).norm()
+                    < 1e-6 * scale
+            );
+        }
+        let chan = dir.path().join("track.chan");
+        write_chan(&chan, &frames, 45.0).unwrap();
+        let text = std::fs::read_to_string(&chan).unwrap();
+        assert_eq!(text.lines().count(), frames.len());
+        for (line, f) in text.lines().zip(&frames) {
+            let v: Vec<f64> = line
+                .split_whitespace()
+                .map(|x| x.parse().unwrap())
+                .collect();
+            assert_eq!(v.len(), 8);
+            assert_eq!(v[0] as u64, f.frame);
+            let r = rotation_zxy_deg([v[4], v[5], v[6]]);
+            let (qa, ca) = camera_in_world(&f.cam_from_world);
+            assert!((Vector3::new(v[1], v[2], v[3]) - ca).norm() < 1e-6 * scale);
+            assert!((r - qa.to_rotation_matrix().matrix()).norm() < 1e-6);
+        }
+    }
 }

@@ -259,7 +259,7 @@ fn visible_somewhere(rec: &MetricReconstruction, placed: &TriMesh) -> bool {
 }
 
 /// The real scene's depth in a frame, inside the object's window (NaN elsewhere).
-fn scene_depth(
+pub fn scene_depth(
     mesh: &TriMesh,
     camera: &Camera,
     pose: &Rigid3,

@@ -243,6 +243,60 @@ fn the_stage_graph_runs_through_the_library() {
         "{err}"
     );
 
+    // 3c. Augmenting the image sequence (§5.3): the shipped box on the ground, one output frame
+    // per image; a placement behind every camera and a file that is not glTF are refused.
+    let aug_dir = dir.path().join("augment");
+    if have_ffmpeg() {
+        let aug = handheld_pipeline::augment::augment(
+            &ws,
+            &handheld_pipeline::augment::AugmentOptions::default(),
+            &aug_dir,
+            &NoProgress,
+        )
+        .expect("augmented");
+        assert_eq!(aug.frames, seq.images.len());
+        assert_eq!(aug.posed_frames, seq.images.len());
+        assert!(aug_dir.join("augmented.mp4").exists());
+        assert_eq!(
+            std::fs::read_to_string(aug_dir.join("camera.chan"))
+                .expect("chan")
+                .lines()
+                .count(),
+            seq.images.len()
+        );
+        let behind = dir.path().join("behind.json");
+        let rec = ws.read_sparse_model().expect("model");
+        let v0 = rec.views.values().next().expect("a view");
+        let c0 = v0.center();
+        let back = v0.cam_from_world.rotation.inverse() * nalgebra::Vector3::new(0.0, 0.0, -1000.0);
+        let far = c0.coords + back;
+        std::fs::write(
+            &behind,
+            format!(
+                "{{\"scale\": 0.001, \"rotation\": [1, 0, 0, 0], \"translation\": [{}, {}, {}]}}",
+                far.x, far.y, far.z
+            ),
+        )
+        .expect("write");
+        let err = handheld_pipeline::augment::augment(
+            &ws,
+            &handheld_pipeline::augment::AugmentOptions {
+                placement: handheld_pipeline::augment::PlacementMode::Transform(behind),
+                ..Default::default()
+            },
+            &aug_dir,
+            &NoProgress,
+        )
+        .expect_err("behind every camera");
+        assert!(err.to_string().contains("behind every camera"), "{err}");
+    }
+    let not_gltf = dir.path().join("object.glb");
+    std::fs::write(&not_gltf, "not a model").expect("write");
+    let err = handheld_pipeline::augment::ObjectSource::File(not_gltf)
+        .load()
+        .expect_err("not glTF");
+    assert!(err.to_string().contains("object.glb"), "{err}");
+
     // 4. Changed options redo exactly the stages below the change.
     let mut finer = options.clone();
     finer.mesh.view_meshes = false;
@@ -322,4 +376,11 @@ fn a_collapsed_metric_frame_fails_the_run_and_leaves_no_model() {
     let sparse = ws.join(stage::SPARSE);
     assert!(!sparse.join("manifest.json").exists());
     assert!(!sparse.join("cameras.bin").exists() && !sparse.join("summary.json").exists());
+}
+
+fn have_ffmpeg() -> bool {
+    std::process::Command::new(handheld_io::video::ffmpeg_program())
+        .arg("-version")
+        .output()
+        .is_ok_and(|o| o.status.success())
 }

@@ -1,6 +1,7 @@
 //! The benchmarks: each takes a typed options struct and returns a typed report, the reference
 //! programs (COLMAP, pycolmap, OpenCV) run in the same process tree so the timings compare.
 
+pub mod augment;
 pub mod bundle;
 pub mod colmap;
 pub mod dense;
@@ -11,6 +12,7 @@ pub mod sparse;
 pub mod specular;
 pub mod stereo;
 
+pub use augment::{bench_augment, AugmentBenchOptions, AugmentBenchReport};
 pub use bundle::{
     bench_bundle, BenchLoss, BenchSolver, BundleBenchOptions, BundleBenchReport, BundleProblem,
 };
