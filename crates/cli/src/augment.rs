@@ -57,7 +57,25 @@ pub fn run(a: &AugmentArgs, g: &GlobalArgs, bars: &ui::Bars) -> Result<()> {
     aug.place.height_fraction = a.object_height;
     // A bad object file is named before any work is done.
     aug.object.load()?;
+    let occlusion = aug.occlusion;
     options.augment = Some(aug);
+    if occlusion {
+        // The mesh hides the object where the real scene is nearer; without one (its stage
+        // failed, e.g. a scene too large for the volume), the object is drawn over everything.
+        if let Err(e) = handheld_pipeline::reconstruct(
+            &a.input.input,
+            &a.input.output,
+            &options,
+            Some(stage::MESH),
+            a.input.force,
+            bars,
+        ) {
+            if e.invalid_option().is_some() {
+                return Err(e.into());
+            }
+            tracing::warn!("no mesh for occlusion ({e:#}); the object is drawn over everything");
+        }
+    }
     let reports = handheld_pipeline::reconstruct(
         &a.input.input,
         &a.input.output,

@@ -246,3 +246,52 @@ fn video_of_a_still_camera() {
     assert!(!ws.join("sparse").join("manifest.json").exists());
     assert!(no_temp_files(&ws), "temporary files left behind");
 }
+
+/// `handheld augment`: an object that is not glTF is named before any work is done; a video of
+/// one frame is refused; a missing pose file for `render` is named.
+#[test]
+fn augment_and_render_bad_inputs() {
+    if !have_ffmpeg() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let one = dir.path().join("one.mp4");
+    let made = std::process::Command::new(handheld_io::video::ffmpeg_program())
+        .args([
+            "-loglevel",
+            "error",
+            "-y",
+            "-f",
+            "lavfi",
+            "-i",
+            "testsrc=size=320x240:rate=1",
+        ])
+        .args(["-frames:v", "1", "-c:v", "libx264", "-pix_fmt", "yuv420p"])
+        .arg(&one)
+        .status()
+        .unwrap();
+    assert!(made.success());
+    let bad = dir.path().join("teapot.glb");
+    std::fs::write(&bad, "not a model").unwrap();
+    let ws = dir.path().join("ws");
+    let args = |extra: &[&str]| {
+        let mut a = vec!["augment", one.to_str().unwrap(), "-o", ws.to_str().unwrap()];
+        a.extend_from_slice(extra);
+        handheld(&a)
+    };
+    let o = args(&["--object", bad.to_str().unwrap()]);
+    assert_clean_failure(&o, &["teapot.glb", "glTF"], &ws);
+    assert!(!ws.exists(), "nothing is written for a bad object");
+    let o = args(&[]);
+    assert_clean_failure(&o, &["one.mp4", "at least 2"], &ws);
+    let o = handheld(&[
+        "render",
+        ws.to_str().unwrap(),
+        "--pose",
+        dir.path().join("nowhere.json").to_str().unwrap(),
+        "-o",
+        dir.path().join("v.png").to_str().unwrap(),
+    ]);
+    let err = stderr(&o);
+    assert!(!o.status.success() && !err.contains("panicked"), "{err}");
+}

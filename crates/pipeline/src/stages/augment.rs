@@ -1,5 +1,8 @@
 //! The augment stage (§5.3): registered in the graph when an object is given
-//! (`PipelineOptions::augment`); see [`crate::augment`].
+//! (`PipelineOptions::augment`); see [`crate::augment`]. It reads the sparse model; the mesh,
+//! for occlusion, is used when the workspace has one (a large scene whose mesh stage fails can
+//! still be augmented, without occlusion), so `handheld augment` runs the mesh stage first and
+//! goes on without it when it fails.
 
 use std::path::Path;
 
@@ -20,7 +23,7 @@ impl Stage for Augment {
     type Summary = AugmentSummary;
 
     const NAME: &'static str = stage::AUGMENT;
-    const READS: &'static [&'static str] = &[stage::INGEST, stage::SPARSE, stage::MESH];
+    const READS: &'static [&'static str] = &[stage::INGEST, stage::SPARSE];
     const ABOUT: &'static str =
         "augmented video (§5.3): a virtual object composited into every frame; the camera track as glTF and .chan";
 
