@@ -275,3 +275,81 @@ fn encoding_checks_frames_and_options_first() {
     ));
     assert!(!out.exists());
 }
+
+/// `VideoWriter` streams frames into an H.264 video at a fractional rate and copies the audio of
+/// the source video; the frames come back in order; an unfinished writer leaves nothing behind.
+#[test]
+fn video_writer_keeps_the_source_audio() {
+    if !have_ffmpeg() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let source = dir.path().join("with_audio.mp4");
+    let ok = Command::new("ffmpeg")
+        .args([
+            "-v",
+            "error",
+            "-y",
+            "-f",
+            "lavfi",
+            "-i",
+            "testsrc=size=64x48:rate=10",
+        ])
+        .args(["-f", "lavfi", "-i", "sine=frequency=440:sample_rate=44100"])
+        .args([
+            "-t", "2", "-c:v", "libx264", "-pix_fmt", "yuv420p", "-c:a", "aac",
+        ])
+        .arg(&source)
+        .status()
+        .unwrap();
+    assert!(ok.success());
+    let out = dir.path().join("augmented.mp4");
+    let mut w = encode::VideoWriter::create(&out, 64, 48, 10.0, 18, Some(&source)).unwrap();
+    for k in 0..20u32 {
+        w.push(&RgbImage::from_pixel(
+            64,
+            48,
+            image::Rgb([(10 * k + 5) as u8; 3]),
+        ))
+        .unwrap();
+    }
+    assert_eq!(w.finish().unwrap(), 20);
+    let probe = Command::new("ffprobe")
+        .args([
+            "-v",
+            "error",
+            "-show_entries",
+            "stream=codec_type",
+            "-of",
+            "csv=p=0",
+        ])
+        .arg(&out)
+        .output()
+        .unwrap();
+    let kinds = String::from_utf8_lossy(&probe.stdout);
+    assert!(
+        kinds.contains("video") && kinds.contains("audio"),
+        "{kinds}"
+    );
+    let all: Vec<_> = VideoReader::open(&out, &VideoOptions::default())
+        .unwrap()
+        .collect::<Result<_>>()
+        .unwrap();
+    assert_eq!(all.len(), 20);
+    for (k, f) in all.iter().enumerate() {
+        assert!(
+            (level(&f.image) - (10 * k + 5) as f64).abs() < 4.0,
+            "frame {k}"
+        );
+    }
+    // Dropped before `finish`: no file under either name.
+    let gone = dir.path().join("gone.mp4");
+    let mut w = encode::VideoWriter::create(&gone, 64, 48, 29.97, 18, None).unwrap();
+    w.push(&RgbImage::new(64, 48)).unwrap();
+    drop(w);
+    assert!(std::fs::read_dir(dir.path()).unwrap().all(|e| !e
+        .unwrap()
+        .file_name()
+        .to_string_lossy()
+        .starts_with("gone")));
+}
