@@ -456,7 +456,6 @@ pub fn render_flight(
     opts.validate()?;
     let (camera, poses) = flight_poses(scene, opts);
     let mut renderer = Renderer::new();
-    let mut frames = Vec::with_capacity(poses.len());
     let mut times = Vec::with_capacity(poses.len());
     let mut covered = 0.0;
     let mut out = Rendered {
@@ -464,8 +463,26 @@ pub fn render_flight(
         covered: Vec::new(),
         depth: handheld_core::FloatMap::filled(0, 0, 1, 0.0),
     };
+    let mut warnings = scene.warnings.clone();
+    // Frames are streamed to ffmpeg as they are rendered (none kept but the middle one).
+    let mut writer = match handheld_io::video::encode::VideoWriter::create(
+        output,
+        camera.width,
+        camera.height,
+        f64::from(opts.fps),
+        18,
+        None,
+    ) {
+        Ok(w) => Some(w),
+        Err(e @ handheld_io::IoError::FfmpegMissing { .. }) => {
+            warnings.push(format!("the fly-through video was not written: {e}"));
+            None
+        }
+        Err(e) => return Err(e.into()),
+    };
+    let mut middle = None;
     progress.start("rendering the fly-through", poses.len() as u64);
-    for pose in &poses {
+    for (k, pose) in poses.iter().enumerate() {
         let t = std::time::Instant::now();
         scene.render(
             &mut renderer,
@@ -477,26 +494,19 @@ pub fn render_flight(
         )?;
         times.push(t.elapsed().as_secs_f64());
         covered += out.covered.iter().filter(|c| **c).count() as f64 / out.covered.len() as f64;
-        frames.push(out.image.clone());
+        if let Some(w) = writer.as_mut() {
+            w.push(&out.image)?;
+        }
+        if k == poses.len() / 2 {
+            middle = Some(out.image.clone());
+        }
         progress.inc(1);
     }
     progress.finish();
-    let mut warnings = scene.warnings.clone();
-    let encoded = handheld_io::video::encode::encode_h264_frames(
-        frames.iter(),
-        output,
-        &handheld_io::video::encode::EncodeOptions {
-            fps: opts.fps,
-            crf: 18,
-        },
-    );
-    match encoded {
-        Ok(()) => {}
-        Err(e @ handheld_io::IoError::FfmpegMissing { .. }) => {
-            warnings.push(format!("the fly-through video was not written: {e}"));
-        }
-        Err(e) => return Err(e.into()),
+    if let Some(w) = writer {
+        w.finish()?;
     }
+    let frames = poses.len();
     times.sort_by(f64::total_cmp);
     if scene.effective(opts.method) != opts.method {
         warnings.push(format!(
@@ -504,17 +514,16 @@ pub fn render_flight(
             opts.method.name()
         ));
     }
-    let middle = frames.get(frames.len() / 2).cloned();
     let summary = FlightSummary {
         output: output.to_path_buf(),
         method: scene.effective(opts.method),
         path: opts.path,
-        frames: frames.len(),
+        frames,
         width: camera.width,
         height: camera.height,
         median_frame_seconds: times[times.len() / 2],
         max_frame_seconds: times[times.len() - 1],
-        mean_covered_fraction: covered / frames.len().max(1) as f64,
+        mean_covered_fraction: covered / frames.max(1) as f64,
         warnings,
     };
     Ok((summary, middle))
