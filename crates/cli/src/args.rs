@@ -58,6 +58,8 @@ pub enum Command {
     Render(crate::render::RenderArgs),
     /// A virtual object composited into a video (§5.3), and the camera track (glTF, .chan).
     Augment(crate::augment::AugmentArgs),
+    /// Rebuild WORKSPACE/report.html (verdict, images, plots, 3D viewer) from what exists.
+    Report(crate::report::ReportArgs),
     /// Benchmarks; each prints one JSON object (use with --json).
     Bench(BenchArgs),
 }

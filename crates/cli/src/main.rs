@@ -6,6 +6,7 @@ mod augment;
 mod bench;
 mod demo;
 mod render;
+mod report;
 mod ui;
 
 use std::process::ExitCode;
@@ -75,6 +76,7 @@ fn run(cmd: &Command, g: &GlobalArgs) -> anyhow::Result<()> {
         Command::Stereo(a) => bench::stereo(a, g),
         Command::Render(a) => render::run(a, g, &bars),
         Command::Augment(a) => augment::run(a, g, &bars),
+        Command::Report(a) => report::run(a, g),
         Command::Mesh(a) => {
             let summary = handheld_pipeline::stages::mesh::mesh_dense_folder(
                 &a.depth_maps,

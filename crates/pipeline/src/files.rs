@@ -37,6 +37,7 @@ pub mod stage {
     pub const MESH: &str = "mesh";
     pub const RENDER: &str = "render";
     pub const AUGMENT: &str = "augment";
+    pub const REPORT: &str = "report";
 }
 
 /// `ingest/images.json`: the ingested images in pipeline order.

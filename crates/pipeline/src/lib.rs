@@ -20,6 +20,7 @@ pub mod options;
 pub mod policy;
 pub mod preview;
 pub mod render;
+pub mod report;
 pub mod stage;
 pub mod stages;
 
@@ -29,7 +30,9 @@ pub use options::PipelineOptions;
 pub use stage::{AnyStage, Pipeline, Produced, Stage, StageContext, StageReport, StageStatus};
 
 /// Runs the standard graph on `input` (a photo folder or a video) into the workspace `ws`, up to
-/// `until` (everything with `None`).
+/// `until` (everything with `None`). At the end, also when a stage failed, `ws/report.html` is
+/// written from whatever exists ([`report::write_workspace_report`]; a failure to write it is a
+/// warning, not an error).
 pub fn reconstruct(
     input: &std::path::Path,
     ws: &std::path::Path,
@@ -43,5 +46,18 @@ pub fn reconstruct(
         pipeline.plan(t)?;
     }
     let ws = Workspace::open(ws)?;
-    pipeline.run(&ws, until, force, progress)
+    let result = pipeline.run(&ws, until, force, progress);
+    if ws.manifest(files::stage::INGEST).is_some() {
+        let t = std::time::Instant::now();
+        match report::write_workspace_report(&ws) {
+            Ok(r) => tracing::info!(
+                "report: {} ({:.1} MB) in {:.2} s",
+                r.html.display(),
+                r.bytes as f64 / 1e6,
+                t.elapsed().as_secs_f64()
+            ),
+            Err(e) => tracing::warn!("the report was not written: {e}"),
+        }
+    }
+    result
 }

@@ -1,0 +1,356 @@
+//! Gathering a workspace's report (see `handheld-report`): whatever stages exist are read
+//! through their typed summaries and files; what is missing is said, never an error.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use handheld_core::MetricReconstruction;
+use handheld_mesh::{simplify, SimplifyOptions};
+use handheld_report::{ImageEntry, ReportInput, ReportSummary, ViewerCamera};
+use nalgebra::Vector3;
+use rayon::prelude::*;
+
+use crate::error::Result;
+use crate::files::{stage, MODEL_GLB, PAIRS_JSON, PREVIEW_DIR, SUMMARY_JSON};
+use crate::manifest::Workspace;
+use crate::stages::dense::DenseStageSummary;
+use crate::stages::sparse::SparseSummary;
+
+/// The standard stages, in order, for "not run yet".
+const STAGES: [&str; 7] = [
+    stage::INGEST,
+    stage::FEATURES,
+    stage::MATCHES,
+    stage::SPARSE,
+    stage::DENSE,
+    stage::MESH,
+    stage::RENDER,
+];
+
+/// Faces of the mesh shown in the viewer, and the atlas's longer side.
+pub const VIEWER_FACES: usize = 100_000;
+pub const VIEWER_ATLAS: u32 = 2048;
+const THUMB: u32 = 240;
+
+/// What the warnings of the stages say, in words with what to do.
+fn explain(stage: &str, w: &str) -> String {
+    let lower = w.to_lowercase();
+    let advice = if lower.contains("focal length")
+        && (lower.contains("undetermined") || lower.contains("not determined"))
+    {
+        " What to do: give the calibration with --intrinsics FX,FY,CX,CY (or a focal prior), or add views that rotate the camera."
+    } else if lower.contains("critical") {
+        " What to do: the camera motion does not fix the calibration (critical motion); give --intrinsics."
+    } else {
+        ""
+    };
+    format!("{stage}: {w}{advice}")
+}
+
+/// Gathers the report of `ws` and writes it (`report.html`, `report/`).
+pub fn write_workspace_report(ws: &Workspace) -> Result<ReportSummary> {
+    let mut input = ReportInput {
+        title: format!("Handheld report: {}", ws.root.display()),
+        ..Default::default()
+    };
+    for s in STAGES {
+        match ws.manifest(s) {
+            Some(m) => {
+                for w in &m.warnings {
+                    input.warnings.push(explain(s, w));
+                }
+            }
+            None => input.missing.push(s.to_string()),
+        }
+    }
+    let timings = ws.timings();
+    input.stage_times = STAGES
+        .iter()
+        .chain([stage::AUGMENT].iter())
+        .filter_map(|s| {
+            timings
+                .get(*s)
+                .and_then(|v| v.as_f64())
+                .map(|t| (s.to_string(), t))
+        })
+        .collect();
+    input.verdict.total_seconds = input.stage_times.iter().map(|t| t.1).sum();
+    // Images.
+    let ingest = ws.read_ingest().ok();
+    let names: Vec<(String, std::path::PathBuf)> = ingest
+        .as_ref()
+        .map(|i| {
+            i.images
+                .iter()
+                .map(|im| (im.info.name.clone(), im.info.path.clone()))
+                .collect()
+        })
+        .unwrap_or_default();
+    input.verdict.images_in = names.len();
+    // Thumbnails for at most 400 images (a long video keeps every k-th).
+    let step = names.len().div_ceil(400).max(1);
+    let opts = handheld_io::images::ImageIngestOptions {
+        min_dimension: 1,
+        ..Default::default()
+    };
+    input.images = names
+        .par_iter()
+        .enumerate()
+        .map(|(k, (name, path))| ImageEntry {
+            name: name.clone(),
+            thumb: (k % step == 0)
+                .then(|| handheld_io::images::load_image(path, &opts).ok())
+                .flatten()
+                .map(|im| im.image.thumbnail(THUMB, THUMB).to_rgb8()),
+            ..Default::default()
+        })
+        .collect();
+    let index: BTreeMap<String, usize> = names
+        .iter()
+        .enumerate()
+        .map(|(k, n)| (n.0.clone(), k))
+        .collect();
+    // Sparse.
+    let rec: Option<MetricReconstruction> = ws
+        .manifest(stage::SPARSE)
+        .and_then(|_| ws.read_sparse_model().ok());
+    if let Some(rec) = &rec {
+        sparse_part(ws, rec, &index, &mut input);
+    }
+    // Pairs.
+    if let Ok(pairs) = ws.read_pairs() {
+        let cells = pairs
+            .iter()
+            .filter(|p| p.inliers > 0)
+            .map(|p| (p.i, p.j, p.inliers as f64))
+            .collect();
+        input.pairs = Some((names.len(), cells));
+    }
+    let _ = PAIRS_JSON;
+    // Dense: previews and fill.
+    if let Ok(Some(d)) = ws.summary::<DenseStageSummary>(stage::DENSE) {
+        let full: Option<DenseStageSummary> = std::fs::read(ws.path(stage::DENSE, SUMMARY_JSON))
+            .ok()
+            .and_then(|b| serde_json::from_slice(&b).ok());
+        let per_view = full.and_then(|f| f.per_view).unwrap_or_default();
+        for v in per_view {
+            if let Some(&k) = index.get(&v.image) {
+                let preview = format!("{}/{PREVIEW_DIR}/{}.depth.png", stage::DENSE, v.image);
+                if ws.root.join(&preview).exists() {
+                    input.images[k].depth_preview = Some(preview);
+                }
+                input.images[k].fill = Some(v.fill);
+            }
+        }
+        let _ = d;
+    }
+    // Mesh: decimated, atlas reduced.
+    let glb = ws.path(stage::MESH, MODEL_GLB);
+    if ws.manifest(stage::MESH).is_some() && glb.exists() {
+        if let Ok((mesh, tex)) = handheld_io::glb::read_glb(&glb) {
+            let mesh = if mesh.faces.len() > VIEWER_FACES {
+                simplify(
+                    &mesh,
+                    &SimplifyOptions {
+                        target_faces: VIEWER_FACES,
+                        max_relative_error: 1.0,
+                        lock_border: false,
+                    },
+                )
+                .map(|m| m.0)
+                .unwrap_or(mesh)
+            } else {
+                mesh
+            };
+            let tex = tex.map(|t| {
+                if t.width().max(t.height()) > VIEWER_ATLAS {
+                    image::DynamicImage::ImageRgb8(t)
+                        .resize(
+                            VIEWER_ATLAS,
+                            VIEWER_ATLAS,
+                            image::imageops::FilterType::Triangle,
+                        )
+                        .to_rgb8()
+                } else {
+                    t
+                }
+            });
+            input.mesh = Some((mesh, tex));
+        }
+    }
+    // Renders.
+    for (label, path) in [
+        (
+            "Held-out view: the model | the photo | the difference",
+            "mesh/holdout.png",
+        ),
+        ("Image-based fly-through (§5.2)", "render/flight.mp4"),
+        ("Augmented video (§5.3)", "augment/augmented.mp4"),
+    ] {
+        if ws.root.join(path).exists() {
+            input.renders.push((label.to_string(), path.to_string()));
+        }
+    }
+    if let Ok(rd) = std::fs::read_dir(ws.root.join("bench").join("render-every-8").join("images")) {
+        let mut v: Vec<String> = rd
+            .flatten()
+            .map(|e| e.file_name().to_string_lossy().into_owned())
+            .filter(|n| n.ends_with(".png"))
+            .collect();
+        v.sort();
+        for n in v {
+            input.renders.push((
+                format!("Novel-view hold-out {n}: photo | each method"),
+                format!("bench/render-every-8/images/{n}"),
+            ));
+        }
+    }
+    Ok(handheld_report::write_report(&ws.root, &input)
+        .map_err(|e| crate::error::PipelineError::workspace(&ws.root, e.to_string()))?)
+}
+
+fn sparse_part(
+    ws: &Workspace,
+    rec: &MetricReconstruction,
+    index: &BTreeMap<String, usize>,
+    input: &mut ReportInput,
+) {
+    let summary: Option<SparseSummary> = ws.summary(stage::SPARSE).ok().flatten();
+    input.verdict.registered = Some(rec.views.len());
+    if let Some(s) = &summary {
+        input.verdict.reprojection_px = Some(s.mean_reprojection_error_px);
+        for u in &s.unregistered {
+            if let Some(&k) = index.get(&u.image) {
+                input.images[k].registered = Some(false);
+                input.images[k].reason = Some(u.reason.clone());
+            }
+        }
+        if let Some(d) = &s.self_calibration_degenerate {
+            input.warnings.push(explain(
+                "sparse",
+                &format!("self-calibration is degenerate (critical motion): {d}"),
+            ));
+        }
+    }
+    // Focal length and σ from the full summary.
+    let full: Option<serde_json::Value> = std::fs::read(ws.path(stage::SPARSE, SUMMARY_JSON))
+        .ok()
+        .and_then(|b| serde_json::from_slice(&b).ok());
+    if let Some(cam) = rec.cameras.values().next() {
+        let i = &cam.intrinsics;
+        let model = if i.k2 != 0.0 {
+            "pinhole + radial k1, k2"
+        } else if i.k1 != 0.0 {
+            "pinhole + radial k1"
+        } else {
+            "pinhole"
+        };
+        input.verdict.camera_model = Some(format!(
+            "{model}, {} camera{}",
+            rec.cameras.len(),
+            if rec.cameras.len() == 1 { "" } else { "s" }
+        ));
+        input.verdict.focal_px = Some(i.f);
+        input.verdict.focal_sigma_px = full
+            .as_ref()
+            .and_then(|f| f["uncertainty"]["intrinsics_sigma"].as_array()?.first()?["f"].as_f64());
+    }
+    for v in rec.views.values() {
+        if let Some(&k) = index.get(&v.name) {
+            input.images[k].registered = Some(true);
+            input.images[k].observations = Some(
+                v.observations
+                    .iter()
+                    .filter(|o| o.point_id.is_some())
+                    .count(),
+            );
+        }
+        let Some(cam) = rec.cameras.get(&v.camera_id) else {
+            continue;
+        };
+        for o in &v.observations {
+            if let Some(p) = o.point_id.and_then(|id| rec.points.get(&id)) {
+                if let Some(px) = cam.project(&v.cam_from_world, &p.xyz) {
+                    input.reprojection_errors.push((px - o.xy).norm());
+                }
+            }
+        }
+    }
+    for im in &mut input.images {
+        if im.registered.is_none() {
+            im.registered = Some(false);
+            im.reason.get_or_insert_with(|| "not in the model".into());
+        }
+    }
+    input.track_lengths = rec
+        .points
+        .values()
+        .map(|p| p.track.elements.len())
+        .collect();
+    input.points = rec
+        .points
+        .values()
+        .map(|p| ([p.xyz.x as f32, p.xyz.y as f32, p.xyz.z as f32], p.color))
+        .collect();
+    let mut up = Vector3::zeros();
+    for v in rec.views.values() {
+        let Some(cam) = rec.cameras.get(&v.camera_id) else {
+            continue;
+        };
+        let r = v.cam_from_world.rotation.inverse().to_rotation_matrix();
+        let m = r.matrix();
+        up += m * Vector3::new(0.0, -1.0, 0.0);
+        let c = v.center();
+        let k = index.get(&v.name).copied().unwrap_or(0);
+        input.cameras.push((
+            k,
+            ViewerCamera {
+                name: v.name.clone(),
+                c: [c.x, c.y, c.z],
+                r: [
+                    m[(0, 0)],
+                    m[(0, 1)],
+                    m[(0, 2)],
+                    m[(1, 0)],
+                    m[(1, 1)],
+                    m[(1, 2)],
+                    m[(2, 0)],
+                    m[(2, 1)],
+                    m[(2, 2)],
+                ],
+                f: cam.intrinsics.f,
+                aspect: cam.intrinsics.aspect,
+                cx: cam.intrinsics.pp.x,
+                cy: cam.intrinsics.pp.y,
+                w: cam.width,
+                h: cam.height,
+                registered: true,
+                thumb: String::new(),
+            },
+        ));
+    }
+    input.cameras.sort_by_key(|c| c.0);
+    let mut up = up.try_normalize(1e-9).unwrap_or(Vector3::z());
+    // Cameras that span a plane (a ring, an arc at one height): its normal is the up direction
+    // (photos taken sideways would tilt the cameras' own up); the sign follows the cameras'.
+    if input.cameras.len() >= 3 {
+        let cs: Vec<Vector3<f64>> = input.cameras.iter().map(|c| Vector3::from(c.1.c)).collect();
+        let mean = cs.iter().sum::<Vector3<f64>>() / cs.len() as f64;
+        let cov = cs.iter().fold(nalgebra::Matrix3::zeros(), |a, c| {
+            a + (c - mean) * (c - mean).transpose()
+        });
+        let eig = cov.symmetric_eigen();
+        let mut order = [0usize, 1, 2];
+        order.sort_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]));
+        if eig.eigenvalues[order[1]] > 0.05 * eig.eigenvalues[order[2]] {
+            let n: Vector3<f64> = eig.eigenvectors.column(order[0]).into_owned();
+            up = if n.dot(&up) < 0.0 { -n } else { n };
+        }
+    }
+    input.up = [up.x, up.y, up.z];
+}
+
+/// Whether a path is inside the workspace (the report links only to such files).
+pub fn inside(ws: &Path, p: &Path) -> bool {
+    p.starts_with(ws)
+}
