@@ -205,8 +205,18 @@ pub fn write_workspace_report(ws: &Workspace) -> Result<ReportSummary> {
             ));
         }
     }
-    Ok(handheld_report::write_report(&ws.root, &input)
-        .map_err(|e| crate::error::PipelineError::workspace(&ws.root, e.to_string()))?)
+    let out = handheld_report::render_report(&input)
+        .map_err(|e| crate::error::PipelineError::workspace(&ws.root, e.to_string()))?;
+    for (rel, bytes) in &out.files {
+        let path = ws.root.join(rel);
+        if let Some(parent) = path.parent() {
+            std::fs::create_dir_all(parent).map_err(|e| handheld_io::IoError::io(parent, e))?;
+        }
+        handheld_io::atomic::write_bytes_atomic(&path, bytes)?;
+    }
+    let mut summary = out.summary;
+    summary.html = ws.root.join(&summary.html);
+    Ok(summary)
 }
 
 fn sparse_part(

@@ -20,11 +20,6 @@ use thiserror::Error;
 
 #[derive(Debug, Error)]
 pub enum ReportError {
-    #[error("{path}: {source}")]
-    Io {
-        path: PathBuf,
-        source: std::io::Error,
-    },
     #[error("{path}: cannot encode ({reason})")]
     Encode { path: PathBuf, reason: String },
 }
@@ -117,18 +112,6 @@ pub struct ReportSummary {
 pub const REPORT_DIR: &str = "report";
 pub const REPORT_HTML: &str = "report.html";
 
-fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let tmp = path.with_extension("tmp");
-    std::fs::write(&tmp, bytes).map_err(|source| ReportError::Io {
-        path: tmp.clone(),
-        source,
-    })?;
-    std::fs::rename(&tmp, path).map_err(|source| ReportError::Io {
-        path: path.to_path_buf(),
-        source,
-    })
-}
-
 fn jpeg(img: &RgbImage, quality: u8, path: &Path) -> Result<Vec<u8>> {
     let mut out = Vec::new();
     image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, quality)
@@ -151,47 +134,47 @@ fn b64(bytes: &[u8]) -> String {
     base64::engine::general_purpose::STANDARD.encode(bytes)
 }
 
-/// Writes `ws/report.html` and `ws/report/` (scene.js, thumbnails).
-pub fn write_report(ws: &Path, input: &ReportInput) -> Result<ReportSummary> {
-    let dir = ws.join(REPORT_DIR);
-    let thumbs = dir.join("thumbs");
-    std::fs::create_dir_all(&thumbs).map_err(|source| ReportError::Io {
-        path: thumbs.clone(),
-        source,
-    })?;
-    // Thumbnails.
+/// The report's files, relative to the workspace, and what they hold. The caller writes them
+/// (this crate touches no file).
+pub struct ReportFiles {
+    pub files: Vec<(PathBuf, Vec<u8>)>,
+    pub summary: ReportSummary,
+}
+
+/// Formats the report: `report.html`, `report/scene.js` and `report/thumbs/*.jpg`.
+pub fn render_report(input: &ReportInput) -> Result<ReportFiles> {
+    let mut files = Vec::new();
     let mut thumb_paths = Vec::new();
     for (k, im) in input.images.iter().enumerate() {
         match &im.thumb {
             Some(t) => {
-                let p = thumbs.join(format!("{k:05}.jpg"));
-                write_atomic(&p, &jpeg(t, 80, &p)?)?;
-                thumb_paths.push(Some(format!("{REPORT_DIR}/thumbs/{k:05}.jpg")));
+                let rel = format!("{REPORT_DIR}/thumbs/{k:05}.jpg");
+                files.push((PathBuf::from(&rel), jpeg(t, 80, Path::new(&rel))?));
+                thumb_paths.push(Some(rel));
             }
             None => thumb_paths.push(None),
         }
     }
-    // The scene for the viewer.
-    let scene_path = dir.join("scene.js");
-    let scene = scene_js(input, &thumb_paths, &scene_path)?;
-    write_atomic(&scene_path, scene.as_bytes())?;
-    let html = page(input, &thumb_paths);
-    let html_path = ws.join(REPORT_HTML);
-    write_atomic(&html_path, html.as_bytes())?;
-    let mut bytes = html.len() as u64 + scene.len() as u64;
-    if let Ok(rd) = std::fs::read_dir(&thumbs) {
-        for e in rd.flatten() {
-            bytes += e.metadata().map(|m| m.len()).unwrap_or(0);
-        }
-    }
-    Ok(ReportSummary {
-        html: html_path,
-        bytes,
-        points: input.points.len(),
-        mesh_faces: input.mesh.as_ref().map_or(0, |m| m.0.faces.len()),
-        cameras: input.cameras.len(),
-        images: input.images.len(),
-        missing: input.missing.clone(),
+    let scene_rel = PathBuf::from(format!("{REPORT_DIR}/scene.js"));
+    let scene = scene_js(input, &thumb_paths, &scene_rel)?;
+    files.push((scene_rel, scene.into_bytes()));
+    // The page last: it is what a person opens, so it appears only once the rest is there.
+    files.push((
+        PathBuf::from(REPORT_HTML),
+        page(input, &thumb_paths).into_bytes(),
+    ));
+    let bytes = files.iter().map(|f| f.1.len() as u64).sum();
+    Ok(ReportFiles {
+        files,
+        summary: ReportSummary {
+            html: PathBuf::from(REPORT_HTML),
+            bytes,
+            points: input.points.len(),
+            mesh_faces: input.mesh.as_ref().map_or(0, |m| m.0.faces.len()),
+            cameras: input.cameras.len(),
+            images: input.images.len(),
+            missing: input.missing.clone(),
+        },
     })
 }
 
@@ -561,4 +544,57 @@ fn basis(up: &[f64; 3]) -> ([f64; 3], [f64; 3]) {
         up[0] * a[1] - up[1] * a[0],
     ];
     (a, b)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A failed image shows with its reason, a warning and a missing stage show in the verdict,
+    /// and every file is inside `report/` or the page itself.
+    #[test]
+    fn failed_images_warnings_and_missing_stages_are_shown() {
+        let input = ReportInput {
+            title: "t".into(),
+            verdict: Verdict {
+                images_in: 2,
+                registered: Some(1),
+                ..Default::default()
+            },
+            warnings: vec!["sparse: critical motion <give --intrinsics>".into()],
+            missing: vec!["mesh".into()],
+            images: vec![
+                ImageEntry {
+                    name: "a.jpg".into(),
+                    thumb: Some(RgbImage::new(8, 6)),
+                    registered: Some(true),
+                    observations: Some(10),
+                    ..Default::default()
+                },
+                ImageEntry {
+                    name: "b.jpg".into(),
+                    registered: Some(false),
+                    reason: Some("too few matches".into()),
+                    ..Default::default()
+                },
+            ],
+            reprojection_errors: vec![0.1, 0.2, 0.3],
+            track_lengths: vec![2, 3, 3],
+            ..Default::default()
+        };
+        let out = render_report(&input).unwrap();
+        let html = String::from_utf8(out.files.last().unwrap().1.clone()).unwrap();
+        assert!(html.contains("too few matches") && html.contains("not registered"));
+        assert!(html.contains("critical motion &lt;give --intrinsics&gt;"));
+        assert!(html.contains("Not run yet: mesh"));
+        assert!(html.contains("<svg") && html.contains("Reprojection errors"));
+        for (p, _) in &out.files {
+            assert!(
+                p == Path::new(REPORT_HTML) || p.starts_with(REPORT_DIR),
+                "{}",
+                p.display()
+            );
+        }
+        assert_eq!(out.summary.images, 2);
+    }
 }
