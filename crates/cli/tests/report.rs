@@ -137,6 +137,16 @@ fn the_report_opens_in_a_browser_and_draws_its_layers() {
             assert!(!text.contains(bad), "{}: {bad}", f.display());
         }
     }
+    // Clicking a camera (here the page's own entry point, #camera=N) looks through it.
+    let o = browser(
+        &chrome,
+        &profile,
+        &["--dump-dom", "--window-size=1400,900"],
+        &format!("{url}#camera=3"),
+    );
+    let status = page_status(&String::from_utf8_lossy(&o.stdout));
+    assert_eq!(status["through"], 3, "{status}");
+    assert_eq!(status["errors"], serde_json::json!([]), "{status}");
     // The viewer alone at 1280×720: not blank.
     let shot = dir.path().join("viewer.png");
     let o = browser(

@@ -11,7 +11,7 @@
   const origError = console.error;
   console.error = function () { stats.errors.push(Array.from(arguments).join(" ")); report(); origError.apply(console, arguments); };
 
-  if (location.hash === "#viewer") document.body.classList.add("viewer-only");
+  if (location.hash.startsWith("#viewer")) document.body.classList.add("viewer-only");
   const S = window.HANDHELD;
   const canvas = document.getElementById("hh-canvas");
   if (!S || !canvas) { stats.errors.push("no scene data"); report(); return; }
@@ -191,7 +191,7 @@
       gl.bindVertexArray(layers.cameras.vao); gl.drawArrays(gl.LINES, 0, layers.cameras.count); cams = S.cameras.length;
     }
     gl.bindVertexArray(null);
-    stats.points = points; stats.triangles = tris; stats.cameras = cams; stats.frames++;
+    stats.points = points; stats.triangles = tris; stats.cameras = cams; stats.frames++; stats.through = view.through;
     report();
   }
   let pending = false;
@@ -257,6 +257,9 @@
     view.yaw -= 0.01 * n;
     stats.ms_per_frame = (performance.now() - t0) / n;
     draw();
+    // report.html#viewer&camera=N (or #camera=N): open looking through camera N.
+    const m = /camera=(\d+)/.exec(location.hash);
+    if (m && S.cameras[+m[1]]) showCamera(+m[1]);
   } catch (err) { stats.errors.push(String(err)); }
   report();
 })();
