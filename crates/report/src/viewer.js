@@ -15,7 +15,7 @@
   const S = window.HANDHELD;
   const canvas = document.getElementById("hh-canvas");
   if (!S || !canvas) { stats.errors.push("no scene data"); report(); return; }
-  const gl = canvas.getContext("webgl2", { antialias: true, preserveDrawingBuffer: true });
+  const gl = canvas.getContext("webgl2", { antialias: false, preserveDrawingBuffer: false, powerPreference: "high-performance" });
   if (!gl) { stats.errors.push("WebGL2 is not available"); report(); return; }
 
   function b64(s, T) {
