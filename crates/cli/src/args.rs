@@ -437,7 +437,7 @@ pub enum AspectArg {
 pub struct ReconstructArgs {
     #[command(flatten)]
     pub input: InputArgs,
-    /// Run only what this stage needs (ingest, features, matches, sparse, dense or mesh);
+    /// Run only what this stage needs (ingest, features, matches, sparse, dense, mesh or render);
     /// default: the whole graph.
     #[arg(long)]
     pub until: Option<String>,
