@@ -33,15 +33,20 @@ const UNSIGNED_INT: u32 = 5125;
 
 /// The binary chunk under construction and the buffer views and accessors describing it.
 #[derive(Default)]
-struct Bin {
-    bytes: Vec<u8>,
-    views: Vec<Value>,
-    accessors: Vec<Value>,
+pub(crate) struct Bin {
+    pub(crate) bytes: Vec<u8>,
+    pub(crate) views: Vec<Value>,
+    pub(crate) accessors: Vec<Value>,
 }
 
 impl Bin {
     /// Appends a 4-byte-aligned buffer view; returns its index.
-    fn view(&mut self, data: &[u8], target: Option<u32>, stride: Option<usize>) -> usize {
+    pub(crate) fn view(
+        &mut self,
+        data: &[u8],
+        target: Option<u32>,
+        stride: Option<usize>,
+    ) -> usize {
         self.bytes.resize(self.bytes.len().next_multiple_of(4), 0);
         let mut v =
             json!({ "buffer": 0, "byteOffset": self.bytes.len(), "byteLength": data.len() });
@@ -56,10 +61,23 @@ impl Bin {
         self.views.len() - 1
     }
 
-    /// Adds a float accessor over `values` (`n` components per element); returns its index.
-    fn floats(&mut self, values: &[f32], n: usize, kind: &str, bounds: bool) -> usize {
+    /// Adds a float vertex-attribute accessor over `values` (`n` components per element);
+    /// returns its index.
+    pub(crate) fn floats(&mut self, values: &[f32], n: usize, kind: &str, bounds: bool) -> usize {
+        self.floats_for(values, n, kind, bounds, Some(ARRAY_BUFFER))
+    }
+
+    /// [`Bin::floats`] with the buffer view's target given (`None` for animation data).
+    pub(crate) fn floats_for(
+        &mut self,
+        values: &[f32],
+        n: usize,
+        kind: &str,
+        bounds: bool,
+        target: Option<u32>,
+    ) -> usize {
         let bytes: Vec<u8> = values.iter().flat_map(|f| f.to_le_bytes()).collect();
-        let view = self.view(&bytes, Some(ARRAY_BUFFER), None);
+        let view = self.view(&bytes, target, None);
         let mut a = json!({
             "bufferView": view, "componentType": FLOAT, "count": values.len() / n, "type": kind
         });
@@ -168,6 +186,12 @@ pub fn glb_bytes(path: &Path, mesh: &TriMesh, texture: Option<&RgbImage>) -> Res
         "name": "model", "pbrMetallicRoughness": pbr,
         "extensions": { "KHR_materials_unlit": {} }
     }]);
+    container(path, doc, bin)
+}
+
+/// The `.glb` container (§4.4 of the glTF 2.0 specification): the JSON chunk (`doc`, to which the
+/// buffer, its views and accessors are added) and the binary chunk.
+pub(crate) fn container(path: &Path, mut doc: Value, mut bin: Bin) -> Result<Vec<u8>> {
     bin.bytes.resize(bin.bytes.len().next_multiple_of(4), 0);
     doc["buffers"] = json!([{ "byteLength": bin.bytes.len() }]);
     doc["bufferViews"] = Value::Array(bin.views);

@@ -22,8 +22,8 @@ use serde_json::json;
 
 use crate::atomic::write_bytes_atomic;
 use crate::error::{IoError, Result};
+use crate::glb::{container, Bin};
 
-const FLOAT: u32 = 5126;
 const UNSIGNED_BYTE: u32 = 5121;
 const ARRAY_BUFFER: u32 = 34962;
 
@@ -57,52 +57,6 @@ pub fn cam_from_world_of(orientation: &UnitQuaternion<f64>, centre: &Vector3<f64
     handheld_core::pose::cam_from_world_from_center(&r.inverse(), &(*centre).into())
 }
 
-struct Bin {
-    bytes: Vec<u8>,
-    views: Vec<serde_json::Value>,
-    accessors: Vec<serde_json::Value>,
-}
-
-impl Bin {
-    fn push(
-        &mut self,
-        data: &[u8],
-        component: u32,
-        kind: &str,
-        count: usize,
-        target: Option<u32>,
-        extra: serde_json::Value,
-    ) -> usize {
-        while self.bytes.len() % 4 != 0 {
-            self.bytes.push(0);
-        }
-        let offset = self.bytes.len();
-        self.bytes.extend_from_slice(data);
-        let mut view = json!({"buffer": 0, "byteOffset": offset, "byteLength": data.len()});
-        if let Some(t) = target {
-            view["target"] = json!(t);
-        }
-        self.views.push(view);
-        let mut acc = json!({
-            "bufferView": self.views.len() - 1,
-            "componentType": component,
-            "count": count,
-            "type": kind,
-        });
-        if let (Some(a), Some(b)) = (acc.as_object_mut(), extra.as_object()) {
-            for (k, v) in b {
-                a.insert(k.clone(), v.clone());
-            }
-        }
-        self.accessors.push(acc);
-        self.accessors.len() - 1
-    }
-}
-
-fn f32_bytes(v: impl IntoIterator<Item = f32>) -> Vec<u8> {
-    v.into_iter().flat_map(f32::to_le_bytes).collect()
-}
-
 /// Writes the track as a `.glb`: `yfov` (radians) and `aspect` (width / height) describe the
 /// camera; `points` (model frame, with colours) become a point cloud. Errors name `path`.
 pub fn write_track_glb(
@@ -123,47 +77,25 @@ pub fn write_track_glb(
         .map(|f| camera_in_world(&f.cam_from_world))
         .collect();
     let origin = poses.iter().map(|p| p.1).sum::<Vector3<f64>>() / poses.len() as f64;
-    let mut bin = Bin {
-        bytes: Vec::new(),
-        views: Vec::new(),
-        accessors: Vec::new(),
-    };
+    let mut bin = Bin::default();
     let times: Vec<f32> = frames.iter().map(|f| f.time_s as f32).collect();
-    let (tmin, tmax) = times
+    let t_acc = bin.floats_for(&times, 1, "SCALAR", true, None);
+    let translations: Vec<f32> = poses
         .iter()
-        .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), t| {
-            (a.min(*t), b.max(*t))
-        });
-    let t_acc = bin.push(
-        &f32_bytes(times.iter().copied()),
-        FLOAT,
-        "SCALAR",
-        times.len(),
-        None,
-        json!({"min": [tmin], "max": [tmax]}),
-    );
-    let tr_acc = bin.push(
-        &f32_bytes(poses.iter().flat_map(|(_, c)| {
+        .flat_map(|(_, c)| {
             let d = c - origin;
             [d.x as f32, d.y as f32, d.z as f32]
-        })),
-        FLOAT,
-        "VEC3",
-        poses.len(),
-        None,
-        json!({}),
-    );
-    let rot_acc = bin.push(
-        &f32_bytes(poses.iter().flat_map(|(q, _)| {
+        })
+        .collect();
+    let tr_acc = bin.floats_for(&translations, 3, "VEC3", false, None);
+    let rotations: Vec<f32> = poses
+        .iter()
+        .flat_map(|(q, _)| {
             let q = q.into_inner();
             [q.i as f32, q.j as f32, q.k as f32, q.w as f32]
-        })),
-        FLOAT,
-        "VEC4",
-        poses.len(),
-        None,
-        json!({}),
-    );
+        })
+        .collect();
+    let rot_acc = bin.floats_for(&rotations, 4, "VEC4", false, None);
     let (q0, c0) = poses[0];
     let d0 = c0 - origin;
     let mut nodes = vec![
@@ -177,9 +109,9 @@ pub fn write_track_glb(
     ];
     let mut meshes = Vec::new();
     if !points.is_empty() {
-        let rel: Vec<[f32; 3]> = points
+        let rel: Vec<f32> = points
             .iter()
-            .map(|(p, _)| {
+            .flat_map(|(p, _)| {
                 [
                     (p[0] - origin.x) as f32,
                     (p[1] - origin.y) as f32,
@@ -187,43 +119,23 @@ pub fn write_track_glb(
                 ]
             })
             .collect();
-        let mut lo = [f32::INFINITY; 3];
-        let mut hi = [f32::NEG_INFINITY; 3];
-        for p in &rel {
-            for k in 0..3 {
-                lo[k] = lo[k].min(p[k]);
-                hi[k] = hi[k].max(p[k]);
-            }
-        }
-        let pos = bin.push(
-            &f32_bytes(rel.iter().flatten().copied()),
-            FLOAT,
-            "VEC3",
-            rel.len(),
-            Some(ARRAY_BUFFER),
-            json!({"min": lo, "max": hi}),
-        );
-        let col_bytes: Vec<u8> = points
+        let pos = bin.floats(&rel, 3, "VEC3", true);
+        let colours: Vec<u8> = points
             .iter()
             .flat_map(|(_, c)| [c[0], c[1], c[2], 255])
             .collect();
-        let col = bin.push(
-            &col_bytes,
-            UNSIGNED_BYTE,
-            "VEC4",
-            points.len(),
-            Some(ARRAY_BUFFER),
-            json!({"normalized": true}),
-        );
+        let view = bin.view(&colours, Some(ARRAY_BUFFER), None);
+        bin.accessors.push(json!({
+            "bufferView": view, "componentType": UNSIGNED_BYTE, "normalized": true,
+            "count": points.len(), "type": "VEC4"
+        }));
+        let col = bin.accessors.len() - 1;
         meshes.push(json!({
             "name": "sparse points",
             "primitives": [{"attributes": {"POSITION": pos, "COLOR_0": col}, "mode": 0}],
         }));
         nodes.push(json!({"name": "points", "mesh": 0}));
         nodes[0]["children"] = json!([1, 2]);
-    }
-    while bin.bytes.len() % 4 != 0 {
-        bin.bytes.push(0);
     }
     let mut doc = json!({
         "asset": {"version": "2.0", "generator": "handheld (camera track)"},
@@ -245,29 +157,11 @@ pub fn write_track_glb(
                 {"sampler": 1, "target": {"node": 1, "path": "rotation"}},
             ],
         }],
-        "buffers": [{"byteLength": bin.bytes.len()}],
-        "bufferViews": bin.views,
-        "accessors": bin.accessors,
     });
     if !meshes.is_empty() {
         doc["meshes"] = json!(meshes);
     }
-    let mut text = serde_json::to_vec(&doc).map_err(|e| IoError::format(path, e.to_string()))?;
-    while text.len() % 4 != 0 {
-        text.push(b' ');
-    }
-    let total = 12 + 8 + text.len() + 8 + bin.bytes.len();
-    let mut out = Vec::with_capacity(total);
-    out.extend_from_slice(b"glTF");
-    out.extend_from_slice(&2u32.to_le_bytes());
-    out.extend_from_slice(&(total as u32).to_le_bytes());
-    out.extend_from_slice(&(text.len() as u32).to_le_bytes());
-    out.extend_from_slice(b"JSON");
-    out.extend_from_slice(&text);
-    out.extend_from_slice(&(bin.bytes.len() as u32).to_le_bytes());
-    out.extend_from_slice(b"BIN\0");
-    out.extend_from_slice(&bin.bytes);
-    write_bytes_atomic(path, &out)
+    write_bytes_atomic(path, &container(path, doc, bin)?)
 }
 
 /// Nuke's camera rotation order ZXY: `R_world_from_cam = Ry(ry) · Rx(rx) · Rz(rz)`; returns

@@ -73,29 +73,20 @@ pub fn ssim_map(a: &[f32], b: &[f32], w: usize, h: usize) -> Vec<f32> {
         let s: f32 = k.iter().sum();
         k.into_iter().map(|v| v / s).collect()
     };
-    let blur = |src: &[f32]| -> Vec<f32> {
-        let mut tmp = vec![0.0f32; w * h];
-        for y in 0..h {
-            for x in 0..w {
-                let (mut acc, mut ws) = (0.0, 0.0);
-                for (j, kv) in kernel.iter().enumerate() {
-                    let xx = x as i64 + j as i64 - 5;
-                    if xx >= 0 && (xx as usize) < w {
-                        acc += kv * src[y * w + xx as usize];
-                        ws += kv;
-                    }
-                }
-                tmp[y * w + x] = acc / ws;
-            }
-        }
+    // One pass of the separable window along x (`dx = 1`) or y, cut at the border.
+    let pass = |src: &[f32], along_x: bool| -> Vec<f32> {
         let mut out = vec![0.0f32; w * h];
         for y in 0..h {
             for x in 0..w {
                 let (mut acc, mut ws) = (0.0, 0.0);
                 for (j, kv) in kernel.iter().enumerate() {
-                    let yy = y as i64 + j as i64 - 5;
-                    if yy >= 0 && (yy as usize) < h {
-                        acc += kv * tmp[yy as usize * w + x];
+                    let (xx, yy) = if along_x {
+                        (x as i64 + j as i64 - 5, y as i64)
+                    } else {
+                        (x as i64, y as i64 + j as i64 - 5)
+                    };
+                    if xx >= 0 && (xx as usize) < w && yy >= 0 && (yy as usize) < h {
+                        acc += kv * src[yy as usize * w + xx as usize];
                         ws += kv;
                     }
                 }
@@ -104,6 +95,7 @@ pub fn ssim_map(a: &[f32], b: &[f32], w: usize, h: usize) -> Vec<f32> {
         }
         out
     };
+    let blur = |src: &[f32]| pass(&pass(src, true), false);
     let ma = blur(a);
     let mb = blur(b);
     let aa: Vec<f32> = a.iter().map(|v| v * v).collect();

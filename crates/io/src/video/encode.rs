@@ -136,66 +136,20 @@ pub fn encode_h264_frames<'a>(
 ) -> Result<()> {
     opts.validate()?;
     let mut frames = frames.into_iter().peekable();
-    let input = |reason: String| IoError::Input {
-        path: output.to_path_buf(),
-        reason,
-    };
     let (w, h) = match frames.peek() {
         Some(f) => f.dimensions(),
-        None => return Err(input("no frames to encode".into())),
-    };
-    if w == 0 || h == 0 || w % 2 != 0 || h % 2 != 0 {
-        return Err(input(format!(
-            "frames of {w}×{h} cannot be encoded: H.264 in yuv420p needs an even, non-zero width and height"
-        )));
-    }
-    let program = ffmpeg_program();
-    let tmp = temporary_path(output);
-    let mut cmd = Command::new(&program);
-    cmd.args([
-        "-y",
-        "-loglevel",
-        "error",
-        "-f",
-        "rawvideo",
-        "-pix_fmt",
-        "rgb24",
-    ])
-    .args([
-        "-s",
-        &format!("{w}x{h}"),
-        "-framerate",
-        &opts.fps.to_string(),
-    ])
-    .args(["-i", "pipe:0"])
-    .stdin(Stdio::piped());
-    h264_args(&mut cmd, opts, &tmp);
-    let (mut child, stderr) = spawn(cmd, &program)?;
-    let mut written = Ok(());
-    if let Some(mut stdin) = child.stdin.take() {
-        for (k, frame) in frames.enumerate() {
-            if frame.dimensions() != (w, h) {
-                written = Err(input(format!(
-                    "frame {k} is {}×{}, the first frame {w}×{h}",
-                    frame.width(),
-                    frame.height()
-                )));
-                break;
-            }
-            // A write error means ffmpeg stopped; its own message is reported by `finish`.
-            if stdin.write_all(frame.as_raw()).is_err() {
-                break;
-            }
+        None => {
+            return Err(IoError::Input {
+                path: output.to_path_buf(),
+                reason: "no frames to encode".into(),
+            })
         }
+    };
+    let mut writer = VideoWriter::create(output, w, h, f64::from(opts.fps), opts.crf, None)?;
+    for frame in frames {
+        writer.push(frame)?;
     }
-    if let Err(e) = written {
-        let _ = child.kill();
-        let _ = child.wait();
-        let _ = stderr.join();
-        let _ = std::fs::remove_file(&tmp);
-        return Err(e);
-    }
-    finish(child, stderr, &tmp, output)
+    writer.finish().map(|_| ())
 }
 
 /// An H.264 video written frame by frame (frames streamed to `ffmpeg` as raw RGB, none kept in

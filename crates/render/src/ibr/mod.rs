@@ -18,18 +18,25 @@
 //! applied when a scene point is projected into a recorded view. A sample whose scene point is
 //! hidden in that view (its depth map has a nearer surface there) is dropped.
 
+mod scene;
+mod shade;
 pub mod source;
 pub mod support;
+mod ulr;
 
-use handheld_core::{Camera, FloatMap, PosedView, Rigid3};
+use handheld_core::{Camera, FloatMap, Rigid3};
 use image::RgbImage;
-use nalgebra::{Point3, Vector2, Vector3};
+use nalgebra::{Vector2, Vector3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
+use scene::depth_range;
+pub use scene::IbrScene;
+use shade::{raster_ids, Shade};
 pub use source::{fill_by_diffusion, Source};
-use support::{Blend, Leaf, Root, SupportStats, Vertex, Virtual};
+use support::{Blend, Leaf, Root, Vertex, Virtual};
+use ulr::ulr_blend;
 
 use crate::raster::Rendered;
 
@@ -196,135 +203,6 @@ impl Plane {
         let lambda = -(self.n.dot(c) + self.d) / den;
         (lambda.is_finite() && lambda > 0.0).then_some(lambda)
     }
-}
-
-/// The recorded views of a scene, prepared for rendering, and its fixed plane L.
-pub struct IbrScene {
-    pub sources: Vec<Source>,
-    pub plane: Plane,
-    /// A box around the scene (2nd to 98th percentiles of its points, widened by a quarter).
-    pub bounds: (Point3<f64>, Point3<f64>),
-    /// Whether any view has a depth map (without, only [`IbrMethod::Plane`] is meaningful).
-    pub has_depth: bool,
-}
-
-impl IbrScene {
-    /// Prepares `views` (depth maps optional) for rendering. The fixed plane L is least-squares
-    /// fitted to `points` (the sparse points), or to the depth maps' points when fewer than 3 are
-    /// given.
-    pub fn new(views: &[PosedView], points: &[Point3<f64>]) -> Result<Self, IbrError> {
-        if views.is_empty() {
-            return Err(IbrError::NoViews);
-        }
-        for v in views {
-            v.validate()?;
-        }
-        let sources: Vec<Source> = views.par_iter().map(Source::new).collect();
-        let has_depth = sources.iter().any(Source::has_depth);
-        let samples = if points.len() >= 3 {
-            points.to_vec()
-        } else {
-            depth_samples(views)
-        };
-        let bounds = robust_bounds(&samples);
-        // The least-squares plane of the points inside the percentile box (far outliers of a
-        // sparse model would tilt it).
-        let inner: Vec<Point3<f64>> = {
-            let (lo, hi) = (bounds.0, bounds.1);
-            let m = (hi - lo) / 6.0; // undo the widening by a quarter on each side
-            samples
-                .iter()
-                .filter(|p| (0..3).all(|k| p[k] >= lo[k] + m[k] && p[k] <= hi[k] - m[k]))
-                .copied()
-                .collect()
-        };
-        let plane = support::fit_plane(if inner.len() >= 3 { &inner } else { &samples })
-            .ok_or(IbrError::NoPlane)?;
-        Ok(Self {
-            sources,
-            plane,
-            bounds,
-            has_depth,
-        })
-    }
-
-    /// The centroid of the scene points used for paths: the median of the depth maps' points
-    /// when there are some, else the point of the plane nearest the cameras' centroid.
-    pub fn focus(&self, points: &[Point3<f64>]) -> Point3<f64> {
-        if points.is_empty() {
-            let c = self
-                .sources
-                .iter()
-                .fold(Vector3::zeros(), |a, s| a + s.center.coords)
-                / self.sources.len() as f64;
-            let off = self.plane.n.dot(&c) + self.plane.d;
-            return Point3::from(c - self.plane.n * off);
-        }
-        let med = |k: usize| {
-            let mut v: Vec<f64> = points.iter().map(|p| p[k]).collect();
-            v.sort_by(f64::total_cmp);
-            v[v.len() / 2]
-        };
-        Point3::new(med(0), med(1), med(2))
-    }
-}
-
-/// The 2nd and 98th percentiles of the points along each axis, widened by a quarter of the
-/// extent on each side.
-fn robust_bounds(points: &[Point3<f64>]) -> (Point3<f64>, Point3<f64>) {
-    let mut lo = Point3::origin();
-    let mut hi = Point3::origin();
-    for k in 0..3 {
-        let mut v: Vec<f64> = points.iter().map(|p| p[k]).collect();
-        v.sort_by(f64::total_cmp);
-        let a = v[v.len() * 2 / 100];
-        let b = v[(v.len() * 98 / 100).min(v.len() - 1)];
-        let m = 0.25 * (b - a);
-        lo[k] = a - m;
-        hi[k] = b + m;
-    }
-    (lo, hi)
-}
-
-/// The range of virtual-camera depths of the scene box: (near, far).
-fn depth_range(virt: &Virtual, bounds: &(Point3<f64>, Point3<f64>)) -> (f64, f64) {
-    let (lo, hi) = bounds;
-    let mut zmin = f64::INFINITY;
-    let mut zmax = f64::NEG_INFINITY;
-    for i in 0..8 {
-        let c = Vector3::new(
-            if i & 1 == 0 { lo.x } else { hi.x },
-            if i & 2 == 0 { lo.y } else { hi.y },
-            if i & 4 == 0 { lo.z } else { hi.z },
-        );
-        let z = (virt.r * c + virt.t).z;
-        zmin = zmin.min(z);
-        zmax = zmax.max(z);
-    }
-    let diag = (hi - lo).norm();
-    let far = zmax.max(1e-3 * diag);
-    (zmin.max(1e-2 * far), far)
-}
-
-/// Points of the views' depth maps on a coarse grid.
-fn depth_samples(views: &[PosedView]) -> Vec<Point3<f64>> {
-    let mut out = Vec::new();
-    for v in views {
-        let Some(d) = &v.depth else { continue };
-        let step = (d.width.max(d.height) / 32).max(1);
-        let world_from_cam = v.cam_from_world.inverse();
-        for y in (0..d.height).step_by(step) {
-            for x in (0..d.width).step_by(step) {
-                let z = f64::from(d.get(x, y, 0));
-                if z.is_finite() && z > 0.0 {
-                    let ray = v.camera.ray_in_cam(Vector2::new(x as f64, y as f64));
-                    let p = Point3::from(ray / ray.z * z);
-                    out.push(world_from_cam.transform_point(&p));
-                }
-            }
-        }
-    }
-    out
 }
 
 /// What one rendering did.
@@ -554,7 +432,7 @@ impl Renderer {
             });
         let covered_n = out.covered.iter().filter(|c| **c).count();
         Ok(FrameStats {
-            cameras: support_cameras(&support),
+            cameras: support.cameras,
             triangles: support.roots,
             leaves: support.leaves,
             covered_fraction: covered_n as f64 / (w * h) as f64,
@@ -579,260 +457,5 @@ impl Renderer {
         };
         let s = self.render_into(scene, camera, cam_from_world, method, opts, &mut out)?;
         Ok((out, s))
-    }
-}
-
-fn support_cameras(s: &SupportStats) -> usize {
-    s.cameras
-}
-
-/// Writes `id` into every ideal pixel (integer positions offset by `lo`) inside `leaf`.
-fn raster_ids(leaf: &Leaf, id: u32, lo: Vector2<f64>, dw: usize, dh: usize, ids: &mut [u32]) {
-    let [a, b, c] = leaf.p.map(|p| p - lo);
-    let area = (b - a).perp(&(c - a));
-    if area.abs() < 1e-12 {
-        return;
-    }
-    let x0 = a.x.min(b.x).min(c.x).floor().max(0.0) as usize;
-    let y0 = a.y.min(b.y).min(c.y).floor().max(0.0) as usize;
-    let x1 = (a.x.max(b.x).max(c.x).ceil().max(0.0) as usize).min(dw - 1);
-    let y1 = (a.y.max(b.y).max(c.y).ceil().max(0.0) as usize).min(dh - 1);
-    let eps = -1e-9 * area.abs();
-    for y in y0..=y1 {
-        for x in x0..=x1 {
-            let p = Vector2::new(x as f64, y as f64);
-            let l0 = (b - p).perp(&(c - p)) * area.signum();
-            let l1 = (c - p).perp(&(a - p)) * area.signum();
-            let l2 = (a - p).perp(&(b - p)) * area.signum();
-            if l0 >= eps && l1 >= eps && l2 >= eps {
-                ids[y * dw + x] = id;
-            }
-        }
-    }
-}
-
-/// Buehler et al. (2001), §4: the penalty of each view at a scene point is its angle to the
-/// virtual ray plus α times its resolution penalty (how much farther it is than the virtual
-/// camera, relative); views that do not see the point are out. The k best keep weights
-/// `1 − p / p_k+1`, normalised.
-fn ulr_blend(virt: &Virtual, x: &Vector3<f64>, sources: &[Source], opts: &IbrOptions) -> Blend {
-    let dv = x - virt.center;
-    let lv = dv.norm();
-    let mut best: [(f64, usize); support::MAX_BLEND + 1] =
-        [(f64::INFINITY, usize::MAX); support::MAX_BLEND + 1];
-    let k = opts.ulr_k;
-    for (i, s) in sources.iter().enumerate() {
-        let y = s.to_cam(x);
-        let Some(px) = s.pixel_of_cam(&y) else {
-            continue;
-        };
-        if let Some(d) = s.depth_at(&px) {
-            if y.z > d * (1.0 + opts.occlusion_tolerance) {
-                continue;
-            }
-        }
-        let ds = x - s.center.coords;
-        let ls = ds.norm();
-        let angle = (dv.dot(&ds) / (lv * ls)).clamp(-1.0, 1.0).acos();
-        let res = ((ls - lv) / lv).max(0.0);
-        let p = (1.0 - opts.ulr_resolution_weight) * angle + opts.ulr_resolution_weight * res;
-        // Insert into the sorted k+1 best.
-        let mut j = k;
-        if p >= best[j].0 {
-            continue;
-        }
-        best[j] = (p, i);
-        while j > 0 && best[j].0 < best[j - 1].0 {
-            best.swap(j, j - 1);
-            j -= 1;
-        }
-    }
-    let mut b = Blend::default();
-    let thresh = best[k].0;
-    let mut sum = 0.0;
-    let mut raw = [0.0f64; support::MAX_BLEND];
-    for j in 0..k {
-        if best[j].1 == usize::MAX {
-            break;
-        }
-        raw[j] = if thresh.is_finite() {
-            (1.0 - best[j].0 / thresh.max(1e-12)).max(0.0)
-        } else {
-            1.0
-        };
-        sum += raw[j];
-    }
-    if sum <= 0.0 {
-        if best[0].1 != usize::MAX {
-            b.push(best[0].1, 1.0);
-        }
-        return b;
-    }
-    for j in 0..k {
-        if best[j].1 != usize::MAX && raw[j] > 0.0 {
-            b.push(best[j].1, (raw[j] / sum) as f32);
-        }
-    }
-    b
-}
-
-/// A weighted colour sum.
-#[derive(Clone, Copy, Default)]
-struct Sum {
-    colour: [f32; 3],
-    weight: f32,
-}
-
-impl Sum {
-    #[inline]
-    fn add(&mut self, c: [f32; 3], w: f32) {
-        for k in 0..3 {
-            self.colour[k] += w * c[k];
-        }
-        self.weight += w;
-    }
-}
-
-#[derive(Clone, Copy, Default)]
-struct Acc {
-    visible: Sum,
-    all: Sum,
-}
-
-/// Everything the per-pixel loop reads.
-struct Shade<'a> {
-    scene: &'a IbrScene,
-    virt: &'a Virtual,
-    method: IbrMethod,
-    opts: &'a IbrOptions,
-    lo: Vector2<f64>,
-    dw: usize,
-    dh: usize,
-    ids: &'a [u32],
-    leaves: &'a [Leaf],
-    roots: &'a [Root],
-    vertices: &'a [Vertex],
-    grid: (&'a [Blend], usize, usize),
-    order: &'a [usize],
-    ideal: Option<&'a [Vector2<f32>]>,
-    proxy: Option<&'a FloatMap>,
-}
-
-impl Shade<'_> {
-    /// The colour and virtual-camera depth of output pixel (x, y).
-    #[inline]
-    fn pixel(&self, x: usize, y: usize, w: usize) -> Option<([f32; 3], f64)> {
-        let p = match self.ideal {
-            Some(t) => t[y * w + x].cast::<f64>(),
-            None => Vector2::new(x as f64, y as f64),
-        };
-        let cx = ((p.x - self.lo.x).round().max(0.0) as usize).min(self.dw - 1);
-        let cy = ((p.y - self.lo.y).round().max(0.0) as usize).min(self.dh - 1);
-        let li = self.ids[cy * self.dw + cx];
-        let leaf = self.leaves.get(li as usize)?;
-        let dir = self.virt.ray(&p);
-        let from_proxy = self
-            .proxy
-            .map(|d| f64::from(d.data[y * w + x]))
-            .filter(|z| z.is_finite() && *z > 0.0);
-        let lambda = match from_proxy {
-            Some(z) => z,
-            None => leaf.plane.ray_parameter(&self.virt.center, &dir)?,
-        };
-        let xw = self.virt.center + dir * lambda;
-        let z = lambda; // ray direction has unit z in the virtual camera (K⁻¹ p̃).
-                        // Samples whose point is visible in their view, and all samples (used when every view
-                        // hides the point: the geometry is then off, and a ghost beats a hole).
-        let mut acc = Acc::default();
-        let check = matches!(self.method, IbrMethod::Subdivided | IbrMethod::Ulr);
-        let sample = |s: usize, wt: f32, acc: &mut Acc| {
-            if wt <= 1e-4 {
-                return;
-            }
-            let src = &self.scene.sources[s];
-            let yc = src.to_cam(&xw);
-            let Some(px) = src.pixel_of_cam(&yc) else {
-                return;
-            };
-            let c = src.colour(&px);
-            acc.all.add(c, wt);
-            if check {
-                if let Some(d) = src.depth_at(&px) {
-                    if yc.z > d * (1.0 + self.opts.occlusion_tolerance) {
-                        return;
-                    }
-                }
-            }
-            acc.visible.add(c, wt);
-        };
-        if self.method == IbrMethod::Ulr {
-            let (grid, gw, g) = self.grid;
-            let gx = (p.x - self.lo.x) / g as f64;
-            let gy = (p.y - self.lo.y) / g as f64;
-            let (ix, iy) = (gx.floor().max(0.0) as usize, gy.floor().max(0.0) as usize);
-            let ix = ix.min(gw - 2);
-            let iy = iy.min(grid.len() / gw - 2);
-            let (fx, fy) = ((gx - ix as f64) as f32, (gy - iy as f64) as f32);
-            let corners = [
-                (ix, iy, (1.0 - fx) * (1.0 - fy)),
-                (ix + 1, iy, fx * (1.0 - fy)),
-                (ix, iy + 1, (1.0 - fx) * fy),
-                (ix + 1, iy + 1, fx * fy),
-            ];
-            // Merge the corners' views (each sampled once).
-            let mut srcs = [(usize::MAX, 0.0f32); 4 * support::MAX_BLEND];
-            let mut n = 0;
-            for (gx, gy, cw) in corners {
-                for (s, wt) in grid[gy * gw + gx].iter() {
-                    match srcs[..n].iter_mut().find(|e| e.0 == s) {
-                        Some(e) => e.1 += cw * wt,
-                        None => {
-                            srcs[n] = (s, cw * wt);
-                            n += 1;
-                        }
-                    }
-                }
-            }
-            for &(s, wt) in &srcs[..n] {
-                sample(s, wt, &mut acc);
-            }
-        } else {
-            let root = &self.roots[leaf.root as usize];
-            let bary = root.bary * Vector3::new(p.x, p.y, 1.0);
-            // Corners that share a view are sampled once, with their weights summed.
-            let mut srcs = [(usize::MAX, 0.0f32); 3 * support::MAX_BLEND];
-            let mut n = 0;
-            for (j, &vi) in root.v.iter().enumerate() {
-                let wv = bary[j].clamp(0.0, 1.0) as f32;
-                for (s, wt) in self.vertices[vi].blend.iter() {
-                    match srcs[..n].iter_mut().find(|e| e.0 == s) {
-                        Some(e) => e.1 += wv * wt,
-                        None => {
-                            srcs[n] = (s, wv * wt);
-                            n += 1;
-                        }
-                    }
-                }
-            }
-            for &(s, wt) in &srcs[..n] {
-                sample(s, wt, &mut acc);
-            }
-        }
-        if acc.visible.weight <= 1e-3 {
-            // No triangle camera sees the point: the nearest view that does.
-            let all = acc.all;
-            acc = Acc::default();
-            for &s in self.order.iter().take(8) {
-                sample(s, 1.0, &mut acc);
-                if acc.visible.weight > 0.0 {
-                    break;
-                }
-            }
-            if acc.visible.weight <= 0.0 {
-                acc.visible = if all.weight > 1e-3 { all } else { acc.all };
-            }
-        }
-        let v = acc.visible;
-        (v.weight > 0.0).then(|| (v.colour.map(|c| c / v.weight), z))
     }
 }
