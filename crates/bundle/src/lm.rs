@@ -228,16 +228,23 @@ fn run(
         swap_params(p, &mut cand);
         let cand_cost = p.cost(&loss);
         let change = lin.cost - cand_cost;
-        if cand_cost.is_finite() && change.abs() <= opts.function_tolerance * lin.cost {
-            if change < 0.0 {
-                swap_params(p, &mut cand);
-            } else {
+        let ratio = change / model_decrease;
+        let success =
+            cand_cost.is_finite() && model_decrease > 0.0 && ratio > opts.min_relative_decrease;
+        // Converged when an accepted step gains almost nothing, or when even the linear model
+        // promises almost nothing. A rejected step whose cost barely moved is not convergence:
+        // it overshot along a long, flat valley (a weakly determined parameter such as the
+        // principal point against the rotations), and a smaller step still descends.
+        let negligible = |v: f64| v.abs() <= opts.function_tolerance * lin.cost;
+        if (success && negligible(change)) || (!success && negligible(model_decrease)) {
+            if success {
                 successful += 1;
+            } else {
+                swap_params(p, &mut cand);
             }
             break Termination::FunctionTolerance;
         }
-        let ratio = change / model_decrease;
-        if cand_cost.is_finite() && model_decrease > 0.0 && ratio > opts.min_relative_decrease {
+        if success {
             successful += 1;
             radius = (radius / (1.0f64 / 3.0).max(1.0 - (2.0 * ratio - 1.0).powi(3)))
                 .min(opts.max_trust_region_radius);

@@ -188,12 +188,14 @@ pub(crate) fn linearize(p: &Problem, st: &Structure, loss: &RobustLoss) -> Linea
                 let o = o as usize;
                 let c = p.obs_camera[o] as usize;
                 let (own, sh) = st.cam_ncols[c];
-                let lo = if st.cam_block[c] as usize == b {
-                    0
+                // Which of the camera's two blocks `b` is: its own (poses, unshared
+                // intrinsics) or its group's shared intrinsics. A held camera has no own block
+                // (`own` = 0), and its observations still count for the shared one.
+                let (lo, d) = if st.cam_block[c] as usize == b {
+                    (0, own)
                 } else {
-                    own
+                    (own, sh)
                 };
-                let d = if lo == 0 { own } else { sh };
                 let r = res[o];
                 for k in 0..d {
                     let col = jc[o * js + lo + k];

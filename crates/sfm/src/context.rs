@@ -3,6 +3,7 @@
 //! system of the projective stage (§3.1–3.3) is well conditioned.
 
 use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
 use handheld_core::ImageId;
@@ -27,6 +28,9 @@ pub(crate) struct Context<'a> {
     /// Localisation σ (pixels) of every keypoint, per image id, for metric BA; empty when the
     /// observations are not weighted (see [`keypoint_sigmas`]).
     pub keypoint_sigma: BTreeMap<ImageId, Arc<[f64]>>,
+    /// Set when the model being built was found not to determine its principal point
+    /// (`frame::principal_point_test`): every later adjustment holds it at the image centre.
+    principal_point_held: AtomicBool,
 }
 
 /// σ = √(s / median s), clamped to [0.5, 4], of every keypoint with a detection scale `s`
@@ -90,7 +94,19 @@ impl<'a> Context<'a> {
             kn,
             scale,
             keypoint_sigma: keypoint_sigmas(input, opts),
+            principal_point_held: AtomicBool::new(false),
         }
+    }
+
+    /// Whether metric adjustments refine the principal point: the options ask for it and the
+    /// model being built has not been found to leave it undetermined.
+    pub fn refines_principal_point(&self) -> bool {
+        self.opts.refine_principal_point && !self.principal_point_held.load(Ordering::Relaxed)
+    }
+
+    /// Holds (or frees again) the principal point of the model being built.
+    pub fn hold_principal_point(&self, held: bool) {
+        self.principal_point_held.store(held, Ordering::Relaxed);
     }
 
     /// RANSAC options of a resection (projective or calibrated) of `image`: T(1,1), a seed per

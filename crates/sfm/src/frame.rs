@@ -96,6 +96,8 @@ pub(crate) fn adjust_metric_frame(
     StepError,
 > {
     let mut report = up.report;
+    // A new model: its principal point is free until its own test says otherwise.
+    ctx.hold_principal_point(false);
     let known = ctx.opts.known_intrinsics.and_then(|k| {
         let focal = 0.5 * (k.fx + k.fy) * ctx.scale.first().copied().unwrap_or(f64::NAN);
         let h = hypotheses::known_focal_upgrade(model, focal).filter(|h| !h.clamped)?;
@@ -190,7 +192,7 @@ pub(crate) fn adjust_metric_frame(
                         1.0 + metric_ba::PROFILE_STEP
                     };
                     let start =
-                        match metric_ba::held_adjustment(ctx, &rec, estimate_aspect, Some(scale)) {
+                        match metric_ba::held_adjustment(ctx, &rec, estimate_aspect, metric_ba::Hold::Focal(scale)) {
                             Ok((_, r)) => r,
                             Err(e) => {
                                 tracing::debug!("{e}");
@@ -210,6 +212,9 @@ pub(crate) fn adjust_metric_frame(
                         None => break,
                     }
                 }
+            }
+            if ctx.opts.known_intrinsics.is_none() && ctx.refines_principal_point() {
+                principal_point_test(ctx, &mut rec, &mut adjustments, estimate_aspect, &mut report);
             }
             // Judged again against what is kept now: other frames first, then the profile.
             if ambiguity.is_some() || flat.is_some() {
@@ -241,4 +246,61 @@ pub(crate) fn adjust_metric_frame(
         "no metric frame survived its bundle adjustment ({}); {advice}",
         guard::describe_rejections(&tried)
     )))
+}
+
+/// χ²₂'s 95 % quantile: a principal point closer to the centre than this, in units of its spread,
+/// is not told apart from it.
+const CHI2_2_95: f64 = 5.991;
+
+/// Whether the images determine the principal point (`metric_ba::principal_point_spread`). When
+/// no group's principal point is significantly away from the image centre (χ² test at 95 % with
+/// the jackknife's σ), it is held there from now on (for this model's every later adjustment) and
+/// the frame is adjusted again with it held: a parameter the data do not determine is left at its
+/// prior rather than fitted to noise and to what the model does not capture.
+fn principal_point_test(
+    ctx: &Context,
+    rec: &mut MetricReconstruction,
+    adjustments: &mut Vec<metric_ba::MetricBaRecord>,
+    estimate_aspect: bool,
+    report: &mut metric::SelfCalibrationReport,
+) {
+    let t = Instant::now();
+    let spread = match metric_ba::principal_point_spread(ctx, rec, estimate_aspect) {
+        Ok(s) if !s.is_empty() => s,
+        Ok(_) => return,
+        Err(e) => {
+            tracing::debug!("{e}");
+            return;
+        }
+    };
+    tracing::debug!(
+        ?spread,
+        seconds = t.elapsed().as_secs_f64(),
+        "principal point spread"
+    );
+    let determined = spread.iter().any(|s| s.chi2() >= CHI2_2_95);
+    report.principal_point_spread = spread;
+    if determined {
+        return;
+    }
+    ctx.hold_principal_point(true);
+    let mut held = rec.clone();
+    for cam in held.cameras.values_mut() {
+        cam.intrinsics.pp = metric_ba::image_centre(cam.width, cam.height);
+    }
+    match metric_ba::refine_metric(ctx, &mut held, estimate_aspect) {
+        Ok(a) => {
+            tracing::info!(
+                "the images do not determine the principal point (it is within its spread over \
+                 the views of the image centre): it is held at the centre"
+            );
+            *rec = held;
+            *adjustments = a;
+            report.principal_point_held = true;
+        }
+        Err(e) => {
+            tracing::debug!("adjustment with the principal point held: {e}");
+            ctx.hold_principal_point(false);
+        }
+    }
 }

@@ -46,6 +46,12 @@ pub struct SelfCalibrationReport {
     /// its value, relative to the cost with it free (`metric_ba::focal_profile`); near 1 when the
     /// images do not determine the focal length.
     pub focal_profile: Option<[f64; 2]>,
+    /// Per intrinsics group, the principal point's offset from the image centre against its
+    /// jackknife spread over the views (`metric_ba::principal_point_spread`).
+    pub principal_point_spread: Vec<crate::metric_ba::PrincipalPointSpread>,
+    /// True when no group's principal point was significantly away from the image centre, so
+    /// every later adjustment of this model held it there.
+    pub principal_point_held: bool,
 }
 
 /// A start of the model that was abandoned: its initial pair and why.
@@ -133,6 +139,8 @@ pub(crate) fn upgrade(
         rejected_starts: Vec::new(),
         focal_ambiguity: None,
         focal_profile: None,
+        principal_point_spread: Vec::new(),
+        principal_point_held: false,
     };
     Ok(Upgraded {
         rec,

@@ -57,7 +57,7 @@ pub(crate) fn uncertainty(
         f: true,
         aspect: false,
         skew: false,
-        principal_point: o.refine_principal_point,
+        principal_point: ctx.refines_principal_point(),
         k1: o.distortion != Distortion::None,
         k2: o.distortion == Distortion::K1K2,
     };
