@@ -318,7 +318,12 @@ fn the_held_view_still_counts_for_the_shared_intrinsics() {
         let mut r = rec.clone();
         let s = bundle_adjust_metric(&mut r, &config, &opts).expect("runs");
         assert!(s.termination.converged(), "{:?}", s.termination);
-        r.cameras.values().next().expect("one camera").intrinsics.clone()
+        r.cameras
+            .values()
+            .next()
+            .expect("one camera")
+            .intrinsics
+            .clone()
     };
     let first = solve(MetricBundleConfig {
         refine,
@@ -331,7 +336,22 @@ fn the_held_view_still_counts_for_the_shared_intrinsics() {
         ..Default::default()
     });
     println!("first view held: {first:?}\nlast view held: {other:?}");
-    assert!((first.f / other.f - 1.0).abs() < 1e-6, "f {} vs {}", first.f, other.f);
-    assert!((first.pp - other.pp).norm() < 1e-3, "pp {} vs {}", first.pp, other.pp);
-    assert!((first.k1 - other.k1).abs() < 1e-6, "k1 {} vs {}", first.k1, other.k1);
+    assert!(
+        (first.f / other.f - 1.0).abs() < 1e-6,
+        "f {} vs {}",
+        first.f,
+        other.f
+    );
+    assert!(
+        (first.pp - other.pp).norm() < 1e-3,
+        "pp {} vs {}",
+        first.pp,
+        other.pp
+    );
+    assert!(
+        (first.k1 - other.k1).abs() < 1e-6,
+        "k1 {} vs {}",
+        first.k1,
+        other.k1
+    );
 }

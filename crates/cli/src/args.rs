@@ -233,9 +233,10 @@ pub struct InputArgs {
     /// reliably more accurate, so it is off by default.
     #[arg(long)]
     pub refine_keypoints: bool,
-    /// Sparse: weight metric BA observations by their keypoint's detection scale (σ ∝ √scale).
+    /// Sparse: weight every metric BA observation alike instead of by its keypoint's detection
+    /// scale (σ ∝ √scale, the default).
     #[arg(long)]
-    pub scale_weights: bool,
+    pub unweighted_observations: bool,
     /// Sparse: a known calibration `FX,FY,CX,CY` in pixels, COLMAP's convention (the top-left
     /// pixel's centre at 0.5, 0.5, as in a COLMAP `cameras.txt`). It pins the focal lengths and the
     /// principal point of every camera in metric BA; without it the cameras are self-calibrated.
@@ -297,7 +298,7 @@ impl InputArgs {
         sfm.seed = self.seed;
         sfm.distortion = self.distortion;
         sfm.refine_principal_point = !self.fixed_principal_point;
-        sfm.scale_weighted_observations = self.scale_weights;
+        sfm.scale_weighted_observations = !self.unweighted_observations;
         sfm.known_intrinsics = self.intrinsics;
         sfm.principal_point_prior = self.principal_point_prior;
         sfm.estimate_aspect = match self.aspect {

@@ -191,14 +191,18 @@ pub(crate) fn adjust_metric_frame(
                     } else {
                         1.0 + metric_ba::PROFILE_STEP
                     };
-                    let start =
-                        match metric_ba::held_adjustment(ctx, &rec, estimate_aspect, metric_ba::Hold::Focal(scale)) {
-                            Ok((_, r)) => r,
-                            Err(e) => {
-                                tracing::debug!("{e}");
-                                break;
-                            }
-                        };
+                    let start = match metric_ba::held_adjustment(
+                        ctx,
+                        &rec,
+                        estimate_aspect,
+                        metric_ba::Hold::Focal(scale),
+                    ) {
+                        Ok((_, r)) => r,
+                        Err(e) => {
+                            tracing::debug!("{e}");
+                            break;
+                        }
+                    };
                     match guard::challenge(
                         (&(), "focal profile", &start),
                         projective_rms,
@@ -214,7 +218,13 @@ pub(crate) fn adjust_metric_frame(
                 }
             }
             if ctx.opts.known_intrinsics.is_none() && ctx.refines_principal_point() {
-                principal_point_test(ctx, &mut rec, &mut adjustments, estimate_aspect, &mut report);
+                principal_point_test(
+                    ctx,
+                    &mut rec,
+                    &mut adjustments,
+                    estimate_aspect,
+                    &mut report,
+                );
             }
             // Judged again against what is kept now: other frames first, then the profile.
             if ambiguity.is_some() || flat.is_some() {
