@@ -112,7 +112,9 @@ pub fn match_descriptors(a: &Descriptors, b: &Descriptors, opts: &MatchOptions) 
                 };
                 rows
             ];
-            let mut col_best = vec![(f32::NEG_INFINITY, u32::MAX); if opts.mutual { m } else { 0 }];
+            let mcols = if opts.mutual { m } else { 0 };
+            let (mut col_val, mut col_row) =
+                (vec![f32::NEG_INFINITY; mcols], vec![u32::MAX; mcols]);
             let mut scores = vec![0f32; rows * COL_BLOCK.min(m)];
             for j0 in (0..m).step_by(COL_BLOCK) {
                 let cols = COL_BLOCK.min(m - j0);
@@ -127,31 +129,22 @@ pub fn match_descriptors(a: &Descriptors, b: &Descriptors, opts: &MatchOptions) 
                 );
                 let nbb = &nb[j0..j0 + cols];
                 for (r, srow) in s.chunks_exact(cols).enumerate() {
-                    let bst = &mut best[r];
-                    for (c, (&sv, &nj)) in srow.iter().zip(nbb).enumerate() {
-                        let key = 2.0 * sv - nj;
-                        if key > bst.s2 {
-                            if key > bst.s1 {
-                                bst.s2 = bst.s1;
-                                bst.s1 = key;
-                                bst.j1 = (j0 + c) as u32;
-                            } else {
-                                bst.s2 = key;
-                            }
-                        }
-                    }
+                    scan_row(srow, nbb, j0, &mut best[r]);
                     if opts.mutual {
                         let ni = na[i0 + r];
                         let i = (i0 + r) as u32;
-                        for (cb, &sv) in col_best[j0..j0 + cols].iter_mut().zip(srow) {
+                        let (cv, ci) = (&mut col_val[j0..j0 + cols], &mut col_row[j0..j0 + cols]);
+                        // Branch-free, so it vectorises: each column keeps its best row so far.
+                        for ((v, k), &sv) in cv.iter_mut().zip(ci.iter_mut()).zip(srow) {
                             let key = 2.0 * sv - ni;
-                            if key > cb.0 {
-                                *cb = (key, i);
-                            }
+                            let better = key > *v;
+                            *v = if better { key } else { *v };
+                            *k = if better { i } else { *k };
                         }
                     }
                 }
             }
+            let col_best = col_val.into_iter().zip(col_row).collect();
             (best, col_best)
         })
         .collect();
@@ -195,6 +188,39 @@ pub fn match_descriptors(a: &Descriptors, b: &Descriptors, opts: &MatchOptions) 
         }
     }
     out
+}
+
+/// Lanes of [`scan_row`]'s vectorised pass.
+const SCAN_LANES: usize = 16;
+
+/// Updates a row's two best keys `2 s − ‖b‖²` (the largest is the nearest descriptor) over one
+/// block of scores starting at column `j0`. Most chunks of columns hold nothing better than the
+/// second best so far: their maximum, computed branch-free, skips them; the others are scanned in
+/// order, so ties resolve exactly as a plain scan does (the first column wins).
+#[inline]
+fn scan_row(srow: &[f32], nbb: &[f32], j0: usize, bst: &mut Best2) {
+    let mut c0 = 0;
+    for (sc, nc) in srow.chunks(SCAN_LANES).zip(nbb.chunks(SCAN_LANES)) {
+        let mx = sc
+            .iter()
+            .zip(nc)
+            .fold(f32::NEG_INFINITY, |a, (&sv, &nj)| a.max(2.0 * sv - nj));
+        if mx > bst.s2 {
+            for (c, (&sv, &nj)) in sc.iter().zip(nc).enumerate() {
+                let key = 2.0 * sv - nj;
+                if key > bst.s2 {
+                    if key > bst.s1 {
+                        bst.s2 = bst.s1;
+                        bst.s1 = key;
+                        bst.j1 = (j0 + c0 + c) as u32;
+                    } else {
+                        bst.s2 = key;
+                    }
+                }
+            }
+        }
+        c0 += sc.len();
+    }
 }
 
 /// `c (rows × cols) = a (rows × d) · bᵀ` for row-major `a`, `b` (cols × d) and `c`.
