@@ -55,4 +55,68 @@ fn iclnuim_all_five_views_registered_and_scored() {
     assert_eq!(v["registered"], 5, "{v}");
     let auc5 = v["auc@5"].as_f64().unwrap();
     assert!(auc5 >= 50.0, "AUC@5 {auc5}");
+    // ICL-NUIM's renderer puts the principal point exactly at the image centre (319.5, 239.5 in
+    // gt/intrinsics.txt), and five nearby views cannot tell it apart from there: it is held.
+    let summary = read_json(&ws.path().join("sparse/summary.json"));
+    let sc = &summary["self_calibration"];
+    assert_eq!(
+        sc["principal_point_held"], true,
+        "{}",
+        sc["principal_point_spread"]
+    );
+}
+
+/// herzjesu-P8's principal point is 15 px left of and 17 px above the image centre (its
+/// ground-truth K: 1520.69, 1006.81 for 3072×2048). The views determine it: the principal point
+/// test leaves it free, and the estimate is closer to the truth than the centre is.
+#[test]
+fn herzjesu_principal_point_is_estimated_not_held() {
+    let data = shared().join("datasets/herzjesu-P8");
+    if !data.join("images").is_dir() {
+        eprintln!("skipping: ../shared/datasets/herzjesu-P8 missing");
+        return;
+    }
+    let ws = tempfile::tempdir().unwrap();
+    let images = data.join("images");
+    let o = handheld(&[
+        "--quiet",
+        "reconstruct",
+        images.to_str().unwrap(),
+        "-o",
+        ws.path().to_str().unwrap(),
+        "--until",
+        "sparse",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let summary = read_json(&ws.path().join("sparse/summary.json"));
+    let sc = &summary["self_calibration"];
+    assert_eq!(
+        sc["principal_point_held"], false,
+        "{}",
+        sc["principal_point_spread"]
+    );
+    // cameras.txt: `1 SIMPLE_RADIAL 3072 2048 f cx cy k1` (COLMAP's pixel convention, + 0.5).
+    let cameras = std::fs::read_to_string(ws.path().join("sparse/cameras.txt")).unwrap();
+    let line = cameras.lines().find(|l| !l.starts_with('#')).unwrap();
+    let p: Vec<f64> = line
+        .split_whitespace()
+        .skip(4)
+        .map(|t| t.parse().unwrap())
+        .collect();
+    let (cx, cy) = (p[1] - 0.5, p[2] - 0.5);
+    let truth = (1520.69, 1006.81);
+    let centre = (1535.5, 1023.5);
+    let err = (cx - truth.0).hypot(cy - truth.1);
+    let centre_err = (centre.0 - truth.0).hypot(centre.1 - truth.1);
+    println!(
+        "principal point ({cx:.1}, {cy:.1}): {err:.1} px from the truth, centre {centre_err:.1} px"
+    );
+    assert!(
+        err < 0.75 * centre_err,
+        "{err} px from the truth, centre {centre_err} px"
+    );
+}
+
+fn read_json(path: &std::path::Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
 }
