@@ -29,18 +29,7 @@ fn iclnuim_all_five_views_registered_and_scored() {
         eprintln!("skipping: ../shared/datasets/iclnuim-5, eval_sfm.py or python3 + numpy missing");
         return;
     }
-    let ws = tempfile::tempdir().unwrap();
-    let images = data.join("images");
-    let o = handheld(&[
-        "--quiet",
-        "reconstruct",
-        images.to_str().unwrap(),
-        "-o",
-        ws.path().to_str().unwrap(),
-        "--until",
-        "sparse",
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    let ws = reconstruct_sparse(&data.join("images"));
     let e = Command::new("python3")
         .arg(&eval)
         .arg(ws.path().join("sparse"))
@@ -76,18 +65,7 @@ fn herzjesu_principal_point_is_estimated_not_held() {
         eprintln!("skipping: ../shared/datasets/herzjesu-P8 missing");
         return;
     }
-    let ws = tempfile::tempdir().unwrap();
-    let images = data.join("images");
-    let o = handheld(&[
-        "--quiet",
-        "reconstruct",
-        images.to_str().unwrap(),
-        "-o",
-        ws.path().to_str().unwrap(),
-        "--until",
-        "sparse",
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    let ws = reconstruct_sparse(&data.join("images"));
     let summary = read_json(&ws.path().join("sparse/summary.json"));
     let sc = &summary["self_calibration"];
     assert_eq!(
@@ -115,6 +93,22 @@ fn herzjesu_principal_point_is_estimated_not_held() {
         err < 0.75 * centre_err,
         "{err} px from the truth, centre {centre_err} px"
     );
+}
+
+/// `handheld reconstruct IMAGES -o WS --until sparse` in a new temporary workspace.
+fn reconstruct_sparse(images: &std::path::Path) -> tempfile::TempDir {
+    let ws = tempfile::tempdir().unwrap();
+    let o = handheld(&[
+        "--quiet",
+        "reconstruct",
+        images.to_str().unwrap(),
+        "-o",
+        ws.path().to_str().unwrap(),
+        "--until",
+        "sparse",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    ws
 }
 
 fn read_json(path: &std::path::Path) -> serde_json::Value {

@@ -191,18 +191,14 @@ pub(crate) fn adjust_metric_frame(
                     } else {
                         1.0 + metric_ba::PROFILE_STEP
                     };
-                    let start = match metric_ba::held_adjustment(
-                        ctx,
-                        &rec,
-                        estimate_aspect,
-                        metric_ba::Hold::Focal(scale),
-                    ) {
-                        Ok((_, r)) => r,
-                        Err(e) => {
-                            tracing::debug!("{e}");
-                            break;
-                        }
-                    };
+                    let start =
+                        match metric_ba::held_adjustment(ctx, &rec, estimate_aspect, Some(scale)) {
+                            Ok((_, r)) => r,
+                            Err(e) => {
+                                tracing::debug!("{e}");
+                                break;
+                            }
+                        };
                     match guard::challenge(
                         (&(), "focal profile", &start),
                         projective_rms,

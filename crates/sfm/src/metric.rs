@@ -10,7 +10,7 @@ use handheld_core::{
     Camera, CameraId, Intrinsics, MetricReconstruction, Observation, Point3D, PointId, Rigid3,
     Track, TrackElement, View,
 };
-use nalgebra::{Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector2, Vector3};
+use nalgebra::{Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
 use serde::Serialize;
 
 use crate::context::Context;
@@ -262,10 +262,7 @@ fn build_metric(
             f,
             aspect: a,
             skew: 0.0,
-            pp: Vector2::new(
-                (im.width as f64 - 1.0) / 2.0,
-                (im.height as f64 - 1.0) / 2.0,
-            ),
+            pp: crate::metric_ba::image_centre(im.width, im.height),
             k1: 0.0,
             k2: 0.0,
         };

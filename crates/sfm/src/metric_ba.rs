@@ -30,6 +30,20 @@ pub struct MetricBaRecord {
     pub points_removed: usize,
 }
 
+impl MetricBaRecord {
+    fn of(step: &str, s: &handheld_bundle::BundleSummary, removed: usize, points: usize) -> Self {
+        Self {
+            step: step.to_string(),
+            iterations: s.iterations,
+            initial_rms_px: s.initial_rms_px,
+            final_rms_px: s.final_rms_px,
+            seconds: s.total_seconds,
+            observations_removed: removed,
+            points_removed: points,
+        }
+    }
+}
+
 /// Removes observations whose reprojection error exceeds `max_px` (or that lie behind their
 /// camera) and points left with fewer than `min_track` views. Returns (observations, points) removed.
 pub(crate) fn filter_metric(
@@ -148,15 +162,7 @@ fn adjust_metric(
         let s = bundle_adjust_metric(rec, &config, &bopts)
             .map_err(|e| format!("metric bundle adjustment ({name}): {e}"))?;
         let (ro, rp) = filter_metric(rec, thr, o.min_track_length);
-        records.push(MetricBaRecord {
-            step: name.to_string(),
-            iterations: s.iterations,
-            initial_rms_px: s.initial_rms_px,
-            final_rms_px: s.final_rms_px,
-            seconds: s.total_seconds,
-            observations_removed: ro,
-            points_removed: rp,
-        });
+        records.push(MetricBaRecord::of(name, &s, ro, rp));
         // The model reported is the optimum of the observations it keeps: the ones the last
         // filter removed had pulled on it, and on the weakly determined parameters (the
         // principal point against the rotations) that pull is worth pixels (herzjesu-P8: 12 px
@@ -164,15 +170,7 @@ fn adjust_metric(
         if name == "final" && ro > 0 {
             let s = bundle_adjust_metric(rec, &config, &bopts)
                 .map_err(|e| format!("metric bundle adjustment (survivors): {e}"))?;
-            records.push(MetricBaRecord {
-                step: "survivors".to_string(),
-                iterations: s.iterations,
-                initial_rms_px: s.initial_rms_px,
-                final_rms_px: s.final_rms_px,
-                seconds: s.total_seconds,
-                observations_removed: 0,
-                points_removed: 0,
-            });
+            records.push(MetricBaRecord::of("survivors", &s, 0, 0));
         }
     }
     Ok(records)
@@ -219,47 +217,24 @@ pub(crate) fn focal_profile(
     estimate_aspect: bool,
 ) -> Result<[f64; 2], String> {
     let sample = subsample_points(rec, PROFILE_MAX_POINTS);
-    let free = held_adjustment(ctx, &sample, estimate_aspect, Hold::Nothing)?
+    let free = held_adjustment(ctx, &sample, estimate_aspect, None)?
         .0
         .max(f64::MIN_POSITIVE);
     let (low, high) = rayon::join(
-        || {
-            held_adjustment(
-                ctx,
-                &sample,
-                estimate_aspect,
-                Hold::Focal(1.0 - PROFILE_STEP),
-            )
-        },
-        || {
-            held_adjustment(
-                ctx,
-                &sample,
-                estimate_aspect,
-                Hold::Focal(1.0 + PROFILE_STEP),
-            )
-        },
+        || held_adjustment(ctx, &sample, estimate_aspect, Some(1.0 - PROFILE_STEP)),
+        || held_adjustment(ctx, &sample, estimate_aspect, Some(1.0 + PROFILE_STEP)),
     );
     Ok([low?.0 / free, high?.0 / free])
 }
 
-/// What [`held_adjustment`] holds away from the free adjustment.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub(crate) enum Hold {
-    /// Nothing: every parameter the schedule refines is free.
-    Nothing,
-    /// The focal lengths, scaled by this factor.
-    Focal(f64),
-}
-
-/// `rec` adjusted on its observations as they are (no filtering) with what `hold` names moved and
-/// held there; every other parameter the schedule refines is free. Returns the robust cost and
-/// the adjusted model.
+/// `rec` adjusted on its observations as they are (no filtering) with its focal lengths scaled by
+/// `scale` and held there, or free (`None`); every other parameter the schedule refines is free.
+/// Returns the robust cost and the adjusted model.
 pub(crate) fn held_adjustment(
     ctx: &Context,
     rec: &MetricReconstruction,
     estimate_aspect: bool,
-    hold: Hold,
+    scale: Option<f64>,
 ) -> Result<(f64, MetricReconstruction), String> {
     let o = ctx.opts;
     let Setup { full, priors, .. } = setup(ctx, rec, estimate_aspect);
@@ -272,25 +247,23 @@ pub(crate) fn held_adjustment(
         ..Default::default()
     };
     let mut r = rec.clone();
-    let mut refine = full;
-    match hold {
-        Hold::Nothing => {}
-        Hold::Focal(sc) => {
-            for cam in r.cameras.values_mut() {
-                cam.intrinsics.f *= sc;
-            }
-            refine.f = false;
+    if let Some(sc) = scale {
+        for cam in r.cameras.values_mut() {
+            cam.intrinsics.f *= sc;
         }
     }
     let config = MetricBundleConfig {
-        refine,
+        refine: IntrinsicsMask {
+            f: scale.is_none(),
+            ..full
+        },
         priors,
         keypoint_sigma: ctx.keypoint_sigma.clone(),
         ..Default::default()
     };
     bundle_adjust_metric(&mut r, &config, &bopts)
         .map(|s| (s.final_cost, r))
-        .map_err(|e| format!("held adjustment ({hold:?}): {e}"))
+        .map_err(|e| format!("focal profile: {e}"))
 }
 
 /// The image centre in Handheld's pixel convention: the principal point's prior mean.
@@ -320,7 +293,7 @@ pub(crate) fn principal_point_spread(
     estimate_aspect: bool,
 ) -> Result<Vec<PrincipalPointSpread>, String> {
     let sample = subsample_points(rec, PROFILE_MAX_POINTS);
-    let free = held_adjustment(ctx, &sample, estimate_aspect, Hold::Nothing)?.1;
+    let free = held_adjustment(ctx, &sample, estimate_aspect, None)?.1;
     let ids: Vec<ImageId> = sample.views.keys().copied().collect();
     let g = ids.len().min(JACKKNIFE_GROUPS);
     if g < 3 {
@@ -331,7 +304,7 @@ pub(crate) fn principal_point_spread(
         .map(|k| {
             let out: BTreeSet<ImageId> = ids.iter().copied().skip(k).step_by(g).collect();
             let part = without_views(&sample, &out);
-            held_adjustment(ctx, &part, estimate_aspect, Hold::Nothing)
+            held_adjustment(ctx, &part, estimate_aspect, None)
                 .ok()
                 .map(|(_, r)| r)
         })
@@ -395,15 +368,7 @@ fn without_views(rec: &MetricReconstruction, out: &BTreeSet<ImageId>) -> MetricR
             dead.push(*pid);
         }
     }
-    for pid in dead {
-        if let Some(p) = r.points.remove(&pid) {
-            for el in p.track.elements {
-                if let Some(v) = r.views.get_mut(&el.image_id) {
-                    v.observations[el.point2d_idx as usize].point_id = None;
-                }
-            }
-        }
-    }
+    remove_points(&mut r, dead);
     r
 }
 
@@ -427,16 +392,21 @@ fn subsample_points(rec: &MetricReconstruction, max: usize) -> MetricReconstruct
         .filter(|(k, _)| k % step != 0)
         .map(|(_, id)| *id)
         .collect();
-    for id in dropped {
-        if let Some(p) = out.points.remove(&id) {
+    remove_points(&mut out, dropped);
+    out
+}
+
+/// Removes the points `ids` and detaches their observations from the views.
+fn remove_points(rec: &mut MetricReconstruction, ids: impl IntoIterator<Item = PointId>) {
+    for id in ids {
+        if let Some(p) = rec.points.remove(&id) {
             for el in p.track.elements {
-                if let Some(v) = out.views.get_mut(&el.image_id) {
+                if let Some(v) = rec.views.get_mut(&el.image_id) {
                     v.observations[el.point2d_idx as usize].point_id = None;
                 }
             }
         }
     }
-    out
 }
 
 /// What every adjustment of the schedule shares: the intrinsics refined in the first step
