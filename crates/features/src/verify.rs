@@ -250,14 +250,18 @@ impl Grid {
         // Along the outer axis the line's inner coordinate is t(s) = −(b·s + c)/a; the band is
         // ±band·n/|a| around it.
         let (a, b) = if steep { (l.x, l.y) } else { (l.y, l.x) };
-        let half = band * n / a.abs();
-        let t = |s: f64| -(b * s + l.z) / a;
+        // In cell units: the line's inner coordinate at the start of strip o is u0 + o·du, and the
+        // band is ±h around it. Truncation toward zero stands in for floor: it differs only below
+        // zero, where the range is clamped to 0 anyway (or comes out empty, or one cell wider).
+        let inv_cell = 1.0 / self.cell;
+        let h = band * n / a.abs() * inv_cell;
+        let du = -b / a;
+        let u0 = -l.z / a * inv_cell;
+        let last = inner as i64 - 1;
         for o in 0..outer {
-            let (t0, t1) = (t(o as f64 * self.cell), t((o + 1) as f64 * self.cell));
-            let lo = ((t0.min(t1) - half) / self.cell).floor().max(0.0);
-            let hi = ((t0.max(t1) + half) / self.cell)
-                .floor()
-                .min(inner as f64 - 1.0);
+            let (t0, t1) = (u0 + du * o as f64, u0 + du * (o + 1) as f64);
+            let lo = ((t0.min(t1) - h) as i64).max(0);
+            let hi = ((t0.max(t1) + h) as i64).min(last);
             if hi < lo {
                 continue;
             }
