@@ -16,7 +16,28 @@ use clap::Parser;
 use args::{BenchCommand, Cli, Command, GlobalArgs};
 use handheld_pipeline::{files, StageReport};
 
+/// Tells glibc's allocator to keep freed memory for reuse. By default it hands every block above
+/// a dynamic threshold back to the kernel (mmap/munmap, and trimming the heap top), and bundle
+/// adjustment and matching allocate and free such buffers in every iteration: on fountain-P11 the
+/// sparse stage spent 1.4 s of its 3.1 s in the kernel (page faults, TLB shootdowns). With blocks
+/// up to 32 MiB kept in the heap, no trimming, and the heap grown 64 MiB at a time, the kernel
+/// share falls to a third and the whole sparse run is about 7 % faster. (mimalloc and jemalloc, tried
+/// instead, were slower here: both return pages to the kernel on their own schedule.)
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+fn keep_freed_memory() {
+    // SAFETY: mallopt only sets allocator parameters; it is called before any thread starts.
+    unsafe {
+        libc::mallopt(libc::M_MMAP_THRESHOLD, 32 << 20);
+        libc::mallopt(libc::M_TRIM_THRESHOLD, i32::MAX);
+        libc::mallopt(libc::M_TOP_PAD, 64 << 20);
+    }
+}
+
+#[cfg(not(all(target_os = "linux", target_env = "gnu")))]
+fn keep_freed_memory() {}
+
 fn main() -> ExitCode {
+    keep_freed_memory();
     let cli = match Cli::try_parse() {
         Ok(cli) => cli,
         Err(e) => {
