@@ -49,9 +49,12 @@ pub struct SelfCalibrationReport {
     /// Per intrinsics group, the principal point's offset from the image centre against its
     /// jackknife spread over the views (`metric_ba::principal_point_spread`).
     pub principal_point_spread: Vec<crate::metric_ba::PrincipalPointSpread>,
-    /// True when no group's principal point was significantly away from the image centre, so
-    /// every later adjustment of this model held it there.
+    /// True when no group's principal point was significantly away from the image centre, or
+    /// when the views hardly rotate (see `orientation_spread_deg`), so the model was adjusted
+    /// again with it held there.
     pub principal_point_held: bool,
+    /// Largest angle between a view's orientation and the views' mean orientation, degrees.
+    pub orientation_spread_deg: Option<f64>,
 }
 
 /// A start of the model that was abandoned: its initial pair and why.
@@ -141,6 +144,7 @@ pub(crate) fn upgrade(
         focal_profile: None,
         principal_point_spread: Vec::new(),
         principal_point_held: false,
+        orientation_spread_deg: None,
     };
     Ok(Upgraded {
         rec,

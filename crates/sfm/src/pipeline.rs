@@ -208,6 +208,15 @@ pub(crate) fn build_model(
         metric_ba.extend(records);
         record(&mut timings, "video_frames", t_frames);
     }
+    // Whether the images determine the principal point, judged on the final model: the metric
+    // frame may hold only some of the views (templeSparseRing without one view: 11 of 15, whose
+    // principal point is 3 px off-centre, within its spread, while all 15 put it 17 px off, as
+    // the ground truth has it).
+    if ctx.opts.known_intrinsics.is_none() && ctx.refines_principal_point() {
+        let t_pp = Instant::now();
+        frame::principal_point_test(ctx, &mut rec, &mut metric_ba, estimate_aspect, &mut report);
+        record(&mut timings, "principal_point_test", t_pp);
+    }
     // The aspect ratio a camera that only translates cannot determine, judged on the final model
     // (a video's in-between frames are adjusted with it last).
     if estimate_aspect && report.focal_ambiguity.is_none() && ctx.opts.known_intrinsics.is_none() {
