@@ -302,6 +302,7 @@ fn predicted_matches_step(
     rec: &mut MetricReconstruction,
     estimate_aspect: bool,
 ) -> Result<Vec<MetricBaRecord>, StepError> {
+    let before = rec.clone();
     let added = predict::extend_tracks(ctx, rec);
     if added == 0 {
         return Ok(Vec::new());
@@ -310,8 +311,17 @@ fn predicted_matches_step(
         extended = added,
         "observations added by predicted projection"
     );
-    metric_ba::final_adjustment(ctx, rec, estimate_aspect)
-        .map_err(|reason| StepError::PredictedMatches { added, reason })
+    let records = metric_ba::final_adjustment(ctx, rec, estimate_aspect)
+        .map_err(|reason| StepError::PredictedMatches { added, reason })?;
+    if let Some(why) = guard::collapsed(rec, &records) {
+        tracing::warn!(
+            "the adjustment with the {added} observations found at predicted projections {why}: \
+             they are dropped and the model is kept as it was before them"
+        );
+        *rec = before;
+        return Ok(Vec::new());
+    }
+    Ok(records)
 }
 
 /// Video: every in-between frame from its tracks, then all frames adjusted together. `None` when

@@ -288,3 +288,13 @@ fn a_camera_that_only_translates_is_flagged() {
     }
     assert_eq!(translation_only(&rec), None);
 }
+
+#[test]
+fn an_adjustment_after_the_frame_that_removes_most_observations_is_a_collapse() {
+    // The model keeps 40 observations; 2 more were filtered (5 %): sound.
+    let rec = model(500.0);
+    assert_eq!(collapsed(&rec, &adjusted(2, 0.3)), None);
+    // 160 filtered: 80 % of the 200 it started from.
+    let why = collapsed(&rec, &adjusted(160, 0.3)).expect("a collapse");
+    assert!(why.contains("80 %"), "{why}");
+}
