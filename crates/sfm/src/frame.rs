@@ -251,9 +251,9 @@ pub(crate) fn adjust_metric_frame(
 /// 1997, §4: under pure translation a shift of the principal point is a common rotation of all
 /// views, to first order). The jackknife over views cannot see this, since every subset of such a
 /// sequence shares the ambiguity: on kitti-seq1 (orientations within 0.7°) the freely adjusted
-/// principal point is 15 px from the truth in y, while its jackknife σ reads 2 px. The sets whose
-/// principal point the images do determine turn by far more (fountain-P11: 59°, herzjesu-P8:
-/// 22°, templeSparseRing: 161°, iclnuim-5: 59°).
+/// principal point is 15 px from the truth in y, while its jackknife σ reads 2 px. The other sets
+/// turn by far more (fountain-P11: 59°, herzjesu-P8: 22°, templeSparseRing: 161°, iclnuim-5:
+/// 59°), and for them the jackknife decides.
 const MIN_ORIENTATION_SPREAD_DEG: f64 = 2.0;
 
 /// Largest angle between a view's orientation and the views' chordal L2 mean orientation
