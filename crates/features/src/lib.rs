@@ -5,11 +5,13 @@
 //! patches whose dot product is the ZNCC of eq. 9), [`klt`] (pyramidal Lucas–Kanade tracking, eq. 8),
 //! [`keyframes`] (video key-frames by GRIC, §3.1 footnote 1), [`sift`] (SIFT-class wide-baseline features, RootSIFT), [`matching`] (brute-force descriptor matching
 //! by matrix product, ratio and mutual tests), [`verify`] (Table 1 over image pairs: RANSAC, model
-//! selection, guided matching, refinement), [`video`] (KLT tracks over a whole video, key-frames and
+//! selection, guided matching, refinement; the keypoint grid of its epipolar-band queries is in
+//! `epipolar_grid`), [`video`] (KLT tracks over a whole video, key-frames and
 //! key-frame pairs).
 
 pub mod close_views;
 pub mod detector;
+mod epipolar_grid;
 pub mod error;
 pub mod extract;
 pub mod gray;

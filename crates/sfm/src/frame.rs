@@ -327,14 +327,13 @@ pub(crate) fn principal_point_test(
     for cam in held.cameras.values_mut() {
         cam.intrinsics.pp = metric_ba::image_centre(cam.width, cam.height);
     }
-    match metric_ba::refine_metric(ctx, &mut held, estimate_aspect) {
-        Ok(a) if guard::collapsed(&held, &a).is_some() => {
-            tracing::debug!(
-                "adjustment with the principal point held {}",
-                guard::collapsed(&held, &a).unwrap_or_default()
-            );
-            ctx.hold_principal_point(false);
+    let adjusted = metric_ba::refine_metric(ctx, &mut held, estimate_aspect).and_then(|a| {
+        match guard::collapsed(&held, &a) {
+            Some(why) => Err(why),
+            None => Ok(a),
         }
+    });
+    match adjusted {
         Ok(a) => {
             tracing::info!(
                 "the images do not determine the principal point (it is within its spread over \
