@@ -31,6 +31,38 @@ pub(crate) fn initial_cameras(
     let mut d = Matrix3::identity();
     d[(smallest, smallest)] = 0.0;
     let e_mat = u * d * vt;
+    let (_, r, t) = essential_pose(&e_mat, x1, x2)?;
+    // e: the epipole in image 2 (Fᵀ e = 0), oriented along t; F scaled to best match E = [t]× R.
+    let e = t.normalize();
+    let target = skew(&e) * r;
+    let mut fs = f * (target.norm() / f.norm());
+    if (fs.transpose() * target).trace() < 0.0 {
+        fs = -fs;
+    }
+    let m = skew(&e) * fs;
+    let proj = Matrix3::identity() - e * e.transpose();
+    let pr = proj * r;
+    let s = (pr.transpose() * (proj * m)).trace() / pr.norm_squared();
+    if s.abs() <= 1e-12 || s.is_nan() {
+        return None;
+    }
+    let a = (s * r - m).transpose() * e;
+    let left = (m + e * a.transpose()) / s;
+    let mut p2 = Matrix3x4::zeros();
+    p2.fixed_view_mut::<3, 3>(0, 0).copy_from(&left);
+    p2.fixed_view_mut::<3, 1>(0, 3).copy_from(&e);
+    Some(p2)
+}
+
+/// The one of the four `(R, t)` of an essential matrix (H&Z §9.6.2) that puts the most of the
+/// normalised matches `x1 ↔ x2` (`x2ᵀ E x1 = 0`; at most 200 of them, evenly spaced) in front of
+/// both cameras: `x2 ~ R x1 + t`. Returns that count with the pose; `e` need not have two equal
+/// singular values (its SVD is re-ordered, only `U` and `Vᵀ` are used).
+pub(crate) fn essential_pose(
+    e_mat: &Matrix3<f64>,
+    x1: &[Vector2<f64>],
+    x2: &[Vector2<f64>],
+) -> Option<(usize, Matrix3<f64>, Vector3<f64>)> {
     let w = Matrix3::new(0.0, -1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0);
     // Four (R, t) candidates of the essential matrix E ≈ F (H&Z §9.6.2); the ordering of singular
     // values is handled by building E's own SVD.
@@ -77,27 +109,7 @@ pub(crate) fn initial_cameras(
             }
         }
     }
-    let (_, r, t) = best?;
-    // e: the epipole in image 2 (Fᵀ e = 0), oriented along t; F scaled to best match E = [t]× R.
-    let e = t.normalize();
-    let target = skew(&e) * r;
-    let mut fs = f * (target.norm() / f.norm());
-    if (fs.transpose() * target).trace() < 0.0 {
-        fs = -fs;
-    }
-    let m = skew(&e) * fs;
-    let proj = Matrix3::identity() - e * e.transpose();
-    let pr = proj * r;
-    let s = (pr.transpose() * (proj * m)).trace() / pr.norm_squared();
-    if s.abs() <= 1e-12 || s.is_nan() {
-        return None;
-    }
-    let a = (s * r - m).transpose() * e;
-    let left = (m + e * a.transpose()) / s;
-    let mut p2 = Matrix3x4::zeros();
-    p2.fixed_view_mut::<3, 3>(0, 0).copy_from(&left);
-    p2.fixed_view_mut::<3, 1>(0, 3).copy_from(&e);
-    Some(p2)
+    best
 }
 
 /// Sets up the initial frame from a verified pair (Table 2, steps 2.1–2.4). `None` when the pair

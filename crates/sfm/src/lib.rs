@@ -8,6 +8,7 @@
 //! a silent partial result.
 
 mod canonical;
+pub mod consistency;
 mod context;
 mod frame;
 pub mod graph;
@@ -103,6 +104,8 @@ pub struct ModelSummary {
     pub uncertainty: Option<UncertaintyReport>,
     /// Why uncertainty statistics are missing, when they are.
     pub uncertainty_note: Option<String>,
+    /// Whether the views agree with their verified pairs, and those taken out (`consistency.rs`).
+    pub view_consistency: consistency::ConsistencyReport,
     pub timings_s: BTreeMap<String, f64>,
 }
 
@@ -266,6 +269,7 @@ fn summarize(
         metric_ba,
         uncertainty,
         uncertainty_note,
+        view_consistency: Default::default(),
         timings_s,
     }
 }

@@ -356,7 +356,7 @@ impl PrincipalPointSpread {
 
 /// `rec` without the views `out`: their observations are detached, and points left with fewer
 /// than two observations removed.
-fn without_views(rec: &MetricReconstruction, out: &BTreeSet<ImageId>) -> MetricReconstruction {
+pub(crate) fn without_views(rec: &MetricReconstruction, out: &BTreeSet<ImageId>) -> MetricReconstruction {
     let mut r = rec.clone();
     for id in out {
         r.views.remove(id);

@@ -10,14 +10,17 @@
 //!    resection (`register.rs`), then adjusted again;
 //! 5. [`predicted_matches_step`]: more observations at the predicted projections (§3.2,
 //!    `predict.rs`), then a final adjustment;
-//! 6. [`video_frames_step`]: a video's in-between frames from their tracks (`video.rs`);
-//! 7. [`uncertainty_step`]: per-point and intrinsics uncertainty (`uncertainty.rs`).
+//! 6. [`consistency_step`]: views whose pose disagrees with their verified pairs are taken out
+//!    (`consistency.rs`), and the model adjusted again;
+//! 7. [`video_frames_step`]: a video's in-between frames from their tracks (`video.rs`);
+//! 8. [`uncertainty_step`]: per-point and intrinsics uncertainty (`uncertainty.rs`).
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::time::Instant;
 
-use handheld_core::{MetricReconstruction, Progress};
+use handheld_core::{ImageId, MetricReconstruction, Progress};
 
+use crate::consistency::{self, ConsistencyReport};
 use crate::context::Context;
 use crate::model::ProjectiveModel;
 use crate::{
@@ -134,6 +137,24 @@ fn abandoned(rejected: &[metric::RejectedStart], last: StepError) -> StepError {
 /// upgrades cleanly, as COLMAP retries its initial pairs.
 pub const MAX_STARTS: usize = 3;
 
+/// How many times one model is built again without the views the consistency check flagged
+/// (`consistency.rs`): a misplaced view bends the model around it (templeSparseRing without one
+/// view: focal length 4 % off, rotations 2° off even after the view is taken out), while the same
+/// views built without it from the start are sound.
+pub const MAX_REBUILDS: usize = 1;
+
+/// A model through its predicted matches (steps 1–5), before the consistency check.
+struct Core {
+    model: ProjectiveModel,
+    rec: MetricReconstruction,
+    is_prior: bool,
+    report: metric::SelfCalibrationReport,
+    metric_ba: Vec<MetricBaRecord>,
+    timings: Timings,
+    /// Seconds spent in the metric frame's adjustment.
+    metric_frame_s: f64,
+}
+
 /// Builds the next model from the free views of `search`: the steps of the module docs in order.
 /// `Ok(None)` when the projective model holds fewer than 2 views (nothing more can be built); an
 /// error names the step that failed. The views of the projective model are taken from `search`
@@ -143,6 +164,157 @@ pub(crate) fn build_model(
     search: &mut Search,
     progress: &dyn Progress,
 ) -> Result<Option<SfmModel>, StepError> {
+    let estimate_aspect = ctx.opts.estimate_aspect.unwrap_or(ctx.input.video);
+    let t_all = Instant::now();
+    let entry = (search.allowed.clone(), search.failures.clone());
+    let Some(mut core) = core_model(ctx, search, progress)? else {
+        return Ok(None);
+    };
+    // Views misplaced in the model: build it again without them, then try to register them into
+    // the sound model by calibrated resection (they are judged again below).
+    let mut banned: Vec<(usize, consistency::ViewDisagreement)> = Vec::new();
+    for _ in 0..MAX_REBUILDS {
+        let (flagged, _) = consistency::inconsistent_views(ctx, &core.rec);
+        if flagged.is_empty() {
+            break;
+        }
+        let kept = (search.allowed.clone(), search.failures.clone());
+        search.allowed = entry.0.clone();
+        search.failures = entry.1.clone();
+        for &i in banned.iter().chain(&flagged).map(|(i, _)| i) {
+            search.allowed[i] = false;
+        }
+        let names = flagged
+            .iter()
+            .map(|(_, d)| format!("{} ({:.1}°)", d.image, d.median_deg))
+            .collect::<Vec<_>>()
+            .join(", ");
+        match core_model(ctx, search, progress) {
+            Ok(Some(rebuilt)) if rebuilt.rec.views.len() + flagged.len() >= core.rec.views.len() => {
+                tracing::info!(
+                    "the model was built again without the views whose poses disagreed with their verified image pairs: {names}"
+                );
+                banned.extend(flagged);
+                core = rebuilt;
+            }
+            // The views cannot be spared: keep the model; the check below takes them out.
+            _ => {
+                search.allowed = kept.0;
+                search.failures = kept.1;
+                break;
+            }
+        }
+    }
+    let Core {
+        model,
+        mut rec,
+        is_prior,
+        mut report,
+        mut metric_ba,
+        mut timings,
+        metric_frame_s,
+    } = core;
+    let t2 = Instant::now();
+    if !banned.is_empty() {
+        let t_reg = Instant::now();
+        let mut allowed = vec![false; ctx.input.images.len()];
+        for (i, _) in &banned {
+            allowed[*i] = true;
+        }
+        let mut again = Search {
+            allowed,
+            failures: std::mem::take(&mut search.failures),
+        };
+        let before = rec.clone();
+        match calibrated_registration_step(ctx, &mut rec, &mut again, estimate_aspect) {
+            Ok(records) => metric_ba.extend(records),
+            Err(e) => {
+                tracing::warn!("{e}; the model is kept without those views");
+                rec = before;
+            }
+        }
+        search.failures = again.failures;
+        for (i, d) in &banned {
+            let id = ctx.input.images[*i].id;
+            if rec.views.contains_key(&id) {
+                continue;
+            }
+            let why = search.failures.remove(i).unwrap_or_default();
+            search.failures.insert(
+                *i,
+                format!(
+                    "registered first with a pose that disagreed with its verified image pairs by {:.1}° (median over {} partners); the model was built again without it, and it could not join that model: {why}",
+                    d.median_deg, d.partners
+                ),
+            );
+        }
+        record(&mut timings, "calibrated_registration_again", t_reg);
+    }
+    let t_con = Instant::now();
+    let (mut consistency, records) = consistency_step(ctx, &mut rec, search, estimate_aspect);
+    consistency.rebuilt_without = banned.into_iter().map(|(_, d)| d).collect();
+    metric_ba.extend(records);
+    record(&mut timings, "view_consistency", t_con);
+    let t_frames = Instant::now();
+    if let Some(records) = video_frames_step(ctx, &mut rec, search, estimate_aspect)? {
+        metric_ba.extend(records);
+        record(&mut timings, "video_frames", t_frames);
+    }
+    // Whether the images determine the principal point, judged on the final model: the metric
+    // frame may hold only some of the views (templeSparseRing without one view: 11 of 15, whose
+    // principal point is 3 px off-centre, within its spread, while all 15 put it 17 px off, as
+    // the ground truth has it).
+    if ctx.opts.known_intrinsics.is_none() && ctx.refines_principal_point() {
+        let t_pp = Instant::now();
+        frame::principal_point_test(ctx, &mut rec, &mut metric_ba, estimate_aspect, &mut report);
+        record(&mut timings, "principal_point_test", t_pp);
+    }
+    // The aspect ratio a camera that only translates cannot determine, judged on the final model
+    // (a video's in-between frames are adjusted with it last).
+    if estimate_aspect && report.focal_ambiguity.is_none() && ctx.opts.known_intrinsics.is_none() {
+        if let Some(why) = guard::translation_only(&rec) {
+            report.focal_ambiguity = guard::aspect_undetermined(&rec, &why);
+            if let Some(w) = &report.focal_ambiguity {
+                tracing::warn!("{w}");
+            }
+        }
+    }
+    if is_prior {
+        report.used_prior_fallback = true;
+    }
+    timings.insert(
+        "metric_ba".into(),
+        metric_frame_s + t2.elapsed().as_secs_f64(),
+    );
+    let t3 = Instant::now();
+    let (uncertainty, uncertainty_note) = uncertainty_step(ctx, &rec);
+    record(&mut timings, "uncertainty", t3);
+    record(&mut timings, "model", t_all);
+    let mut summary = crate::summarize(
+        ctx,
+        &model,
+        &rec,
+        report,
+        metric_ba,
+        uncertainty,
+        uncertainty_note,
+        timings,
+    );
+    summary.view_consistency = consistency;
+    Ok(Some(SfmModel {
+        reconstruction: rec,
+        summary,
+    }))
+}
+
+/// Steps 1–5 on the free views of `search`: the projective model, its metric frame (started again
+/// from the next initial pair when none survives, up to [`MAX_STARTS`]), calibrated registration
+/// and the predicted matches. `Ok(None)` when the projective model holds fewer than 2 views.
+fn core_model(
+    ctx: &Context,
+    search: &mut Search,
+    progress: &dyn Progress,
+) -> Result<Option<Core>, StepError> {
     let estimate_aspect = ctx.opts.estimate_aspect.unwrap_or(ctx.input.video);
     let mut timings = Timings::new();
     let mut excluded: Vec<(usize, usize)> = Vec::new();
@@ -190,7 +362,6 @@ pub(crate) fn build_model(
         }
     };
     report.rejected_starts = rejected;
-    let t2 = Instant::now();
     let metric_frame_s = timings.get("metric_ba").copied().unwrap_or(0.0);
     let t_reg = Instant::now();
     metric_ba.extend(calibrated_registration_step(
@@ -203,53 +374,14 @@ pub(crate) fn build_model(
     let t_pred = Instant::now();
     metric_ba.extend(predicted_matches_step(ctx, &mut rec, estimate_aspect)?);
     record(&mut timings, "predicted_matches", t_pred);
-    let t_frames = Instant::now();
-    if let Some(records) = video_frames_step(ctx, &mut rec, search, estimate_aspect)? {
-        metric_ba.extend(records);
-        record(&mut timings, "video_frames", t_frames);
-    }
-    // Whether the images determine the principal point, judged on the final model: the metric
-    // frame may hold only some of the views (templeSparseRing without one view: 11 of 15, whose
-    // principal point is 3 px off-centre, within its spread, while all 15 put it 17 px off, as
-    // the ground truth has it).
-    if ctx.opts.known_intrinsics.is_none() && ctx.refines_principal_point() {
-        let t_pp = Instant::now();
-        frame::principal_point_test(ctx, &mut rec, &mut metric_ba, estimate_aspect, &mut report);
-        record(&mut timings, "principal_point_test", t_pp);
-    }
-    // The aspect ratio a camera that only translates cannot determine, judged on the final model
-    // (a video's in-between frames are adjusted with it last).
-    if estimate_aspect && report.focal_ambiguity.is_none() && ctx.opts.known_intrinsics.is_none() {
-        if let Some(why) = guard::translation_only(&rec) {
-            report.focal_ambiguity = guard::aspect_undetermined(&rec, &why);
-            if let Some(w) = &report.focal_ambiguity {
-                tracing::warn!("{w}");
-            }
-        }
-    }
-    if is_prior {
-        report.used_prior_fallback = true;
-    }
-    timings.insert(
-        "metric_ba".into(),
-        metric_frame_s + t2.elapsed().as_secs_f64(),
-    );
-    let t3 = Instant::now();
-    let (uncertainty, uncertainty_note) = uncertainty_step(ctx, &rec);
-    record(&mut timings, "uncertainty", t3);
-    let summary = crate::summarize(
-        ctx,
-        &model,
-        &rec,
+    Ok(Some(Core {
+        model,
+        rec,
+        is_prior,
         report,
         metric_ba,
-        uncertainty,
-        uncertainty_note,
         timings,
-    );
-    Ok(Some(SfmModel {
-        reconstruction: rec,
-        summary,
+        metric_frame_s,
     }))
 }
 
@@ -322,6 +454,69 @@ fn predicted_matches_step(
         return Ok(Vec::new());
     }
     Ok(records)
+}
+
+/// Views whose pose disagrees with their verified pairs (`consistency.rs`) are taken out of the
+/// model, recorded as failures, and the model is adjusted again without them (intrinsics
+/// included: the misplaced view pulled them too). When that adjustment fails or collapses, the
+/// model is kept as it was and a warning says which views it does not trust.
+fn consistency_step(
+    ctx: &Context,
+    rec: &mut MetricReconstruction,
+    search: &mut Search,
+    estimate_aspect: bool,
+) -> (ConsistencyReport, Vec<MetricBaRecord>) {
+    let (flagged, max_kept_deg) = consistency::inconsistent_views(ctx, rec);
+    let mut report = ConsistencyReport {
+        max_kept_deg,
+        ..Default::default()
+    };
+    if flagged.is_empty() {
+        return (report, Vec::new());
+    }
+    let before = rec.clone();
+    let out: BTreeSet<ImageId> = flagged
+        .iter()
+        .map(|(i, _)| ctx.input.images[*i].id)
+        .collect();
+    *rec = metric_ba::without_views(rec, &out);
+    let list = flagged
+        .iter()
+        .map(|(_, d)| format!("{} ({:.1}°)", d.image, d.median_deg))
+        .collect::<Vec<_>>()
+        .join(", ");
+    let adjusted = metric_ba::refine_metric(ctx, rec, estimate_aspect).and_then(|records| {
+        match guard::collapsed(rec, &records) {
+            Some(why) => Err(why),
+            None => Ok(records),
+        }
+    });
+    match adjusted {
+        Ok(records) => {
+            tracing::warn!(
+                "taken out of the model because their poses disagree with their verified image pairs (median over their partners): {list}"
+            );
+            for (i, d) in flagged {
+                search.failures.insert(
+                    i,
+                    format!(
+                        "registered with a pose that disagreed with its verified image pairs by {:.1}° (median over {} partners), so it was taken out of the model",
+                        d.median_deg, d.partners
+                    ),
+                );
+                report.removed.push(d);
+            }
+            (report, records)
+        }
+        Err(why) => {
+            *rec = before;
+            tracing::warn!(
+                "these views disagree with their verified image pairs, so their poses are not trustworthy, but the model without them could not be adjusted ({why}): {list}"
+            );
+            report.max_kept_deg = flagged.first().map(|(_, d)| d.median_deg);
+            (report, Vec::new())
+        }
+    }
 }
 
 /// Video: every in-between frame from its tracks, then all frames adjusted together. `None` when
