@@ -21,7 +21,7 @@ use std::collections::BTreeMap;
 
 use handheld_core::MetricReconstruction;
 use handheld_robust::TwoViewConfiguration;
-use nalgebra::{Rotation3, Vector2};
+use nalgebra::Vector2;
 use serde::Serialize;
 
 use crate::context::Context;
@@ -76,21 +76,25 @@ fn pair_disagreement(
     let kb = &rec.cameras.get(&vb.camera_id)?.intrinsics;
     // x_bᵀ F x_a = 0 in pixels; in normalised coordinates x_bᵀ (K_bᵀ F K_a) x_a = 0.
     let e = kb.k_matrix().transpose() * f * ka.k_matrix();
+    // The cheirality test needs a sample, not every inlier.
+    let step = pair.matches.len().div_ceil(200).max(1);
     let (xa, xb): (Vec<Vector2<f64>>, Vec<Vector2<f64>>) = pair
         .matches
         .iter()
+        .step_by(step)
         .map(|&(i, j)| {
             (
-                ka.pixel_to_normalized(ctx.kps[pair.a][i as usize]),
-                kb.pixel_to_normalized(ctx.kps[pair.b][j as usize]),
+                ka.pixel_to_normalized(ia.keypoints[i as usize]),
+                kb.pixel_to_normalized(ib.keypoints[j as usize]),
             )
         })
         .unzip();
     let (_, r, _) = crate::init::essential_pose(&e, &xa, &xb)?;
     let model = (vb.cam_from_world.rotation * va.cam_from_world.rotation.inverse())
         .to_rotation_matrix();
-    let two_view = Rotation3::from_matrix_unchecked(r);
-    Some((two_view * model.inverse()).angle().to_degrees())
+    let cos = (((r * model.matrix().transpose()).trace() - 1.0) / 2.0).clamp(-1.0, 1.0);
+    let deg = cos.acos().to_degrees();
+    deg.is_finite().then_some(deg)
 }
 
 /// The weighted median of `(value, weight)`.
@@ -169,6 +173,127 @@ pub(crate) fn inconsistent_views(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::graph::CorrespondenceGraph;
+    use crate::input::{SfmImage, SfmInput, SfmPair};
+    use crate::SfmOptions;
+    use handheld_core::{ImageId, PointId};
+    use handheld_geometry::skew;
+    use handheld_testkit::multiview::{multi_view_set, MultiViewOptions};
+    use nalgebra::{UnitQuaternion, Vector3};
+
+    /// Eight views of a seeded scene (0.5 px noise, no outliers) as the SfM input: keypoints are
+    /// the observations, every pair gets its common points as inliers and the exact fundamental
+    /// matrix of the true cameras (`x_bᵀ F x_a = 0`, F = K⁻ᵀ [t]× R K⁻¹ with R, t from a to b).
+    fn scene() -> (SfmInput, MetricReconstruction) {
+        let mv = multi_view_set(&MultiViewOptions {
+            num_views: 8,
+            num_points: 800,
+            seed: 7,
+            ..Default::default()
+        })
+        .expect("synthetic set");
+        let rec = mv.reconstruction;
+        let ids: Vec<ImageId> = rec.views.keys().copied().collect();
+        let images: Vec<SfmImage> = ids
+            .iter()
+            .map(|id| {
+                let v = &rec.views[id];
+                let cam = &rec.cameras[&v.camera_id];
+                SfmImage {
+                    id: *id,
+                    name: v.name.clone(),
+                    width: cam.width,
+                    height: cam.height,
+                    keypoints: v.observations.iter().map(|o| o.xy).collect(),
+                    keypoint_scales: Vec::new(),
+                    camera_key: "cam".into(),
+                    focal_prior_px: None,
+                    frame: None,
+                    track_ids: Vec::new(),
+                    descriptors: Vec::new(),
+                    descriptor_dim: 0,
+                }
+            })
+            .collect();
+        let index = |id: ImageId, p: PointId| {
+            rec.views[&id]
+                .observations
+                .iter()
+                .position(|o| o.point_id == Some(p))
+        };
+        let mut pairs = Vec::new();
+        for a in 0..ids.len() {
+            for b in a + 1..ids.len() {
+                let matches: Vec<(u32, u32)> = rec
+                    .points
+                    .keys()
+                    .filter_map(|&p| Some((index(ids[a], p)? as u32, index(ids[b], p)? as u32)))
+                    .collect();
+                let (va, vb) = (&rec.views[&ids[a]], &rec.views[&ids[b]]);
+                let rel = vb.cam_from_world * va.cam_from_world.inverse();
+                let k = rec.cameras[&va.camera_id].intrinsics.k_matrix();
+                let ki = k.try_inverse().expect("K");
+                let e = skew(&rel.translation.vector) * rel.rotation.to_rotation_matrix().matrix();
+                pairs.push(SfmPair {
+                    a,
+                    b,
+                    matches,
+                    f: Some(ki.transpose() * e * ki),
+                    configuration: TwoViewConfiguration::General,
+                    view_distance_px: None,
+                });
+            }
+        }
+        let input = SfmInput {
+            images,
+            pairs,
+            video: false,
+        };
+        (input, rec)
+    }
+
+    #[test]
+    fn a_view_turned_away_from_its_pairs_is_flagged_and_no_other() {
+        let (input, mut rec) = scene();
+        let graph = CorrespondenceGraph::build(&input, 8);
+        let opts = SfmOptions::default();
+        let ctx = Context::new(&input, &graph, &opts);
+        let (flagged, max_kept) = inconsistent_views(&ctx, &rec);
+        assert!(flagged.is_empty(), "{flagged:?}");
+        let max_kept = max_kept.expect("pairs were compared");
+        assert!(max_kept < 0.2, "the true poses disagree by {max_kept}°");
+        // Turn view 3 by 12° about its own centre, as a registration to the wrong place would.
+        let id = input.images[3].id;
+        let turn = UnitQuaternion::from_axis_angle(&Vector3::y_axis(), 12f64.to_radians());
+        let v = rec.views.get_mut(&id).expect("view 3");
+        v.cam_from_world = nalgebra::Isometry3::from_parts(
+            (turn * v.cam_from_world.translation.vector).into(),
+            turn * v.cam_from_world.rotation,
+        );
+        let (flagged, max_kept) = inconsistent_views(&ctx, &rec);
+        assert_eq!(flagged.len(), 1, "{flagged:?}");
+        assert_eq!(flagged[0].0, 3);
+        assert!((flagged[0].1.median_deg - 12.0).abs() < 0.5, "{flagged:?}");
+        assert_eq!(flagged[0].1.partners, 7);
+        assert!(max_kept.expect("others") < 0.2);
+    }
+
+    #[test]
+    fn pairs_that_do_not_fix_a_rotation_are_not_compared() {
+        let (mut input, rec) = scene();
+        for (k, p) in input.pairs.iter_mut().enumerate() {
+            match k % 3 {
+                0 => p.configuration = TwoViewConfiguration::Planar,
+                1 => p.matches.truncate(MIN_PAIR_INLIERS - 1),
+                _ => p.f = None,
+            }
+        }
+        let graph = CorrespondenceGraph::build(&input, 8);
+        let opts = SfmOptions::default();
+        let ctx = Context::new(&input, &graph, &opts);
+        assert!(input.pairs.iter().all(|p| pair_disagreement(&ctx, &rec, p).is_none()));
+        assert_eq!(inconsistent_views(&ctx, &rec).1, None);
+    }
 
     #[test]
     fn weighted_median_follows_the_weights() {
