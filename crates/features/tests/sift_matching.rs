@@ -250,11 +250,24 @@ fn random_sets(n: usize, m: usize, copies: usize, seed: u64) -> (Descriptors, De
 }
 
 /// O(nm) reference in f64 with the documented semantics; also reports whether a row is a near tie.
+/// Descriptors in [0, 1] are compared as the matcher does, quantised to multiples of 1/512.
 fn naive(a: &Descriptors, b: &Descriptors, o: &MatchOptions) -> (Vec<Match>, Vec<bool>) {
+    let quantise = a
+        .data
+        .iter()
+        .chain(&b.data)
+        .all(|v| (0.0..=1.0).contains(v));
+    let value = |p: f32| {
+        if quantise {
+            f64::from((p * 512.0).round().clamp(0.0, 255.0)) / 512.0
+        } else {
+            f64::from(p)
+        }
+    };
     let dist2 = |x: &[f32], y: &[f32]| {
         x.iter()
             .zip(y)
-            .map(|(p, q)| (*p as f64 - *q as f64).powi(2))
+            .map(|(p, q)| (value(*p) - value(*q)).powi(2))
             .sum::<f64>()
     };
     let nearest = |row: &[f32], set: &Descriptors| {
@@ -378,7 +391,8 @@ fn ratio_and_mutual_semantics() {
     );
     assert_eq!(m.len(), 1);
     assert_eq!((m[0].i, m[0].j), (0, 0));
-    assert!((m[0].distance - 0.1).abs() < 1e-6);
+    // Quantised to multiples of 1/512: 0.1 is 51/512.
+    assert!((m[0].distance - 51.0 / 512.0).abs() < 1e-6);
     assert!(match_descriptors(
         &a,
         &b,
