@@ -172,7 +172,11 @@ fn a_demo_too_short_to_reconstruct_fails_and_writes_no_model() {
     let err = stderr(&o);
     assert!(err.contains("structure from motion"), "{err}");
     assert!(err.contains("no model could be built"), "{err}");
-    assert_eq!(err.lines().filter(|l| l.starts_with("error")).count(), 1, "{err}");
+    assert_eq!(
+        err.lines().filter(|l| l.starts_with("error")).count(),
+        1,
+        "{err}"
+    );
     assert!(!out.join("workspace/sparse/images.bin").exists());
     assert!(!out.join("workspace/sparse/manifest.json").exists());
 }
@@ -199,12 +203,21 @@ fn a_short_demo_keeps_a_usable_scale() {
     assert!(o.status.success(), "{}", stderr(&o));
     let v: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
     let sparse = &v["accuracy"]["sparse"];
-    assert!(sparse["focal_error_pct"].as_f64().unwrap() < 5.0, "{sparse}");
-    assert!(sparse["center_error_rel_extent_median"].as_f64().unwrap() < 0.02, "{sparse}");
+    assert!(
+        sparse["focal_error_pct"].as_f64().unwrap() < 5.0,
+        "{sparse}"
+    );
+    assert!(
+        sparse["center_error_rel_extent_median"].as_f64().unwrap() < 0.02,
+        "{sparse}"
+    );
     let rec = handheld_io::colmap::read_reconstruction(&out.join("workspace/sparse")).unwrap();
     let c: Vec<_> = rec.views.values().map(|v| v.center().coords).collect();
     let spread = c.iter().map(|p| (p - c[0]).norm()).fold(0.0f64, f64::max);
-    assert!(spread > 1e-3, "camera centres within {spread} of each other");
+    assert!(
+        spread > 1e-3,
+        "camera centres within {spread} of each other"
+    );
 }
 
 /// Twelve frames of the same orbit: a model is built, and when its focal length is wrong the run

@@ -81,6 +81,15 @@ pub fn feature_file_name(index: usize) -> String {
     format!("{index:06}.feat")
 }
 
+/// `features/thumbs/`: the report's thumbnail of each image, made while the features stage has it
+/// decoded (the report then does not decode the full images again).
+pub const THUMBS_DIR: &str = "thumbs";
+
+/// The name of image `index`'s thumbnail in [`THUMBS_DIR`].
+pub fn thumbnail_file_name(index: usize) -> String {
+    format!("{index:06}.jpg")
+}
+
 /// Writes `value` as pretty JSON, atomically.
 pub fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<()> {
     let bytes = serde_json::to_vec_pretty(value)

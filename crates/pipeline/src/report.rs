@@ -11,7 +11,9 @@ use nalgebra::Vector3;
 use rayon::prelude::*;
 
 use crate::error::Result;
-use crate::files::{stage, MODEL_GLB, PAIRS_JSON, PREVIEW_DIR, SUMMARY_JSON};
+use crate::files::{
+    stage, thumbnail_file_name, MODEL_GLB, PAIRS_JSON, PREVIEW_DIR, SUMMARY_JSON, THUMBS_DIR,
+};
 use crate::manifest::Workspace;
 use crate::stages::dense::DenseStageSummary;
 use crate::stages::sparse::SparseSummary;
@@ -30,7 +32,8 @@ const STAGES: [&str; 7] = [
 /// Faces of the mesh shown in the viewer, and the atlas's longer side.
 pub const VIEWER_FACES: usize = 100_000;
 pub const VIEWER_ATLAS: u32 = 2048;
-const THUMB: u32 = 240;
+/// The longer side of the report's thumbnails (made by the features stage, `files::THUMBS_DIR`).
+pub(crate) const THUMB: u32 = 240;
 
 /// What the warnings of the stages say, in words with what to do.
 fn explain(stage: &str, w: &str) -> String {
@@ -99,9 +102,18 @@ pub fn write_workspace_report(ws: &Workspace) -> Result<ReportSummary> {
         .map(|(k, (name, path))| ImageEntry {
             name: name.clone(),
             thumb: (k % step == 0)
-                .then(|| handheld_io::images::load_image(path, &opts).ok())
-                .flatten()
-                .map(|im| im.image.thumbnail(THUMB, THUMB).to_rgb8()),
+                .then(|| {
+                    // The features stage's thumbnail when there is one, else the image itself.
+                    let made = ws
+                        .path(stage::FEATURES, THUMBS_DIR)
+                        .join(thumbnail_file_name(k));
+                    image::open(&made).ok().map(|t| t.to_rgb8()).or_else(|| {
+                        handheld_io::images::load_image(path, &opts)
+                            .ok()
+                            .map(|im| im.image.thumbnail(THUMB, THUMB).to_rgb8())
+                    })
+                })
+                .flatten(),
             ..Default::default()
         })
         .collect();

@@ -137,6 +137,40 @@ fn the_stage_graph_runs_through_the_library() {
         .collect();
     let err = relative_rotation_error_deg(&est, &seq);
     assert!(err < 0.5, "relative rotation error {err}°");
+    // Points take the colour of their first observation's pixel, recorded by the features stage
+    // (the sparse stage decodes no image), and the features stage made the report's thumbnails.
+    let mut checked = 0;
+    for p in rec.points.values().step_by(50) {
+        let el = p.track.elements[0];
+        let v = &rec.views[&el.image_id];
+        let xy = v.observations[el.point2d_idx as usize].xy;
+        let k = seq
+            .gt
+            .views
+            .values()
+            .position(|g| g.name == v.name)
+            .expect("view");
+        let img = &seq.images[k];
+        let px = img.get_pixel(
+            (xy.x.round().max(0.0) as u32).min(img.width() - 1),
+            (xy.y.round().max(0.0) as u32).min(img.height() - 1),
+        );
+        assert_eq!(
+            p.color,
+            [px[0], px[1], px[2]],
+            "point at {xy:?} in {}",
+            v.name
+        );
+        checked += 1;
+    }
+    assert!(checked > 10);
+    for k in 0..seq.images.len() {
+        let t = ws_path
+            .join(stage::FEATURES)
+            .join(format!("thumbs/{k:06}.jpg"));
+        let t = image::open(&t).unwrap_or_else(|e| panic!("{}: {e}", t.display()));
+        assert_eq!(t.width().max(t.height()), 240);
+    }
     // Rendering before the dense stage falls back to the fixed plane, and says so.
     let plane_only = RenderScene::load(&ws, &[], 1600).expect("scene without depth");
     assert!(

@@ -90,8 +90,8 @@ fn pair_disagreement(
         })
         .unzip();
     let (_, r, _) = crate::init::essential_pose(&e, &xa, &xb)?;
-    let model = (vb.cam_from_world.rotation * va.cam_from_world.rotation.inverse())
-        .to_rotation_matrix();
+    let model =
+        (vb.cam_from_world.rotation * va.cam_from_world.rotation.inverse()).to_rotation_matrix();
     let cos = (((r * model.matrix().transpose()).trace() - 1.0) / 2.0).clamp(-1.0, 1.0);
     let deg = cos.acos().to_degrees();
     deg.is_finite().then_some(deg)
@@ -291,14 +291,26 @@ mod tests {
         let graph = CorrespondenceGraph::build(&input, 8);
         let opts = SfmOptions::default();
         let ctx = Context::new(&input, &graph, &opts);
-        assert!(input.pairs.iter().all(|p| pair_disagreement(&ctx, &rec, p).is_none()));
+        assert!(input
+            .pairs
+            .iter()
+            .all(|p| pair_disagreement(&ctx, &rec, p).is_none()));
         assert_eq!(inconsistent_views(&ctx, &rec).1, None);
     }
 
     #[test]
     fn weighted_median_follows_the_weights() {
-        assert_eq!(weighted_median(vec![(1.0, 1.0), (2.0, 1.0), (30.0, 1.0)]), 2.0);
-        assert_eq!(weighted_median(vec![(1.0, 10.0), (20.0, 1.0), (30.0, 1.0)]), 1.0);
-        assert_eq!(weighted_median(vec![(1.0, 1.0), (20.0, 5.0), (30.0, 5.0)]), 20.0);
+        assert_eq!(
+            weighted_median(vec![(1.0, 1.0), (2.0, 1.0), (30.0, 1.0)]),
+            2.0
+        );
+        assert_eq!(
+            weighted_median(vec![(1.0, 10.0), (20.0, 1.0), (30.0, 1.0)]),
+            1.0
+        );
+        assert_eq!(
+            weighted_median(vec![(1.0, 1.0), (20.0, 5.0), (30.0, 5.0)]),
+            20.0
+        );
     }
 }

@@ -202,7 +202,11 @@ pub(crate) fn keep_scale(rec: &mut MetricReconstruction) {
     }
     let (lo, hi) = SCALE_RANGE;
     if size < lo || size > hi || mean.norm() > hi * size {
-        tracing::debug!(size, offset = mean.norm(), "model brought back to unit size");
+        tracing::debug!(
+            size,
+            offset = mean.norm(),
+            "model brought back to unit size"
+        );
         rec.transform(&handheld_core::Sim3 {
             scale: 1.0 / size,
             rotation: nalgebra::UnitQuaternion::identity(),
@@ -391,7 +395,10 @@ impl PrincipalPointSpread {
 
 /// `rec` without the views `out`: their observations are detached, and points left with fewer
 /// than two observations removed.
-pub(crate) fn without_views(rec: &MetricReconstruction, out: &BTreeSet<ImageId>) -> MetricReconstruction {
+pub(crate) fn without_views(
+    rec: &MetricReconstruction,
+    out: &BTreeSet<ImageId>,
+) -> MetricReconstruction {
     let mut r = rec.clone();
     for id in out {
         r.views.remove(id);

@@ -190,7 +190,9 @@ pub(crate) fn build_model(
             .collect::<Vec<_>>()
             .join(", ");
         match core_model(ctx, search, progress) {
-            Ok(Some(rebuilt)) if rebuilt.rec.views.len() + flagged.len() >= core.rec.views.len() => {
+            Ok(Some(rebuilt))
+                if rebuilt.rec.views.len() + flagged.len() >= core.rec.views.len() =>
+            {
                 tracing::info!(
                     "the model was built again without the views whose poses disagreed with their verified image pairs: {names}"
                 );

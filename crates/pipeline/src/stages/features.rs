@@ -14,7 +14,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Context, PipelineError, Result};
-use crate::files::{feature_file_name, stage};
+use crate::files::{feature_file_name, stage, thumbnail_file_name, THUMBS_DIR};
 use crate::policy::FEW_FEATURES;
 use crate::stage::{Produced, Stage, StageContext};
 
@@ -155,7 +155,13 @@ impl Stage for Features {
                 let t0 = Instant::now();
                 let f = extract_features(&loaded.image, opts);
                 let secs = t0.elapsed().as_secs_f64();
-                let file = to_file(f);
+                let mut file = to_file(f);
+                file.colors = keypoint_colors(&loaded.image, &file.keypoints);
+                write_thumbnail(
+                    &dir.join(THUMBS_DIR).join(thumbnail_file_name(k)),
+                    &loaded.image,
+                )
+                .with_context(|| format!("thumbnail of {}", img.info.name))?;
                 write_features(&dir.join(feature_file_name(k)), &file)
                     .with_context(|| format!("features of {}", img.info.name))?;
                 bars.inc(1);
@@ -184,6 +190,38 @@ impl Stage for Features {
     }
 }
 
+/// Writes the report's thumbnail of `image` (at most [`crate::report::THUMB`] pixels on a side,
+/// JPEG), atomically.
+fn write_thumbnail(path: &Path, image: &image::DynamicImage) -> Result<()> {
+    let t = image
+        .thumbnail(crate::report::THUMB, crate::report::THUMB)
+        .to_rgb8();
+    let mut bytes = Vec::new();
+    image::codecs::jpeg::JpegEncoder::new_with_quality(&mut bytes, 90)
+        .encode_image(&t)
+        .map_err(|e| PipelineError::workspace(path, e.to_string()))?;
+    handheld_io::atomic::write_atomic(path, |w| w.write_all(&bytes))?;
+    Ok(())
+}
+
+/// The image's RGB at each keypoint (the nearest pixel; Handheld's convention puts the top-left
+/// pixel's centre at (0, 0)), so later stages colour points without decoding the image again.
+pub fn keypoint_colors(image: &image::DynamicImage, keypoints: &[[f32; 5]]) -> Vec<[u8; 3]> {
+    use image::{GenericImageView, Pixel};
+    let (w, h) = image.dimensions();
+    if w == 0 || h == 0 {
+        return Vec::new();
+    }
+    keypoints
+        .iter()
+        .map(|k| {
+            let x = (k[0].round().max(0.0) as u32).min(w - 1);
+            let y = (k[1].round().max(0.0) as u32).min(h - 1);
+            image.get_pixel(x, y).to_rgb().0
+        })
+        .collect()
+}
+
 /// The on-disk form of one image's features.
 pub fn to_file(f: handheld_features::Features) -> FeatureFile {
     FeatureFile {
@@ -194,6 +232,7 @@ pub fn to_file(f: handheld_features::Features) -> FeatureFile {
             .collect(),
         dim: f.descriptors.dim,
         descriptors: f.descriptors.data,
+        colors: Vec::new(),
     }
 }
 

@@ -113,7 +113,7 @@ impl Stage for Sparse {
     fn run(&self, ctx: &StageContext, dir: &Path) -> Result<Produced<SparseSummary>> {
         let ws = ctx.ws;
         let opts = &self.options.sfm;
-        let mut input = load_input(ws)?;
+        let (mut input, colours) = load_input_and_colours(ws)?;
         let refinement = match &self.options.refine_keypoints {
             Some(r) if !input.video => {
                 let t0 = std::time::Instant::now();
@@ -135,7 +135,7 @@ impl Stage for Sparse {
         let mut result =
             reconstruct(&input, opts, ctx.progress).context("structure from motion")?;
         for m in result.models.iter_mut() {
-            colorize(ws, &mut m.reconstruction)?;
+            colorize(ws, &mut m.reconstruction, &colours)?;
         }
         let unregistered: Vec<Unregistered> = result
             .unregistered
@@ -209,6 +209,12 @@ impl Stage for Sparse {
 
 /// Builds the SfM input from the features and matches stages.
 pub fn load_input(ws: &Workspace) -> Result<SfmInput> {
+    load_input_and_colours(ws).map(|(input, _)| input)
+}
+
+/// [`load_input`], and the colours the features stage recorded at each image's keypoints (empty
+/// for an image without them: video tracks, or features from an older version).
+fn load_input_and_colours(ws: &Workspace) -> Result<(SfmInput, Vec<Vec<[u8; 3]>>)> {
     let ingest = ws.read_ingest()?;
     let tracks = ws.read_tracks()?;
     if let Some(t) = &tracks {
@@ -223,13 +229,14 @@ pub fn load_input(ws: &Workspace) -> Result<SfmInput> {
             ));
         }
     }
-    let images: Vec<SfmImage> = ingest
+    let (images, colours): (Vec<SfmImage>, Vec<Vec<[u8; 3]>>) = ingest
         .images
         .par_iter()
         .enumerate()
         .map(|(k, img)| {
-            let f = ws.read_features(k)?;
-            Ok(SfmImage {
+            let mut f = ws.read_features(k)?;
+            let colours = std::mem::take(&mut f.colors);
+            let image = SfmImage {
                 id: image_id(k),
                 name: img.info.name.clone(),
                 width: img.info.width,
@@ -249,9 +256,17 @@ pub fn load_input(ws: &Workspace) -> Result<SfmInput> {
                     .unwrap_or_default(),
                 descriptors: quantize_descriptor(&f.descriptors),
                 descriptor_dim: f.dim,
-            })
+            };
+            let colours = if colours.len() == image.keypoints.len() {
+                colours
+            } else {
+                Vec::new()
+            };
+            Ok((image, colours))
         })
-        .collect::<Result<_>>()?;
+        .collect::<Result<Vec<_>>>()?
+        .into_iter()
+        .unzip();
     let summaries = ws.read_pairs()?;
     let db_path = ws.database_path();
     let db = Database::open(&db_path)?;
@@ -286,11 +301,14 @@ pub fn load_input(ws: &Workspace) -> Result<SfmInput> {
             view_distance_px: s.view_distance_px,
         });
     }
-    Ok(SfmInput {
-        images,
-        pairs,
-        video: ingest.kind == InputKind::Video,
-    })
+    Ok((
+        SfmInput {
+            images,
+            pairs,
+            video: ingest.kind == InputKind::Video,
+        },
+        colours,
+    ))
 }
 
 /// Registers the keypoints of every track to the track's reference (photos only; see
@@ -359,15 +377,31 @@ fn refine_input(
     Ok(summary)
 }
 
-/// Colours every point from the first image that sees it.
-fn colorize(ws: &Workspace, rec: &mut MetricReconstruction) -> Result<()> {
+/// Colours every point from the first image that sees it: the colour the features stage recorded
+/// at that keypoint, or, for images without recorded colours (video tracks), the image's pixel.
+fn colorize(
+    ws: &Workspace,
+    rec: &mut MetricReconstruction,
+    colours: &[Vec<[u8; 3]>],
+) -> Result<()> {
+    let recorded = |id: ImageId| {
+        (id.0 as usize)
+            .checked_sub(1)
+            .filter(|k| image_id(*k) == id)
+            .and_then(|k| colours.get(k))
+            .filter(|c| !c.is_empty())
+    };
     let paths = ws.image_paths()?;
     let opts = ImageIngestOptions {
         min_dimension: 1,
         ..Default::default()
     };
-    let views: Vec<(ImageId, String)> =
-        rec.views.values().map(|v| (v.id, v.name.clone())).collect();
+    let views: Vec<(ImageId, String)> = rec
+        .views
+        .values()
+        .filter(|v| recorded(v.id).is_none())
+        .map(|v| (v.id, v.name.clone()))
+        .collect();
     let imgs: BTreeMap<ImageId, image::RgbImage> = views
         .par_iter()
         .filter_map(|(id, name)| {
@@ -379,6 +413,10 @@ fn colorize(ws: &Workspace, rec: &mut MetricReconstruction) -> Result<()> {
         let Some(el) = pt.track.elements.first() else {
             continue;
         };
+        if let Some(c) = recorded(el.image_id).and_then(|c| c.get(el.point2d_idx as usize)) {
+            pt.color = *c;
+            continue;
+        }
         let (Some(img), Some(v)) = (imgs.get(&el.image_id), rec.views.get(&el.image_id)) else {
             continue;
         };
