@@ -2,7 +2,7 @@
 
 use handheld_eval::bench::{
     BundleBenchOptions, BundleProblem, ColmapSparseRun, DenseBenchOptions, HandheldSparseRun,
-    PycolmapSparseRun, SparseBenchOptions, SparseBenchReport, StereoBenchOptions,
+    PycolmapSparseRun, SparseBenchOptions, SparseBenchReport, SparseRound, StereoBenchOptions,
     StereoPairOptions,
 };
 use handheld_eval::demo::Scored;
@@ -145,6 +145,11 @@ fn sparse_bench_options_are_checked_by_name() {
         ..ok.clone()
     };
     assert_eq!(name(threads).as_deref(), Some("--threads"));
+    let rounds = SparseBenchOptions {
+        rounds: 0,
+        ..ok.clone()
+    };
+    assert_eq!(name(rounds).as_deref(), Some("--rounds"));
     let no_script = SparseBenchOptions {
         gt: Some("dataset".into()),
         eval_script: "".into(),
@@ -213,7 +218,15 @@ fn sparse_bench_report_has_the_ratio_per_stage() {
         run,
         eval: Some(serde_json::json!({ "registered": 10 })),
     };
-    let report = SparseBenchReport::new("images".into(), 2, handheld.clone(), Some(colmap), None);
+    let rounds = vec![SparseRound::of(&handheld, Some(&colmap.run))];
+    let report = SparseBenchReport::new(
+        "images".into(),
+        2,
+        handheld.clone(),
+        Some(colmap.clone()),
+        rounds,
+        None,
+    );
     let v = serde_json::to_value(&report).unwrap();
     assert_eq!(
         v["ratio"],
@@ -228,8 +241,38 @@ fn sparse_bench_report_has_the_ratio_per_stage() {
     assert!(v["handheld"].get("eval").is_none());
     let back: SparseBenchReport = serde_json::from_value(v).unwrap();
     assert_eq!(back, report);
+    // Three rounds, one of them on a slow spell of the machine: the ratios are of the medians.
+    let slow = HandheldSparseRun {
+        total_seconds: 30.0,
+        features_seconds: 13.0,
+        ..handheld.clone()
+    };
+    let fast_colmap = PycolmapSparseRun {
+        extraction_seconds: 20.0,
+        ..colmap.run.clone()
+    };
+    let rounds = vec![
+        SparseRound::of(&handheld, Some(&colmap.run)),
+        SparseRound::of(&slow, Some(&colmap.run)),
+        SparseRound::of(&handheld, Some(&fast_colmap)),
+    ];
+    let three = SparseBenchReport::new(
+        "images".into(),
+        2,
+        handheld.clone(),
+        Some(colmap),
+        rounds,
+        None,
+    );
+    let r = three.ratio.expect("ratio");
+    assert_eq!((r.extraction, r.total), (10.0, 9.0));
+    assert_eq!(
+        three.rounds[1].ratio.as_ref().expect("round ratio").total,
+        3.0
+    );
     // Handheld alone: no COLMAP, no ratio, no verdict.
-    let alone = SparseBenchReport::new("images".into(), 2, handheld, None, None);
+    let rounds = vec![SparseRound::of(&handheld, None)];
+    let alone = SparseBenchReport::new("images".into(), 2, handheld, None, rounds, None);
     let v = serde_json::to_value(&alone).unwrap();
     for key in ["colmap", "ratio", "meets_target", "work"] {
         assert!(v.get(key).is_none(), "{key} in {v}");

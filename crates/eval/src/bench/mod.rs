@@ -23,7 +23,7 @@ pub use pycolmap::{pycolmap_version, run_pycolmap_sparse, PycolmapSparseRun};
 pub use render::{bench_render, RenderBenchOptions, RenderBenchReport};
 pub use sparse::{
     bench_sparse, ColmapSparseRun, HandheldSparseRun, SparseBenchOptions, SparseBenchReport,
-    SparseRatios, TARGET_TOTAL_RATIO,
+    SparseRatios, SparseRound, TARGET_TOTAL_RATIO,
 };
 pub use specular::{bench_specular, SpecularBenchOptions, SpecularReport};
 pub use stereo::{

@@ -42,6 +42,9 @@ pub struct SparseBenchOptions {
     pub work: Option<PathBuf>,
     /// Handheld's options. Default: the pipeline's defaults, as `handheld reconstruct` runs.
     pub pipeline: PipelineOptions,
+    /// Rounds, each Handheld then COLMAP, interleaved so that a slow spell of a shared machine
+    /// falls on both; the ratios are of each stage's median over the rounds. Default 1.
+    pub rounds: usize,
 }
 
 impl Default for SparseBenchOptions {
@@ -54,6 +57,7 @@ impl Default for SparseBenchOptions {
             eval_script: PathBuf::from("../shared/tools/eval_sfm.py"),
             work: None,
             pipeline: PipelineOptions::default(),
+            rounds: 1,
         }
     }
 }
@@ -69,6 +73,9 @@ impl SparseBenchOptions {
         }
         if self.threads == Some(0) {
             return Err(EvalError::option("--threads", "must be at least 1"));
+        }
+        if self.rounds == 0 {
+            return Err(EvalError::option("--rounds", "must be at least 1"));
         }
         if self.gt.is_some() && self.eval_script.as_os_str().is_empty() {
             return Err(EvalError::option(
@@ -151,9 +158,12 @@ pub struct SparseBenchReport {
     /// With `colmap`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub colmap: Option<ColmapSparseRun>,
-    /// COLMAP ÷ Handheld, with `colmap`.
+    /// COLMAP ÷ Handheld, with `colmap`: of each stage's median over the rounds.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub ratio: Option<SparseRatios>,
+    /// Every round's times (seconds) and ratios, in order; `handheld` and `colmap` above are the
+    /// first round's runs.
+    pub rounds: Vec<SparseRound>,
     /// The target for `ratio.total` ([`TARGET_TOTAL_RATIO`]).
     pub target_total_ratio: f64,
     /// Whether `ratio.total` reaches the target, with `colmap`.
@@ -164,16 +174,81 @@ pub struct SparseBenchReport {
     pub work: Option<PathBuf>,
 }
 
+/// One round of the benchmark: Handheld's stages and whole call, COLMAP's stages, their ratios.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SparseRound {
+    /// Ingest + features, matches, sparse, whole call.
+    pub handheld_seconds: [f64; 4],
+    /// Extraction, matching, mapping, total; none without `colmap`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub colmap_seconds: Option<[f64; 4]>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub ratio: Option<SparseRatios>,
+}
+
+impl SparseRound {
+    /// The times of one round's runs.
+    pub fn of(handheld: &HandheldSparseRun, colmap: Option<&PycolmapSparseRun>) -> Self {
+        Self {
+            handheld_seconds: [
+                handheld.ingest_seconds + handheld.features_seconds,
+                handheld.matches_seconds,
+                handheld.sparse_seconds,
+                handheld.total_seconds,
+            ],
+            colmap_seconds: colmap.map(|c| {
+                [
+                    c.extraction_seconds,
+                    c.matching_seconds,
+                    c.mapping_seconds,
+                    c.total_seconds(),
+                ]
+            }),
+            ratio: colmap.map(|c| SparseRatios::of(handheld, c)),
+        }
+    }
+}
+
+/// The median of each of the four columns.
+fn column_medians(rows: &[[f64; 4]]) -> [f64; 4] {
+    let mut out = [0.0; 4];
+    for (k, o) in out.iter_mut().enumerate() {
+        let mut v: Vec<f64> = rows.iter().map(|r| r[k]).collect();
+        v.sort_by(f64::total_cmp);
+        let n = v.len();
+        *o = if n == 0 {
+            f64::NAN
+        } else if n % 2 == 1 {
+            v[n / 2]
+        } else {
+            0.5 * (v[n / 2 - 1] + v[n / 2])
+        };
+    }
+    out
+}
+
 impl SparseBenchReport {
-    /// Puts a report together, computing the ratios when COLMAP ran.
+    /// Puts a report together from the first round's runs and every round's times, computing the
+    /// ratios of the per-stage medians when COLMAP ran.
     pub fn new(
         images: PathBuf,
         threads: usize,
         handheld: HandheldSparseRun,
         colmap: Option<ColmapSparseRun>,
+        rounds: Vec<SparseRound>,
         work: Option<PathBuf>,
     ) -> Self {
-        let ratio = colmap.as_ref().map(|c| SparseRatios::of(&handheld, &c.run));
+        let h: Vec<[f64; 4]> = rounds.iter().map(|r| r.handheld_seconds).collect();
+        let c: Vec<[f64; 4]> = rounds.iter().filter_map(|r| r.colmap_seconds).collect();
+        let ratio = (colmap.is_some() && !c.is_empty()).then(|| {
+            let (h, c) = (column_medians(&h), column_medians(&c));
+            SparseRatios {
+                extraction: c[0] / h[0],
+                matching: c[1] / h[1],
+                mapping: c[2] / h[2],
+                total: c[3] / h[3],
+            }
+        });
         Self {
             images,
             threads,
@@ -181,6 +256,7 @@ impl SparseBenchReport {
             handheld,
             colmap,
             ratio,
+            rounds,
             target_total_ratio: TARGET_TOTAL_RATIO,
             work,
         }
@@ -329,23 +405,39 @@ pub fn bench_sparse(o: &SparseBenchOptions, progress: &dyn Progress) -> Result<S
         .build()
         .context("starting the thread pool")?;
     let work = Work::open(o.work.as_deref())?;
+    let mut first: Option<(HandheldSparseRun, Option<ColmapSparseRun>)> = None;
+    let mut rounds = Vec::with_capacity(o.rounds);
+    for round in 0..o.rounds {
+        // The first round's folders keep their plain names; later rounds are numbered.
+        let name = |what: &str| match round {
+            0 => what.to_string(),
+            r => format!("{what}-{r}"),
+        };
+        let ws = work.path().join(name("handheld"));
+        let handheld = run_handheld(o, &ws, &pool, progress)?;
+        let colmap = if o.colmap {
+            let dir = work.path().join(name("colmap"));
+            std::fs::create_dir_all(&dir).map_err(|e| handheld_io::IoError::io(&dir, e))?;
+            progress.start("COLMAP 4.2 (pycolmap): extraction, matching, mapping", 0);
+            let run = run_pycolmap_sparse(&o.images, &dir, threads);
+            progress.finish();
+            let run = run?;
+            Some(ColmapSparseRun {
+                total_seconds: run.total_seconds(),
+                run,
+                eval: None,
+            })
+        } else {
+            None
+        };
+        rounds.push(SparseRound::of(&handheld, colmap.as_ref().map(|c| &c.run)));
+        if first.is_none() {
+            first = Some((handheld, colmap));
+        }
+    }
+    let (mut handheld, mut colmap) =
+        first.ok_or_else(|| EvalError::option("--rounds", "must be at least 1"))?;
     let ws = work.path().join("handheld");
-    let mut handheld = run_handheld(o, &ws, &pool, progress)?;
-    let mut colmap = if o.colmap {
-        let dir = work.path().join("colmap");
-        std::fs::create_dir_all(&dir).map_err(|e| handheld_io::IoError::io(&dir, e))?;
-        progress.start("COLMAP 4.2 (pycolmap): extraction, matching, mapping", 0);
-        let run = run_pycolmap_sparse(&o.images, &dir, threads);
-        progress.finish();
-        let run = run?;
-        Some(ColmapSparseRun {
-            total_seconds: run.total_seconds(),
-            run,
-            eval: None,
-        })
-    } else {
-        None
-    };
     if let Some(gt) = &o.gt {
         handheld.eval = Some(eval_sfm(&script, &ws.join(stage::SPARSE), gt)?);
         if let Some(c) = colmap.as_mut() {
@@ -369,6 +461,7 @@ pub fn bench_sparse(o: &SparseBenchOptions, progress: &dyn Progress) -> Result<S
         threads,
         handheld,
         colmap,
+        rounds,
         kept,
     ))
 }
