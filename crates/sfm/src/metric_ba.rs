@@ -391,6 +391,14 @@ impl PrincipalPointSpread {
             .map(|k| (self.offset_px[k] / self.sigma_px[k].max(1e-9)).powi(2))
             .sum()
     }
+
+    /// Whether the image centre is expected to be closer to the true principal point than the
+    /// free estimate: `Σ offset² < 2 Σ σ²` (see `frame::principal_point_test`).
+    pub fn held_is_closer(&self) -> bool {
+        let o2: f64 = self.offset_px.iter().map(|o| o * o).sum();
+        let s2: f64 = self.sigma_px.iter().map(|s| s * s).sum();
+        o2 < 2.0 * s2
+    }
 }
 
 /// `rec` without the views `out`: their observations are detached, and points left with fewer
