@@ -161,7 +161,8 @@ pub struct BenchSparseArgs {
     /// Keep both runs in this folder (empty or absent); default: a temporary folder.
     #[arg(long)]
     pub work: Option<PathBuf>,
-    /// Rounds of Handheld then COLMAP, interleaved; the ratios are of each stage's median.
+    /// Rounds of Handheld then COLMAP, interleaved; the ratios are each stage's median over the
+    /// rounds' ratios.
     #[arg(long, default_value_t = bench::SparseBenchOptions::default().rounds)]
     pub rounds: usize,
 }
@@ -222,7 +223,7 @@ pub fn sparse(a: &BenchSparseArgs, g: &GlobalArgs, bars: &Bars) -> Result<()> {
         }
         if let Some(q) = &r.ratio {
             text.push_str(&format!(
-                "\nCOLMAP ÷ Handheld (medians over the rounds): extraction {:.2}×, matching {:.2}×, mapping {:.2}×, total {:.2}× (target ≥ {})",
+                "\nCOLMAP ÷ Handheld (median over the rounds): extraction {:.2}×, matching {:.2}×, mapping {:.2}×, total {:.2}× (target ≥ {})",
                 q.extraction, q.matching, q.mapping, q.total, r.target_total_ratio
             ));
         }

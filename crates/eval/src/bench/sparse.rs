@@ -43,7 +43,8 @@ pub struct SparseBenchOptions {
     /// Handheld's options. Default: the pipeline's defaults, as `handheld reconstruct` runs.
     pub pipeline: PipelineOptions,
     /// Rounds, each Handheld then COLMAP, interleaved so that a slow spell of a shared machine
-    /// falls on both; the ratios are of each stage's median over the rounds. Default 1.
+    /// falls on both runs of a round; the ratios reported are each stage's median over the
+    /// rounds' ratios. Default 1.
     pub rounds: usize,
 }
 
@@ -158,7 +159,7 @@ pub struct SparseBenchReport {
     /// With `colmap`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub colmap: Option<ColmapSparseRun>,
-    /// COLMAP ÷ Handheld, with `colmap`: of each stage's median over the rounds.
+    /// COLMAP ÷ Handheld, with `colmap`: each stage's median over the rounds' ratios.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub ratio: Option<SparseRatios>,
     /// Every round's times (seconds) and ratios, in order; `handheld` and `colmap` above are the
@@ -228,8 +229,8 @@ fn column_medians(rows: &[[f64; 4]]) -> [f64; 4] {
 }
 
 impl SparseBenchReport {
-    /// Puts a report together from the first round's runs and every round's times, computing the
-    /// ratios of the per-stage medians when COLMAP ran.
+    /// Puts a report together from the first round's runs and every round's times, with the
+    /// median of the rounds' ratios, stage by stage, when COLMAP ran.
     pub fn new(
         images: PathBuf,
         threads: usize,
@@ -238,15 +239,20 @@ impl SparseBenchReport {
         rounds: Vec<SparseRound>,
         work: Option<PathBuf>,
     ) -> Self {
-        let h: Vec<[f64; 4]> = rounds.iter().map(|r| r.handheld_seconds).collect();
-        let c: Vec<[f64; 4]> = rounds.iter().filter_map(|r| r.colmap_seconds).collect();
-        let ratio = (colmap.is_some() && !c.is_empty()).then(|| {
-            let (h, c) = (column_medians(&h), column_medians(&c));
+        // Each round's runs are next to each other in time, so a round's ratio sees the machine
+        // in one state; the medians of the rounds' ratios, stage by stage.
+        let per_round: Vec<[f64; 4]> = rounds
+            .iter()
+            .filter_map(|r| r.ratio.as_ref())
+            .map(|q| [q.extraction, q.matching, q.mapping, q.total])
+            .collect();
+        let ratio = (colmap.is_some() && !per_round.is_empty()).then(|| {
+            let m = column_medians(&per_round);
             SparseRatios {
-                extraction: c[0] / h[0],
-                matching: c[1] / h[1],
-                mapping: c[2] / h[2],
-                total: c[3] / h[3],
+                extraction: m[0],
+                matching: m[1],
+                mapping: m[2],
+                total: m[3],
             }
         });
         Self {
