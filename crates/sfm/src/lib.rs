@@ -16,6 +16,7 @@ pub mod guard;
 mod hypotheses;
 mod init;
 pub mod input;
+pub mod merge;
 pub mod metric;
 pub mod metric_ba;
 mod model;
@@ -28,6 +29,8 @@ mod projective_ba;
 mod register;
 mod register_pair;
 pub mod selfcal;
+#[cfg(test)]
+mod test_scene;
 mod tracks;
 mod uncertainty;
 mod video;
@@ -106,6 +109,8 @@ pub struct ModelSummary {
     pub uncertainty_note: Option<String>,
     /// Whether the views agree with their verified pairs, and those taken out (`consistency.rs`).
     pub view_consistency: consistency::ConsistencyReport,
+    /// Models merged into this one (`merge.rs`), in order.
+    pub merged: Vec<merge::MergeRecord>,
     pub timings_s: BTreeMap<String, f64>,
 }
 
@@ -176,6 +181,7 @@ pub fn reconstruct(
             },
         });
     }
+    merge::merge_models(&ctx, &mut models);
     models.sort_by_key(|m| std::cmp::Reverse(m.summary.registered));
     let unregistered = unregistered(input, &graph, &models, &search.failures);
     if let Some(c) = &canonical {
@@ -232,25 +238,7 @@ fn summarize(
     timings_s: BTreeMap<String, f64>,
 ) -> ModelSummary {
     let observations: usize = rec.points.values().map(|p| p.track.len()).sum();
-    let groups = rec
-        .cameras
-        .values()
-        .map(|c| {
-            let k = &c.intrinsics;
-            GroupSummary {
-                camera_id: c.id.0,
-                views: rec.views.values().filter(|v| v.camera_id == c.id).count(),
-                width: c.width,
-                height: c.height,
-                f: k.f,
-                aspect: k.aspect,
-                skew: k.skew,
-                pp: [k.pp.x, k.pp.y],
-                k1: k.k1,
-                k2: k.k2,
-            }
-        })
-        .collect();
+    let groups = group_summaries(rec);
     let names = &ctx.input.images;
     ModelSummary {
         registered: rec.views.len(),
@@ -270,6 +258,42 @@ fn summarize(
         uncertainty,
         uncertainty_note,
         view_consistency: Default::default(),
+        merged: Vec::new(),
         timings_s,
     }
+}
+
+impl ModelSummary {
+    /// Recounts what depends on the model's contents (after a merge).
+    pub(crate) fn recount(&mut self, rec: &MetricReconstruction) {
+        let observations: usize = rec.points.values().map(|p| p.track.len()).sum();
+        self.registered = rec.views.len();
+        self.points = rec.points.len();
+        self.observations = observations;
+        self.mean_track_length = observations as f64 / rec.points.len().max(1) as f64;
+        self.mean_reprojection_error_px = rec.mean_reprojection_error();
+        self.groups = group_summaries(rec);
+    }
+}
+
+/// Per-group intrinsics of `rec`.
+fn group_summaries(rec: &MetricReconstruction) -> Vec<GroupSummary> {
+    rec.cameras
+        .values()
+        .map(|c| {
+            let k = &c.intrinsics;
+            GroupSummary {
+                camera_id: c.id.0,
+                views: rec.views.values().filter(|v| v.camera_id == c.id).count(),
+                width: c.width,
+                height: c.height,
+                f: k.f,
+                aspect: k.aspect,
+                skew: k.skew,
+                pp: [k.pp.x, k.pp.y],
+                k1: k.k1,
+                k2: k.k2,
+            }
+        })
+        .collect()
 }

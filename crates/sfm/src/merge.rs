@@ -1,0 +1,490 @@
+//! Merging models that the incremental reconstruction left apart (issue #18: "when pieces remain,
+//! merge them").
+//!
+//! A sequence breaks into several models where its views are only weakly linked: no view of the
+//! second piece had enough 2D–3D matches with the first one when it was built. The two pieces
+//! still observe common scene points, found through the verified pairs between their views: a
+//! keypoint of a view of model A that is a point of A, matched to a keypoint of a view of model B
+//! that is a point of B, gives the 3D–3D correspondence `X_A ↔ X_B`. The two frames differ by a
+//! similarity (a metric reconstruction is defined up to one, §3.4), estimated from 3
+//! correspondences (Umeyama 1991) inside a seeded RANSAC whose inliers are the correspondences
+//! that reproject, once B's point is mapped into A, within the metric threshold in A's view.
+//! B is then mapped into A's frame, the inlier points are fused, and the union is adjusted (the
+//! full metric schedule). The merge is kept only when that adjustment does not collapse
+//! (`guard::collapsed`) and every view still agrees with its verified pairs (`consistency.rs`);
+//! otherwise the models stay apart, as before.
+
+use std::collections::{BTreeMap, BTreeSet};
+
+use handheld_core::{CameraId, ImageId, MetricReconstruction, PointId, Sim3};
+use nalgebra::{Point3, Vector2};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::Serialize;
+
+use crate::context::Context;
+use crate::metric_ba::{self, MetricBaRecord};
+use crate::{consistency, guard, SfmModel};
+
+/// Fewest RANSAC inliers a merge needs.
+pub const MIN_MERGE_INLIERS: usize = 12;
+/// RANSAC samples of three correspondences.
+const MERGE_SAMPLES: usize = 400;
+
+/// One merge, for the summary.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct MergeRecord {
+    /// Views of the model merged into this one.
+    pub views_added: usize,
+    /// 3D–3D correspondences found through the verified pairs, and those the similarity explains.
+    pub correspondences: usize,
+    pub inliers: usize,
+    /// Scale of the similarity that maps the merged model into this one's frame.
+    pub scale: f64,
+}
+
+/// A correspondence: a point of A, a point of B, and one observation of it in A (the view and
+/// its keypoint position) where the mapped B point is checked.
+struct Correspondence {
+    a: PointId,
+    b: PointId,
+    view: ImageId,
+    xy: Vector2<f64>,
+}
+
+/// The keypoint → point map of a model: `(input image index, keypoint) → point`.
+fn point_of(ctx: &Context, rec: &MetricReconstruction) -> BTreeMap<(usize, u32), PointId> {
+    let mut out = BTreeMap::new();
+    for (i, im) in ctx.input.images.iter().enumerate() {
+        if let Some(v) = rec.views.get(&im.id) {
+            for (k, o) in v.observations.iter().enumerate() {
+                if let Some(p) = o.point_id {
+                    out.insert((i, k as u32), p);
+                }
+            }
+        }
+    }
+    out
+}
+
+/// 3D–3D correspondences between the points of `a` and `b` through the verified pairs.
+fn correspondences(
+    ctx: &Context,
+    a: &MetricReconstruction,
+    b: &MetricReconstruction,
+) -> Vec<Correspondence> {
+    let (pa, pb) = (point_of(ctx, a), point_of(ctx, b));
+    let mut seen = BTreeSet::new();
+    let mut out = Vec::new();
+    for pair in &ctx.input.pairs {
+        for (ia, ib, swap) in [(pair.a, pair.b, false), (pair.b, pair.a, true)] {
+            let (ida, idb) = (ctx.input.images[ia].id, ctx.input.images[ib].id);
+            if !a.views.contains_key(&ida) || !b.views.contains_key(&idb) {
+                continue;
+            }
+            for &(m0, m1) in &pair.matches {
+                let (ka, kb) = if swap { (m1, m0) } else { (m0, m1) };
+                let (Some(&x), Some(&y)) = (pa.get(&(ia, ka)), pb.get(&(ib, kb))) else {
+                    continue;
+                };
+                if seen.insert((x, y)) {
+                    out.push(Correspondence {
+                        a: x,
+                        b: y,
+                        view: ida,
+                        xy: ctx.input.images[ia].keypoints[ka as usize],
+                    });
+                }
+            }
+        }
+    }
+    out
+}
+
+/// Whether the B point mapped by `sim` reprojects within `thr` pixels in A's view.
+fn explains(
+    a: &MetricReconstruction,
+    b: &MetricReconstruction,
+    sim: &Sim3,
+    c: &Correspondence,
+    thr: f64,
+) -> bool {
+    let Some(p) = b.points.get(&c.b) else {
+        return false;
+    };
+    a.project(c.view, &sim.transform_point(&p.xyz))
+        .is_some_and(|x| (x - c.xy).norm() <= thr)
+}
+
+/// The similarity `a_from_b` by RANSAC over the correspondences, refined on its inliers; `None`
+/// with fewer than [`MIN_MERGE_INLIERS`].
+fn similarity(
+    ctx: &Context,
+    a: &MetricReconstruction,
+    b: &MetricReconstruction,
+    corr: &[Correspondence],
+) -> Option<(Sim3, Vec<usize>)> {
+    if corr.len() < MIN_MERGE_INLIERS {
+        return None;
+    }
+    let thr = ctx.opts.metric_max_error_px;
+    let xyz = |r: &MetricReconstruction, p: PointId| r.points.get(&p).map(|q| q.xyz);
+    let inliers_of = |sim: &Sim3| -> Vec<usize> {
+        (0..corr.len())
+            .filter(|&k| explains(a, b, sim, &corr[k], thr))
+            .collect()
+    };
+    let mut rng = ChaCha8Rng::seed_from_u64(ctx.opts.seed ^ 0x4D45_5247);
+    let mut best: Vec<usize> = Vec::new();
+    let mut best_sim = Sim3::identity();
+    for _ in 0..MERGE_SAMPLES {
+        let s: Vec<usize> = (0..3).map(|_| rng.random_range(0..corr.len())).collect();
+        if s[0] == s[1] || s[1] == s[2] || s[0] == s[2] {
+            continue;
+        }
+        let (Some(src), Some(dst)) = (
+            s.iter()
+                .map(|&k| xyz(b, corr[k].b))
+                .collect::<Option<Vec<Point3<f64>>>>(),
+            s.iter()
+                .map(|&k| xyz(a, corr[k].a))
+                .collect::<Option<Vec<Point3<f64>>>>(),
+        ) else {
+            continue;
+        };
+        let Some(sim) = Sim3::align(&src, &dst) else {
+            continue;
+        };
+        if !(sim.scale.is_finite() && sim.scale > 0.0) {
+            continue;
+        }
+        let inl = inliers_of(&sim);
+        if inl.len() > best.len() {
+            best = inl;
+            best_sim = sim;
+        }
+    }
+    if best.len() < MIN_MERGE_INLIERS {
+        return None;
+    }
+    // Refined on every inlier, kept when it explains at least as many (a least-squares fit in 3D
+    // weighs the far, poorly triangulated points most, and can explain fewer in the images).
+    let src: Vec<Point3<f64>> = best.iter().filter_map(|&k| xyz(b, corr[k].b)).collect();
+    let dst: Vec<Point3<f64>> = best.iter().filter_map(|&k| xyz(a, corr[k].a)).collect();
+    if let Some(refined) = Sim3::align(&src, &dst) {
+        let inl = inliers_of(&refined);
+        if inl.len() >= best.len() {
+            return Some((refined, inl));
+        }
+    }
+    Some((best_sim, best))
+}
+
+/// `b` mapped by `a_from_b` into `a`'s frame and added to it: `b`'s intrinsics groups become
+/// `a`'s groups of the same camera key (new groups otherwise), its points get fresh ids, and the
+/// corresponding points are fused (the B point's observations join the A point's track, unless
+/// the A point already has an observation in that view).
+fn union(
+    ctx: &Context,
+    a: &MetricReconstruction,
+    b: &MetricReconstruction,
+    a_from_b: &Sim3,
+    fused: &[(PointId, PointId)],
+) -> MetricReconstruction {
+    let mut out = a.clone();
+    let mut b = b.clone();
+    b.transform(a_from_b);
+    let key = |id: ImageId| {
+        ctx.input
+            .images
+            .iter()
+            .find(|im| im.id == id)
+            .map(|im| im.camera_key.clone())
+    };
+    let mut camera_map: BTreeMap<CameraId, CameraId> = BTreeMap::new();
+    let mut next_camera = out.cameras.keys().map(|c| c.0).max().unwrap_or(0) + 1;
+    for (cid, cam) in &b.cameras {
+        let k = b
+            .views
+            .values()
+            .find(|v| v.camera_id == *cid)
+            .and_then(|v| key(v.id));
+        let target = out
+            .views
+            .values()
+            .find(|v| k.is_some() && key(v.id) == k)
+            .map(|v| v.camera_id);
+        let id = target.unwrap_or_else(|| {
+            let id = CameraId(next_camera);
+            next_camera += 1;
+            let mut c = cam.clone();
+            c.id = id;
+            out.cameras.insert(id, c);
+            id
+        });
+        camera_map.insert(*cid, id);
+    }
+    let mut next_point = out.points.keys().map(|p| p.0).max().unwrap_or(0) + 1;
+    let mut point_map: BTreeMap<PointId, PointId> = BTreeMap::new();
+    let into: BTreeMap<PointId, PointId> = fused.iter().map(|&(pa, pb)| (pb, pa)).collect();
+    for (pid, p) in &b.points {
+        match into.get(pid) {
+            Some(&pa) => {
+                let Some(target) = out.points.get_mut(&pa) else {
+                    continue;
+                };
+                let have: BTreeSet<ImageId> =
+                    target.track.elements.iter().map(|e| e.image_id).collect();
+                let mut kept = false;
+                for e in &p.track.elements {
+                    if !have.contains(&e.image_id) {
+                        target.track.elements.push(*e);
+                        kept = true;
+                    }
+                }
+                if kept {
+                    point_map.insert(*pid, pa);
+                }
+            }
+            None => {
+                let id = PointId(next_point);
+                next_point += 1;
+                out.points.insert(id, p.clone());
+                point_map.insert(*pid, id);
+            }
+        }
+    }
+    for (vid, v) in &b.views {
+        let mut v = v.clone();
+        v.camera_id = camera_map.get(&v.camera_id).copied().unwrap_or(v.camera_id);
+        for o in v.observations.iter_mut() {
+            o.point_id = o.point_id.and_then(|p| point_map.get(&p).copied());
+        }
+        out.views.insert(*vid, v);
+    }
+    // A fused B point whose observation in some view duplicated the A point's was left out of
+    // the track: its observation there is detached.
+    for v in out.views.values_mut() {
+        for (k, o) in v.observations.iter_mut().enumerate() {
+            if let Some(p) = o.point_id {
+                let listed = out.points.get(&p).is_some_and(|q| {
+                    q.track
+                        .elements
+                        .iter()
+                        .any(|e| e.image_id == v.id && e.point2d_idx as usize == k)
+                });
+                if !listed {
+                    o.point_id = None;
+                }
+            }
+        }
+    }
+    out
+}
+
+/// Tries to merge `b` into `a`: the merged, adjusted model with its adjustment records and the
+/// merge record, or why not.
+pub(crate) fn merge(
+    ctx: &Context,
+    a: &MetricReconstruction,
+    b: &MetricReconstruction,
+    estimate_aspect: bool,
+) -> Result<(MetricReconstruction, Vec<MetricBaRecord>, MergeRecord), String> {
+    let corr = correspondences(ctx, a, b);
+    let (sim, inliers) = similarity(ctx, a, b, &corr).ok_or_else(|| {
+        format!(
+            "{} 3D–3D correspondences through the verified pairs, fewer than {MIN_MERGE_INLIERS} explained by one similarity",
+            corr.len()
+        )
+    })?;
+    // One fusion per point on each side (the correspondence seen first).
+    let (mut used_a, mut used_b) = (BTreeSet::new(), BTreeSet::new());
+    let fused: Vec<(PointId, PointId)> = inliers
+        .iter()
+        .map(|&k| (corr[k].a, corr[k].b))
+        .filter(|(x, y)| {
+            let fresh = !used_a.contains(x) && !used_b.contains(y);
+            if fresh {
+                used_a.insert(*x);
+                used_b.insert(*y);
+            }
+            fresh
+        })
+        .collect();
+    let mut merged = union(ctx, a, b, &sim, &fused);
+    let records = metric_ba::refine_metric(ctx, &mut merged, estimate_aspect)?;
+    if let Some(why) = guard::collapsed(&merged, &records) {
+        return Err(format!("the adjustment of the merged model {why}"));
+    }
+    let (flagged, _) = consistency::inconsistent_views(ctx, &merged);
+    if let Some((_, d)) = flagged.first() {
+        return Err(format!(
+            "in the merged model {} disagrees with its verified pairs by {:.1}°",
+            d.image, d.median_deg
+        ));
+    }
+    let record = MergeRecord {
+        views_added: b.views.len(),
+        correspondences: corr.len(),
+        inliers: inliers.len(),
+        scale: sim.scale,
+    };
+    Ok((merged, records, record))
+}
+
+/// Merges the models into the largest one while a merge succeeds (largest partner first), and
+/// records each merge in the kept model's summary.
+pub(crate) fn merge_models(ctx: &Context, models: &mut Vec<SfmModel>) {
+    let estimate_aspect = ctx.opts.estimate_aspect.unwrap_or(ctx.input.video);
+    loop {
+        if models.len() < 2 {
+            return;
+        }
+        models.sort_by_key(|m| std::cmp::Reverse(m.summary.registered));
+        // The merged model is adjusted with the principal point free, and then asked again
+        // whether its views determine it (more views, and a wider turn, than either piece).
+        ctx.hold_principal_point(false);
+        let mut merged = None;
+        for k in 1..models.len() {
+            match merge(
+                ctx,
+                &models[0].reconstruction,
+                &models[k].reconstruction,
+                estimate_aspect,
+            ) {
+                Ok(m) => {
+                    merged = Some((k, m));
+                    break;
+                }
+                Err(why) => tracing::debug!(
+                    "the model of {} views is not merged into the model of {}: {why}",
+                    models[k].summary.registered,
+                    models[0].summary.registered
+                ),
+            }
+        }
+        let Some((k, (mut rec, mut records, record))) = merged else {
+            return;
+        };
+        let held_before = models[0].summary.self_calibration.principal_point_held;
+        if ctx.opts.known_intrinsics.is_none() && ctx.refines_principal_point() {
+            let report = &mut models[0].summary.self_calibration;
+            report.principal_point_held = false;
+            crate::frame::principal_point_test(
+                ctx,
+                &mut rec,
+                &mut records,
+                estimate_aspect,
+                report,
+            );
+            if held_before != report.principal_point_held {
+                tracing::info!(
+                    "the merged model's principal point is {}",
+                    if report.principal_point_held {
+                        "held at the image centre"
+                    } else {
+                        "estimated"
+                    }
+                );
+            }
+        }
+        tracing::info!(
+            "merged a model of {} views into the model of {} views ({} of {} 3D–3D correspondences)",
+            record.views_added,
+            models[0].summary.registered,
+            record.inliers,
+            record.correspondences
+        );
+        models.remove(k);
+        let m = &mut models[0];
+        m.reconstruction = rec;
+        m.summary.metric_ba.extend(records);
+        m.summary.merged.push(record);
+        m.summary.recount(&m.reconstruction);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::graph::CorrespondenceGraph;
+    use crate::test_scene::scene;
+    use crate::SfmOptions;
+    use nalgebra::{UnitQuaternion, Vector3};
+
+    fn relative_rotation_error_deg(est: &MetricReconstruction, gt: &MetricReconstruction) -> f64 {
+        let ids: Vec<ImageId> = gt.views.keys().copied().collect();
+        let mut worst = 0.0f64;
+        for (k, a) in ids.iter().enumerate() {
+            for b in &ids[k + 1..] {
+                let r = |m: &MetricReconstruction| {
+                    m.views[a].cam_from_world.rotation
+                        * m.views[b].cam_from_world.rotation.inverse()
+                };
+                worst = worst.max((r(est) * r(gt).inverse()).angle().to_degrees());
+            }
+        }
+        worst
+    }
+
+    #[test]
+    fn two_pieces_of_one_scene_in_different_frames_are_merged() {
+        let (input, gt) = scene();
+        let graph = CorrespondenceGraph::build(&input, 8);
+        let opts = SfmOptions::default();
+        let ctx = Context::new(&input, &graph, &opts);
+        let ids: Vec<ImageId> = gt.views.keys().copied().collect();
+        let (first, second): (BTreeSet<ImageId>, BTreeSet<ImageId>) = (
+            ids[4..].iter().copied().collect(),
+            ids[..4].iter().copied().collect(),
+        );
+        let a = metric_ba::without_views(&gt, &first);
+        let mut b = metric_ba::without_views(&gt, &second);
+        // The second piece in a frame of its own: another scale, orientation and origin.
+        b.transform(&Sim3 {
+            scale: 0.37,
+            rotation: UnitQuaternion::from_scaled_axis(Vector3::new(0.3, -1.1, 0.4)),
+            translation: Vector3::new(5.0, -2.0, 9.0),
+        });
+        let (merged, _, record) = merge(&ctx, &a, &b, false).expect("the pieces share points");
+        assert_eq!(merged.views.len(), 8);
+        assert_eq!(record.views_added, 4);
+        assert!(
+            record.inliers as f64 > 0.9 * record.correspondences as f64,
+            "{record:?}"
+        );
+        assert!(
+            (record.scale - 1.0 / 0.37).abs() < 0.01 * record.scale,
+            "{record:?}"
+        );
+        // As accurate as the whole scene adjusted in one piece from the truth (0.5 px noise).
+        let mut whole = gt.clone();
+        metric_ba::refine_metric(&ctx, &mut whole, false).expect("adjustment");
+        let reference = relative_rotation_error_deg(&whole, &gt);
+        let err = relative_rotation_error_deg(&merged, &gt);
+        assert!(
+            err < reference + 0.02,
+            "relative rotations {err}° off, the whole scene's {reference}°"
+        );
+        // The shared points are one point each: fewer points than the two pieces hold together.
+        assert!(merged.points.len() < a.points.len() + b.points.len());
+        merged.validate().expect("consistent references");
+    }
+
+    #[test]
+    fn pieces_that_share_no_point_stay_apart() {
+        let (mut input, gt) = scene();
+        let ids: Vec<ImageId> = gt.views.keys().copied().collect();
+        // No verified pair links the first four views to the last four.
+        input.pairs.retain(|p| (p.a < 4) == (p.b < 4));
+        let graph = CorrespondenceGraph::build(&input, 8);
+        let opts = SfmOptions::default();
+        let ctx = Context::new(&input, &graph, &opts);
+        let first: BTreeSet<ImageId> = ids[4..].iter().copied().collect();
+        let second: BTreeSet<ImageId> = ids[..4].iter().copied().collect();
+        let a = metric_ba::without_views(&gt, &first);
+        let b = metric_ba::without_views(&gt, &second);
+        let err = merge(&ctx, &a, &b, false).expect_err("nothing links them");
+        assert!(err.contains("correspondences"), "{err}");
+    }
+}
