@@ -26,8 +26,13 @@ use crate::context::Context;
 use crate::metric_ba::{self, MetricBaRecord};
 use crate::{consistency, guard, SfmModel};
 
-/// Fewest RANSAC inliers a merge needs.
-pub const MIN_MERGE_INLIERS: usize = 12;
+/// Fewest RANSAC inliers a merge needs (a similarity has 7 degrees of freedom; 3
+/// correspondences fix it). templeSparseRing without view 8 splits into 11 + 4 views that share
+/// 13 correspondences, 8 of them explained by one similarity.
+pub const MIN_MERGE_INLIERS: usize = 8;
+/// Smallest fraction of the correspondences the similarity must explain: a chance similarity
+/// explains few of them.
+pub const MIN_MERGE_INLIER_FRACTION: f64 = 0.5;
 /// RANSAC samples of three correspondences.
 const MERGE_SAMPLES: usize = 400;
 
@@ -117,7 +122,7 @@ fn explains(
 }
 
 /// The similarity `a_from_b` by RANSAC over the correspondences, refined on its inliers; `None`
-/// with fewer than [`MIN_MERGE_INLIERS`].
+/// with fewer than [`MIN_MERGE_INLIERS`] inliers or under [`MIN_MERGE_INLIER_FRACTION`] of them.
 fn similarity(
     ctx: &Context,
     a: &MetricReconstruction,
@@ -164,7 +169,10 @@ fn similarity(
             best_sim = sim;
         }
     }
-    if best.len() < MIN_MERGE_INLIERS {
+    let enough = |n: usize| {
+        n >= MIN_MERGE_INLIERS && n as f64 >= MIN_MERGE_INLIER_FRACTION * corr.len() as f64
+    };
+    if !enough(best.len()) {
         return None;
     }
     // Refined on every inlier, kept when it explains at least as many (a least-squares fit in 3D
@@ -293,7 +301,7 @@ pub(crate) fn merge(
     let corr = correspondences(ctx, a, b);
     let (sim, inliers) = similarity(ctx, a, b, &corr).ok_or_else(|| {
         format!(
-            "{} 3D–3D correspondences through the verified pairs, fewer than {MIN_MERGE_INLIERS} explained by one similarity",
+            "{} 3D–3D correspondences through the verified pairs, fewer than {MIN_MERGE_INLIERS} (or under half) explained by one similarity",
             corr.len()
         )
     })?;
