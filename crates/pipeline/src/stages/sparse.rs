@@ -177,13 +177,36 @@ impl Stage for Sparse {
             .iter()
             .find(|c| c.accepted)
             .map_or("", |c| c.source.as_str());
-        for c in &best.self_calibration.candidates {
-            if let (true, false, Some(why)) = (c.tried, c.probe, &c.rejected) {
-                warnings.push(format!(
-                    "the metric frame from {} was rejected ({why}); the model uses the frame from {kept}",
-                    c.source
+        // Candidates that failed a check. A sound candidate that lost on its score is no warning,
+        // nor are failed fallbacks when the self-calibrated (or given) frame was kept: the model
+        // came from its first choice. Otherwise one warning names the first failure and counts
+        // the rest; every candidate is in summary.json (`self_calibration.candidates`).
+        let failed: Vec<_> = best
+            .self_calibration
+            .candidates
+            .iter()
+            .filter(|c| c.tried && !c.probe && !c.sound)
+            .filter_map(|c| c.rejected.as_ref().map(|why| (c.source.as_str(), why)))
+            .collect();
+        for (source, why) in &failed {
+            tracing::info!("the metric frame from {source} was rejected ({why})");
+        }
+        let first_choice = matches!(kept, "self-calibration" | "known calibration");
+        if let (Some((source, why)), false) = (failed.first(), first_choice) {
+            let mut w =
+                format!("the metric frame from {source} was rejected ({why}); the model uses the frame from {kept}");
+            let others = failed.len() - 1;
+            if others > 0 {
+                let (n, verb) = if others == 1 {
+                    ("1 other candidate".to_string(), "was")
+                } else {
+                    (format!("{others} other candidates"), "were")
+                };
+                w.push_str(&format!(
+                    " ({n} {verb} rejected too; each, with its reason and score, is in sparse/summary.json under self_calibration.candidates)"
                 ));
             }
+            warnings.push(w);
         }
         match focal_verdict(best, opts.known_intrinsics.is_some()) {
             FocalVerdict::Calibrated => {}
