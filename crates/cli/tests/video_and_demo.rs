@@ -147,6 +147,22 @@ fn demo_writes_sequence_ground_truth_and_workspace() {
     assert_eq!(v["stages"][0]["status"], "up_to_date");
 }
 
+/// The demo's orbit at 320×240 with `frames` frames into `out`, with one more flag.
+fn small_orbit(out: &std::path::Path, frames: &str, flag: &str) -> std::process::Output {
+    handheld(&[
+        "demo",
+        "-o",
+        out.to_str().unwrap(),
+        "--frames",
+        frames,
+        "--width",
+        "320",
+        "--height",
+        "240",
+        flag,
+    ])
+}
+
 /// Four frames of the demo's orbit at 320×240 lie too far apart for any pair to start a model
 /// (issue #18). The run must fail with one error that names the step and says why, and leave no
 /// sparse model that looks complete. (The library test
@@ -156,18 +172,7 @@ fn demo_writes_sequence_ground_truth_and_workspace() {
 fn a_demo_too_short_to_reconstruct_fails_and_writes_no_model() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("demo");
-    let o = handheld(&[
-        "demo",
-        "-o",
-        out.to_str().unwrap(),
-        "--frames",
-        "4",
-        "--width",
-        "320",
-        "--height",
-        "240",
-        "--quiet",
-    ]);
+    let o = small_orbit(&out, "4", "--quiet");
     assert!(!o.status.success());
     let err = stderr(&o);
     assert!(err.contains("structure from motion"), "{err}");
@@ -188,18 +193,7 @@ fn a_demo_too_short_to_reconstruct_fails_and_writes_no_model() {
 fn a_short_demo_keeps_a_usable_scale() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("demo");
-    let o = handheld(&[
-        "demo",
-        "-o",
-        out.to_str().unwrap(),
-        "--frames",
-        "8",
-        "--width",
-        "320",
-        "--height",
-        "240",
-        "--json",
-    ]);
+    let o = small_orbit(&out, "8", "--json");
     assert!(o.status.success(), "{}", stderr(&o));
     let v: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
     let sparse = &v["accuracy"]["sparse"];

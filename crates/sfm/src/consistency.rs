@@ -17,14 +17,17 @@
 //! inliers first (a misplaced view has all of its pairs against it, a partner only the one pair
 //! with it); its pairs are then set aside and the others judged again.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 
-use handheld_core::MetricReconstruction;
+use handheld_core::{ImageId, MetricReconstruction};
 use handheld_robust::TwoViewConfiguration;
 use nalgebra::Vector2;
 use serde::Serialize;
 
 use crate::context::Context;
+use crate::guard;
+use crate::metric_ba::{self, MetricBaRecord};
+use crate::pipeline::Search;
 
 /// Largest weighted-median disagreement (degrees) between a view's relative rotations in the model
 /// and those of its verified pairs. Sound views on the project's data sets stay within 1.8°
@@ -111,12 +114,13 @@ fn weighted_median(mut v: Vec<(f64, f64)>) -> f64 {
     v.last().map_or(0.0, |x| x.0)
 }
 
+/// The views flagged (input index and disagreement, worst first) and the largest disagreement
+/// among the others.
+pub(crate) type Judged = (Vec<(usize, ViewDisagreement)>, Option<f64>);
+
 /// The registered views (input indices) whose pose disagrees with their verified pairs, worst
 /// first, and the largest disagreement among the others.
-pub(crate) fn inconsistent_views(
-    ctx: &Context,
-    rec: &MetricReconstruction,
-) -> (Vec<(usize, ViewDisagreement)>, Option<f64>) {
+pub(crate) fn inconsistent_views(ctx: &Context, rec: &MetricReconstruction) -> Judged {
     // (a, b, disagreement, inliers) of every usable pair.
     let pairs: Vec<(usize, usize, f64, f64)> = ctx
         .input
@@ -167,6 +171,70 @@ pub(crate) fn inconsistent_views(
                 partners,
             },
         ));
+    }
+}
+
+/// Views whose pose disagrees with their verified pairs (`judged` by [`inconsistent_views`] on
+/// `rec`) are taken out of the
+/// model, recorded as failures, and the model is adjusted again without them (intrinsics
+/// included: the misplaced view pulled them too). When that adjustment fails or collapses, the
+/// model is kept as it was and a warning says which views it does not trust.
+pub(crate) fn take_out(
+    ctx: &Context,
+    rec: &mut MetricReconstruction,
+    search: &mut Search,
+    estimate_aspect: bool,
+    (flagged, max_kept_deg): Judged,
+) -> (ConsistencyReport, Vec<MetricBaRecord>) {
+    let mut report = ConsistencyReport {
+        max_kept_deg,
+        ..Default::default()
+    };
+    if flagged.is_empty() {
+        return (report, Vec::new());
+    }
+    let before = rec.clone();
+    let out: BTreeSet<ImageId> = flagged
+        .iter()
+        .map(|(i, _)| ctx.input.images[*i].id)
+        .collect();
+    *rec = metric_ba::without_views(rec, &out);
+    let list = flagged
+        .iter()
+        .map(|(_, d)| format!("{} ({:.1}°)", d.image, d.median_deg))
+        .collect::<Vec<_>>()
+        .join(", ");
+    let adjusted = metric_ba::refine_metric(ctx, rec, estimate_aspect).and_then(|records| {
+        match guard::collapsed(rec, &records) {
+            Some(why) => Err(why),
+            None => Ok(records),
+        }
+    });
+    match adjusted {
+        Ok(records) => {
+            tracing::warn!(
+                "taken out of the model because their poses disagree with their verified image pairs (median over their partners): {list}"
+            );
+            for (i, d) in flagged {
+                search.failures.insert(
+                    i,
+                    format!(
+                        "registered with a pose that disagreed with its verified image pairs by {:.1}° (median over {} partners), so it was taken out of the model",
+                        d.median_deg, d.partners
+                    ),
+                );
+                report.removed.push(d);
+            }
+            (report, records)
+        }
+        Err(why) => {
+            *rec = before;
+            tracing::warn!(
+                "these views disagree with their verified image pairs, so their poses are not trustworthy, but the model without them could not be adjusted ({why}): {list}"
+            );
+            report.max_kept_deg = flagged.first().map(|(_, d)| d.median_deg);
+            (report, Vec::new())
+        }
     }
 }
 

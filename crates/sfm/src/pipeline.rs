@@ -10,17 +10,17 @@
 //!    resection (`register.rs`), then adjusted again;
 //! 5. [`predicted_matches_step`]: more observations at the predicted projections (§3.2,
 //!    `predict.rs`), then a final adjustment;
-//! 6. [`consistency_step`]: views whose pose disagrees with their verified pairs are taken out
+//! 6. `consistency::take_out`: views whose pose disagrees with their verified pairs are taken out
 //!    (`consistency.rs`), and the model adjusted again;
 //! 7. [`video_frames_step`]: a video's in-between frames from their tracks (`video.rs`);
 //! 8. [`uncertainty_step`]: per-point and intrinsics uncertainty (`uncertainty.rs`).
 
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::BTreeMap;
 use std::time::Instant;
 
-use handheld_core::{ImageId, MetricReconstruction, Progress};
+use handheld_core::{MetricReconstruction, Progress};
 
-use crate::consistency::{self, ConsistencyReport};
+use crate::consistency;
 use crate::context::Context;
 use crate::model::ProjectiveModel;
 use crate::{
@@ -173,9 +173,12 @@ pub(crate) fn build_model(
     // Views misplaced in the model: build it again without them, then try to register them into
     // the sound model by calibrated resection (they are judged again below).
     let mut banned: Vec<(usize, consistency::ViewDisagreement)> = Vec::new();
+    // The verdict on the model as it stands, when nothing changed it since.
+    let mut judged = None;
     for _ in 0..MAX_REBUILDS {
-        let (flagged, _) = consistency::inconsistent_views(ctx, &core.rec);
+        let (flagged, max_kept) = consistency::inconsistent_views(ctx, &core.rec);
         if flagged.is_empty() {
+            judged = Some((flagged, max_kept));
             break;
         }
         let kept = (search.allowed.clone(), search.failures.clone());
@@ -253,7 +256,9 @@ pub(crate) fn build_model(
         record(&mut timings, "calibrated_registration_again", t_reg);
     }
     let t_con = Instant::now();
-    let (mut consistency, records) = consistency_step(ctx, &mut rec, search, estimate_aspect);
+    let judged = judged.unwrap_or_else(|| consistency::inconsistent_views(ctx, &rec));
+    let (mut consistency, records) =
+        consistency::take_out(ctx, &mut rec, search, estimate_aspect, judged);
     consistency.rebuilt_without = banned.into_iter().map(|(_, d)| d).collect();
     metric_ba.extend(records);
     record(&mut timings, "view_consistency", t_con);
@@ -456,69 +461,6 @@ fn predicted_matches_step(
         return Ok(Vec::new());
     }
     Ok(records)
-}
-
-/// Views whose pose disagrees with their verified pairs (`consistency.rs`) are taken out of the
-/// model, recorded as failures, and the model is adjusted again without them (intrinsics
-/// included: the misplaced view pulled them too). When that adjustment fails or collapses, the
-/// model is kept as it was and a warning says which views it does not trust.
-fn consistency_step(
-    ctx: &Context,
-    rec: &mut MetricReconstruction,
-    search: &mut Search,
-    estimate_aspect: bool,
-) -> (ConsistencyReport, Vec<MetricBaRecord>) {
-    let (flagged, max_kept_deg) = consistency::inconsistent_views(ctx, rec);
-    let mut report = ConsistencyReport {
-        max_kept_deg,
-        ..Default::default()
-    };
-    if flagged.is_empty() {
-        return (report, Vec::new());
-    }
-    let before = rec.clone();
-    let out: BTreeSet<ImageId> = flagged
-        .iter()
-        .map(|(i, _)| ctx.input.images[*i].id)
-        .collect();
-    *rec = metric_ba::without_views(rec, &out);
-    let list = flagged
-        .iter()
-        .map(|(_, d)| format!("{} ({:.1}°)", d.image, d.median_deg))
-        .collect::<Vec<_>>()
-        .join(", ");
-    let adjusted = metric_ba::refine_metric(ctx, rec, estimate_aspect).and_then(|records| {
-        match guard::collapsed(rec, &records) {
-            Some(why) => Err(why),
-            None => Ok(records),
-        }
-    });
-    match adjusted {
-        Ok(records) => {
-            tracing::warn!(
-                "taken out of the model because their poses disagree with their verified image pairs (median over their partners): {list}"
-            );
-            for (i, d) in flagged {
-                search.failures.insert(
-                    i,
-                    format!(
-                        "registered with a pose that disagreed with its verified image pairs by {:.1}° (median over {} partners), so it was taken out of the model",
-                        d.median_deg, d.partners
-                    ),
-                );
-                report.removed.push(d);
-            }
-            (report, records)
-        }
-        Err(why) => {
-            *rec = before;
-            tracing::warn!(
-                "these views disagree with their verified image pairs, so their poses are not trustworthy, but the model without them could not be adjusted ({why}): {list}"
-            );
-            report.max_kept_deg = flagged.first().map(|(_, d)| d.median_deg);
-            (report, Vec::new())
-        }
-    }
 }
 
 /// Video: every in-between frame from its tracks, then all frames adjusted together. `None` when
