@@ -340,43 +340,58 @@ pub(crate) fn merge(
     Ok((merged, records, record))
 }
 
-/// Merges the models into the largest one while a merge succeeds (largest partner first), and
-/// records each merge in the kept model's summary.
+/// Merges models pairwise while a merge succeeds: the largest model with each smaller one
+/// (largest partner first), then the second largest with the ones after it, and so on, so that
+/// two pieces that share points merge even when neither shares any with the largest. Each merge is
+/// recorded in the kept model's summary, whose counts and uncertainty are those of the merged model.
 pub(crate) fn merge_models(ctx: &Context, models: &mut Vec<SfmModel>) {
     let estimate_aspect = ctx.opts.estimate_aspect.unwrap_or(ctx.input.video);
+    // Pairs found not to merge stay apart until one of them changes.
+    let mut refused: BTreeSet<(usize, usize)> = BTreeSet::new();
+    // A stable identity per model across the merges: its first view.
+    let key = |m: &SfmModel| m.reconstruction.views.keys().next().map_or(0, |v| v.0 as usize);
     loop {
         if models.len() < 2 {
             return;
         }
         models.sort_by_key(|m| std::cmp::Reverse(m.summary.registered));
-        // The merged model is adjusted with the principal point free, and then asked again
-        // whether its views determine it (more views, and a wider turn, than either piece).
-        ctx.hold_principal_point(false);
         let mut merged = None;
-        for k in 1..models.len() {
-            match merge(
-                ctx,
-                &models[0].reconstruction,
-                &models[k].reconstruction,
-                estimate_aspect,
-            ) {
-                Ok(m) => {
-                    merged = Some((k, m));
-                    break;
+        'search: for i in 0..models.len() {
+            for k in i + 1..models.len() {
+                let pair = (key(&models[i]), key(&models[k]));
+                if refused.contains(&pair) {
+                    continue;
                 }
-                Err(why) => tracing::debug!(
-                    "the model of {} views is not merged into the model of {}: {why}",
-                    models[k].summary.registered,
-                    models[0].summary.registered
-                ),
+                // The merged model is adjusted with the principal point free, and then asked again
+                // whether its views determine it (more views, and a wider turn, than either piece).
+                ctx.hold_principal_point(false);
+                match merge(
+                    ctx,
+                    &models[i].reconstruction,
+                    &models[k].reconstruction,
+                    estimate_aspect,
+                ) {
+                    Ok(m) => {
+                        merged = Some((i, k, m));
+                        break 'search;
+                    }
+                    Err(why) => {
+                        tracing::debug!(
+                            "the model of {} views is not merged into the model of {}: {why}",
+                            models[k].summary.registered,
+                            models[i].summary.registered
+                        );
+                        refused.insert(pair);
+                    }
+                }
             }
         }
-        let Some((k, (mut rec, mut records, record))) = merged else {
+        let Some((i, k, (mut rec, mut records, record))) = merged else {
             return;
         };
-        let held_before = models[0].summary.self_calibration.principal_point_held;
+        let held_before = models[i].summary.self_calibration.principal_point_held;
         if ctx.opts.known_intrinsics.is_none() && ctx.refines_principal_point() {
-            let report = &mut models[0].summary.self_calibration;
+            let report = &mut models[i].summary.self_calibration;
             report.principal_point_held = false;
             crate::frame::principal_point_test(
                 ctx,
@@ -399,16 +414,23 @@ pub(crate) fn merge_models(ctx: &Context, models: &mut Vec<SfmModel>) {
         tracing::info!(
             "merged a model of {} views into the model of {} views ({} of {} 3D–3D correspondences)",
             record.views_added,
-            models[0].summary.registered,
+            models[i].summary.registered,
             record.inliers,
             record.correspondences
         );
         models.remove(k);
-        let m = &mut models[0];
+        let m = &mut models[i];
+        let old_key = key(m);
         m.reconstruction = rec;
+        // The grown model may now share points with a piece that was refused before.
+        let new_key = key(m);
+        refused.retain(|&(a, b)| ![a, b].iter().any(|&x| x == old_key || x == new_key));
         m.summary.metric_ba.extend(records);
         m.summary.merged.push(record);
         m.summary.recount(&m.reconstruction);
+        let (uncertainty, note) = crate::pipeline::uncertainty_step(ctx, &m.reconstruction);
+        m.summary.uncertainty = uncertainty;
+        m.summary.uncertainty_note = note;
     }
 }
 
@@ -494,5 +516,75 @@ mod tests {
         let b = metric_ba::without_views(&gt, &second);
         let err = merge(&ctx, &a, &b, false).expect_err("nothing links them");
         assert!(err.contains("correspondences"), "{err}");
+    }
+
+    fn model(rec: MetricReconstruction) -> SfmModel {
+        let mut summary = crate::ModelSummary {
+            registered: 0,
+            total_images: 8,
+            points: 0,
+            observations: 0,
+            mean_track_length: 0.0,
+            mean_reprojection_error_px: 0.0,
+            initial_pair: Default::default(),
+            groups: Vec::new(),
+            self_calibration: Default::default(),
+            projective_ba: Vec::new(),
+            metric_ba: Vec::new(),
+            uncertainty: None,
+            uncertainty_note: None,
+            view_consistency: Default::default(),
+            merged: Vec::new(),
+            timings_s: Default::default(),
+        };
+        summary.recount(&rec);
+        SfmModel {
+            reconstruction: rec,
+            summary,
+        }
+    }
+
+    #[test]
+    fn two_smaller_pieces_merge_even_when_the_largest_shares_nothing_with_them() {
+        let (mut input, gt) = scene();
+        let ids: Vec<ImageId> = gt.views.keys().copied().collect();
+        // The first four views are a scene of their own: no verified pair links them to the others.
+        input.pairs.retain(|p| (p.a < 4) == (p.b < 4));
+        let graph = CorrespondenceGraph::build(&input, 8);
+        let opts = SfmOptions::default();
+        let ctx = Context::new(&input, &graph, &opts);
+        let piece = |keep: std::ops::Range<usize>| {
+            let drop: BTreeSet<ImageId> = ids
+                .iter()
+                .enumerate()
+                .filter(|(i, _)| !keep.contains(i))
+                .map(|(_, &v)| v)
+                .collect();
+            metric_ba::without_views(&gt, &drop)
+        };
+        let mut second = piece(4..6);
+        second.transform(&Sim3 {
+            scale: 2.5,
+            rotation: UnitQuaternion::from_scaled_axis(Vector3::new(-0.2, 0.7, 0.1)),
+            translation: Vector3::new(1.0, 3.0, -4.0),
+        });
+        let mut models = vec![model(piece(0..4)), model(second), model(piece(6..8))];
+        merge_models(&ctx, &mut models);
+        let sizes: Vec<usize> = models.iter().map(|m| m.summary.registered).collect();
+        assert_eq!(sizes, [4, 4], "the two small pieces are one model, the first stays apart");
+        let m = models
+            .iter()
+            .find(|m| !m.summary.merged.is_empty())
+            .expect("a merged model");
+        assert!(m.reconstruction.views.contains_key(&ids[4]));
+        assert!(m.reconstruction.views.contains_key(&ids[7]));
+        let truth = piece(4..8);
+        let err = relative_rotation_error_deg(&m.reconstruction, &truth);
+        assert!(err < 0.1, "relative rotations {err}° from the truth");
+        assert_eq!(m.summary.points, m.reconstruction.points.len());
+        assert!(
+            m.summary.uncertainty.is_some() || m.summary.uncertainty_note.is_some(),
+            "the merged model's uncertainty is measured again"
+        );
     }
 }

@@ -18,7 +18,7 @@ use crate::model::{cameras_in_order, ProjectiveModel};
 use crate::selfcal::{decompose_camera, self_calibrate, SelfCalibration};
 
 /// Self-calibration diagnostics for the summary.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Default, Serialize)]
 pub struct SelfCalibrationReport {
     /// Why the motion is critical, when it is (the DAQ is then not determined by the images alone).
     pub degenerate: Option<String>,

@@ -486,7 +486,7 @@ fn video_frames_step(
 
 /// Per-point and intrinsics uncertainty when enabled; otherwise, or when it fails, the note saying
 /// why it is missing (a model without it is still a model).
-fn uncertainty_step(
+pub(crate) fn uncertainty_step(
     ctx: &Context,
     rec: &MetricReconstruction,
 ) -> (Option<UncertaintyReport>, Option<String>) {
