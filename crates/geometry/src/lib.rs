@@ -22,6 +22,7 @@
 //! `x2ᵀ F x1 = 0` and `x2 ~ H x1`. Degenerate or too-small inputs return a [`GeometryError`],
 //! never panic.
 
+pub mod epipolar_uncertainty;
 pub mod error;
 pub mod fundamental;
 pub mod gold_standard;
@@ -39,6 +40,7 @@ pub mod view_distance;
 #[cfg(test)]
 pub(crate) mod test_util;
 
+pub use epipolar_uncertainty::{EpipolarUncertainty, LineUncertainty};
 pub use error::{GeometryError, Result};
 pub use fundamental::{
     enforce_rank2, epipoles, fundamental_7point, fundamental_8point, fundamental_from_cameras,
