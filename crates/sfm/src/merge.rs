@@ -439,7 +439,7 @@ mod tests {
     use super::*;
     use crate::graph::CorrespondenceGraph;
     use crate::test_scene::scene;
-    use crate::SfmOptions;
+    use crate::{SfmInput, SfmOptions};
     use nalgebra::{UnitQuaternion, Vector3};
 
     fn relative_rotation_error_deg(est: &MetricReconstruction, gt: &MetricReconstruction) -> f64 {
@@ -501,13 +501,18 @@ mod tests {
         merged.validate().expect("consistent references");
     }
 
-    #[test]
-    fn pieces_that_share_no_point_stay_apart() {
+    /// The seeded scene with no verified pair between its first four views and its last four.
+    fn split_scene() -> (SfmInput, MetricReconstruction, Vec<ImageId>, CorrespondenceGraph) {
         let (mut input, gt) = scene();
         let ids: Vec<ImageId> = gt.views.keys().copied().collect();
-        // No verified pair links the first four views to the last four.
         input.pairs.retain(|p| (p.a < 4) == (p.b < 4));
         let graph = CorrespondenceGraph::build(&input, 8);
+        (input, gt, ids, graph)
+    }
+
+    #[test]
+    fn pieces_that_share_no_point_stay_apart() {
+        let (input, gt, ids, graph) = split_scene();
         let opts = SfmOptions::default();
         let ctx = Context::new(&input, &graph, &opts);
         let first: BTreeSet<ImageId> = ids[4..].iter().copied().collect();
@@ -546,11 +551,8 @@ mod tests {
 
     #[test]
     fn two_smaller_pieces_merge_even_when_the_largest_shares_nothing_with_them() {
-        let (mut input, gt) = scene();
-        let ids: Vec<ImageId> = gt.views.keys().copied().collect();
-        // The first four views are a scene of their own: no verified pair links them to the others.
-        input.pairs.retain(|p| (p.a < 4) == (p.b < 4));
-        let graph = CorrespondenceGraph::build(&input, 8);
+        // The first four views are a scene of their own.
+        let (input, gt, ids, graph) = split_scene();
         let opts = SfmOptions::default();
         let ctx = Context::new(&input, &graph, &opts);
         let piece = |keep: std::ops::Range<usize>| {
