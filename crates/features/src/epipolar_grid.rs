@@ -1,5 +1,5 @@
 //! A uniform grid over one image's keypoints, for the epipolar-band queries of guided matching
-//! (Table 1 step 4, [`crate::verify::guided_matches`]).
+//! (Table 1 step 4, [`crate::guided::guided_matches`]).
 
 use nalgebra::Vector3;
 

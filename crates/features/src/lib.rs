@@ -15,6 +15,7 @@ mod epipolar_grid;
 pub mod error;
 pub mod extract;
 pub mod gray;
+mod guided;
 pub mod harris;
 pub mod keyframes;
 pub mod klt;

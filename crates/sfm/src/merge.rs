@@ -349,7 +349,13 @@ pub(crate) fn merge_models(ctx: &Context, models: &mut Vec<SfmModel>) {
     // Pairs found not to merge stay apart until one of them changes.
     let mut refused: BTreeSet<(usize, usize)> = BTreeSet::new();
     // A stable identity per model across the merges: its first view.
-    let key = |m: &SfmModel| m.reconstruction.views.keys().next().map_or(0, |v| v.0 as usize);
+    let key = |m: &SfmModel| {
+        m.reconstruction
+            .views
+            .keys()
+            .next()
+            .map_or(0, |v| v.0 as usize)
+    };
     loop {
         if models.len() < 2 {
             return;
@@ -502,7 +508,12 @@ mod tests {
     }
 
     /// The seeded scene with no verified pair between its first four views and its last four.
-    fn split_scene() -> (SfmInput, MetricReconstruction, Vec<ImageId>, CorrespondenceGraph) {
+    fn split_scene() -> (
+        SfmInput,
+        MetricReconstruction,
+        Vec<ImageId>,
+        CorrespondenceGraph,
+    ) {
         let (mut input, gt) = scene();
         let ids: Vec<ImageId> = gt.views.keys().copied().collect();
         input.pairs.retain(|p| (p.a < 4) == (p.b < 4));
@@ -573,7 +584,11 @@ mod tests {
         let mut models = vec![model(piece(0..4)), model(second), model(piece(6..8))];
         merge_models(&ctx, &mut models);
         let sizes: Vec<usize> = models.iter().map(|m| m.summary.registered).collect();
-        assert_eq!(sizes, [4, 4], "the two small pieces are one model, the first stays apart");
+        assert_eq!(
+            sizes,
+            [4, 4],
+            "the two small pieces are one model, the first stays apart"
+        );
         let m = models
             .iter()
             .find(|m| !m.summary.merged.is_empty())
