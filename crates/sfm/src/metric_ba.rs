@@ -28,11 +28,25 @@ pub struct MetricBaRecord {
     /// Observations removed by the filtering that followed.
     pub observations_removed: usize,
     pub points_removed: usize,
+    /// The Huber scale of this adjustment (pixels of a median-σ keypoint).
+    #[serde(default)]
+    pub loss_scale_px: f64,
 }
 
 impl MetricBaRecord {
-    fn of(step: &str, s: &handheld_bundle::BundleSummary, removed: usize, points: usize) -> Self {
+    fn of(
+        step: &str,
+        s: &handheld_bundle::BundleSummary,
+        loss: RobustLoss,
+        removed: usize,
+        points: usize,
+    ) -> Self {
+        let loss_scale_px = match loss {
+            RobustLoss::Huber(a) | RobustLoss::Cauchy(a) => a,
+            RobustLoss::None => f64::INFINITY,
+        };
         Self {
+            loss_scale_px,
             step: step.to_string(),
             iterations: s.iterations,
             initial_rms_px: s.initial_rms_px,
@@ -140,16 +154,16 @@ fn adjust_metric(
         if only_final && name != "final" {
             continue;
         }
+        let (loss, prior_scale) = if name == "f+k1" {
+            (first_step_loss(rec, o.loss_scale_px), 1.0)
+        } else {
+            noise_scaled_loss(ctx, rec)
+        };
         let config = MetricBundleConfig {
             refine: mask,
-            priors: priors.clone(),
+            priors: scaled_priors(&priors, prior_scale),
             keypoint_sigma: ctx.keypoint_sigma.clone(),
             ..Default::default()
-        };
-        let loss = if name == "f+k1" {
-            first_step_loss(rec, o.loss_scale_px)
-        } else {
-            RobustLoss::Huber(o.loss_scale_px)
         };
         let bopts = BundleOptions {
             max_iterations: iters,
@@ -163,7 +177,7 @@ fn adjust_metric(
             .map_err(|e| format!("metric bundle adjustment ({name}): {e}"))?;
         keep_scale(rec);
         let (ro, rp) = filter_metric(rec, thr, o.min_track_length);
-        records.push(MetricBaRecord::of(name, &s, ro, rp));
+        records.push(MetricBaRecord::of(name, &s, loss, ro, rp));
         // The model reported is the optimum of the observations it keeps: the ones the last
         // filter removed had pulled on it, and on the weakly determined parameters (the
         // principal point against the rotations) that pull is worth pixels (herzjesu-P8: 12 px
@@ -172,7 +186,7 @@ fn adjust_metric(
             let s = bundle_adjust_metric(rec, &config, &bopts)
                 .map_err(|e| format!("metric bundle adjustment (survivors): {e}"))?;
             keep_scale(rec);
-            records.push(MetricBaRecord::of("survivors", &s, 0, 0));
+            records.push(MetricBaRecord::of("survivors", &s, loss, 0, 0));
         }
     }
     Ok(records)
@@ -236,6 +250,84 @@ fn first_step_loss(rec: &MetricReconstruction, final_scale_px: f64) -> RobustLos
     RobustLoss::Huber((HUBER_95 * median / 1.1774).max(final_scale_px))
 }
 
+/// The observations' own noise, σ̂ = median(‖rᵢ‖ / σᵢ) / 1.1774, in pixels of a median-σ keypoint
+/// (σᵢ: the keypoint's localisation σ, [`Context::keypoint_sigma`]; 1.1774 σ is the median of a 2D
+/// Gaussian error's norm). `None` without observations.
+pub(crate) fn noise_sigma(ctx: &Context, rec: &MetricReconstruction) -> Option<f64> {
+    let mut e = Vec::new();
+    for p in rec.points.values() {
+        for el in &p.track.elements {
+            let Some(view) = rec.views.get(&el.image_id) else {
+                continue;
+            };
+            let Some(obs) = view.observations.get(el.point2d_idx as usize) else {
+                continue;
+            };
+            let Some(px) = rec.project(el.image_id, &p.xyz) else {
+                continue;
+            };
+            let s = ctx
+                .keypoint_sigma
+                .get(&el.image_id)
+                .and_then(|s| s.get(el.point2d_idx as usize))
+                .copied()
+                .unwrap_or(1.0);
+            e.push((px - obs.xy).norm() / s);
+        }
+    }
+    if e.is_empty() {
+        return None;
+    }
+    let mid = e.len() / 2;
+    Some(*e.select_nth_unstable_by(mid, f64::total_cmp).1 / 1.1774)
+}
+
+/// Smallest σ̂ [`noise_scaled_loss`] uses: exact synthetic data would otherwise make the Huber scale
+/// vanish and every residual an L1 term.
+const MIN_NOISE_SIGMA_PX: f64 = 0.01;
+
+/// The loss of the adjustments after the first, and the factor on the priors' σ, from the
+/// observations' measured noise σ̂ ([`noise_sigma`]), as in Huber's proposal 2 (Huber 1981 §7.8):
+/// the scale is Huber's 95 %-efficiency constant times σ̂ (never above
+/// `SfmOptions::loss_scale_px`), and the priors are weighed against data of noise σ̂.
+///
+/// The adjustment's cost counts a residual of 1 px (of a median-σ keypoint) as one unit of χ², so a
+/// prior with σ in pixels is a statement against data of σ = 1 px. Real keypoints are better than
+/// that (herzjesu-P8: σ̂ = 0.24 px), so the data's cost must be divided by σ̂², or equivalently
+/// each prior's σ multiplied by 1/σ̂: otherwise the principal point's prior at the image centre
+/// outweighs the data 17-fold (templeSparseRing: 17 px from the centre in truth, held at 3 px from
+/// it by the prior under a tight loss). And a fixed 1.5 px Huber scale is 6 σ̂ there: the
+/// mismatches along the epipolar lines, 1–2 px off, counted as inliers and pulled the principal
+/// point (herzjesu-P8: 616 observations, 1.8 %, more than 1.5 px from the ground-truth cameras'
+/// reprojection moved it by 2.5 px).
+fn noise_scaled_loss(ctx: &Context, rec: &MetricReconstruction) -> (RobustLoss, f64) {
+    let fixed = ctx.opts.loss_scale_px;
+    if !ctx.opts.noise_scaled_loss {
+        return (RobustLoss::Huber(fixed), 1.0);
+    }
+    match noise_sigma(ctx, rec) {
+        Some(s) if s.is_finite() => {
+            let s = s.max(MIN_NOISE_SIGMA_PX);
+            (RobustLoss::Huber((HUBER_95 * s).min(fixed)), 1.0 / s)
+        }
+        _ => (RobustLoss::Huber(fixed), 1.0),
+    }
+}
+
+/// `priors` with every σ multiplied by `factor`.
+fn scaled_priors(
+    priors: &BTreeMap<CameraId, Vec<(IntrinsicParam, GaussianPrior)>>,
+    factor: f64,
+) -> BTreeMap<CameraId, Vec<(IntrinsicParam, GaussianPrior)>> {
+    let mut out = priors.clone();
+    for v in out.values_mut() {
+        for (_, g) in v.iter_mut() {
+            g.sigma *= factor;
+        }
+    }
+    out
+}
+
 /// Relative change of the focal length at which [`focal_profile`] probes the fit: far enough to
 /// leave a determined focal length's valley by a wide margin (a sound frame's focal length is
 /// within a few per cent), near enough to stay in the basin of the kept frame.
@@ -275,12 +367,14 @@ pub(crate) fn held_adjustment(
     estimate_aspect: bool,
     scale: Option<f64>,
 ) -> Result<(f64, MetricReconstruction), String> {
-    let o = ctx.opts;
     let Setup { full, priors, .. } = setup(ctx, rec, estimate_aspect);
+    // The same loss and priors as the schedule's last adjustments.
+    let (loss, prior_scale) = noise_scaled_loss(ctx, rec);
+    let priors = scaled_priors(&priors, prior_scale);
     // The ratios need about a per cent: the schedule's first-step tolerances do.
     let bopts = BundleOptions {
         max_iterations: 100,
-        loss: RobustLoss::Huber(o.loss_scale_px),
+        loss,
         function_tolerance: 1e-5,
         parameter_tolerance: 1e-8,
         ..Default::default()

@@ -36,8 +36,13 @@ pub struct SfmOptions {
     pub metric_max_error_px: f64,
     /// Threshold of the final filtering, after distortion and principal point are estimated. Default 2.
     pub final_max_error_px: f64,
-    /// Huber scale of every bundle adjustment in pixels. Default 1.5.
+    /// Huber scale of every bundle adjustment in pixels; with `noise_scaled_loss`, the largest
+    /// scale of the metric adjustments after the first. Default 1.5.
     pub loss_scale_px: f64,
+    /// Metric adjustments after the first take their Huber scale (1.345 σ̂) and the weight of
+    /// their priors from the observations' measured noise σ̂, instead of `loss_scale_px` and
+    /// priors stated against 1 px of noise. Default true.
+    pub noise_scaled_loss: bool,
     /// Points an initial pair must triangulate. Default 50.
     pub init_min_points: usize,
     /// Initial pairs tried before giving up on a model. Default 10.
@@ -86,6 +91,7 @@ impl Default for SfmOptions {
             metric_max_error_px: 4.0,
             final_max_error_px: 2.0,
             loss_scale_px: 1.5,
+            noise_scaled_loss: true,
             init_min_points: 50,
             max_initial_pairs: 10,
             min_resection_inliers: 20,

@@ -324,7 +324,7 @@ pub fn flat_profile(rec: &MetricReconstruction, ratios: [f64; 2]) -> Option<Stri
     (worst.is_finite() && worst < 1.0 + MIN_PROFILE_INCREASE).then(|| {
         let side = if ratios[0] <= ratios[1] { "shorter" } else { "longer" };
         format!(
-            "the images do not determine the focal length: with it held 20 % {side} than the              kept {f:.0} px, the adjusted model explains them almost as well (cost × {worst:.3})"
+            "the images do not determine the focal length: with it held 20 % {side} than the kept {f:.0} px, the adjusted model explains them almost as well (cost × {worst:.3})"
         )
     })
 }
