@@ -250,9 +250,11 @@ fn first_step_loss(rec: &MetricReconstruction, final_scale_px: f64) -> RobustLos
     RobustLoss::Huber((HUBER_95 * median / 1.1774).max(final_scale_px))
 }
 
-/// The observations' own noise, σ̂ = median(‖rᵢ‖ / σᵢ) / 1.1774, in pixels of a median-σ keypoint
-/// (σᵢ: the keypoint's localisation σ, [`Context::keypoint_sigma`]; 1.1774 σ is the median of a 2D
-/// Gaussian error's norm). `None` without observations.
+/// The observations' noise σ̂ in pixels of a median-σ keypoint (σᵢ: the keypoint's localisation
+/// σ, [`Context::keypoint_sigma`]): the median of the weighted residual norms ‖rᵢ‖ / σᵢ over
+/// 1.1774 (the median of a 2D Gaussian error's norm), times √(n / (n − p)) for the `p` parameters
+/// the adjustment fitted to the `n` residuals (the points' 3 and the views' 6; a 2-view point
+/// keeps only a quarter of its noise in its residuals). `None` without redundant observations.
 pub(crate) fn noise_sigma(ctx: &Context, rec: &MetricReconstruction) -> Option<f64> {
     let mut e = Vec::new();
     for p in rec.points.values() {
@@ -275,11 +277,14 @@ pub(crate) fn noise_sigma(ctx: &Context, rec: &MetricReconstruction) -> Option<f
             e.push((px - obs.xy).norm() / s);
         }
     }
-    if e.is_empty() {
+    let n = 2.0 * e.len() as f64;
+    let p = 3.0 * rec.points.len() as f64 + 6.0 * rec.views.len() as f64;
+    if e.is_empty() || n <= p {
         return None;
     }
     let mid = e.len() / 2;
-    Some(*e.select_nth_unstable_by(mid, f64::total_cmp).1 / 1.1774)
+    let median = *e.select_nth_unstable_by(mid, f64::total_cmp).1;
+    Some(median / 1.1774 * (n / (n - p)).sqrt())
 }
 
 /// Smallest σ̂ [`noise_scaled_loss`] uses: exact synthetic data would otherwise make the Huber scale

@@ -317,3 +317,77 @@ fn known_intrinsics_pin_the_calibration() {
     eprintln!("known intrinsics: rotation error {rot:.4}°");
     assert!(rot < 0.1, "rotation error {rot}°");
 }
+
+/// The principal point's error of the model against the truth, pixels.
+fn principal_point_error_px(est: &MetricReconstruction, gt: &MetricReconstruction) -> f64 {
+    let pe = est.cameras.values().next().unwrap().intrinsics.pp;
+    let pg = gt.cameras.values().next().unwrap().intrinsics.pp;
+    (pe - pg).norm()
+}
+
+/// Six views around a ball, 1024×768, 300 points, 0.15 px of noise: keypoints as good as real
+/// photos' (σ̂ = 0.24 px on herzjesu-P8), with the principal point 30 px off the image centre, where
+/// the data determine it to about a pixel.
+fn sharp_scene(seed: u64) -> (SfmInput, MetricReconstruction) {
+    let (mut input, mut gt) = input_from(&MultiViewOptions {
+        num_views: 6,
+        num_points: 300,
+        noise_px: 0.15,
+        outlier_fraction: 0.0,
+        radial_distortion: false,
+        shared_intrinsics: true,
+        min_track_len: 2,
+        seed,
+        width: 1024,
+        height: 768,
+    });
+    // Moving every keypoint by d is moving the principal point by d.
+    let d = nalgebra::Vector2::new(24.0, -18.0);
+    for im in &mut input.images {
+        for k in &mut im.keypoints {
+            *k += d;
+        }
+    }
+    for cam in gt.cameras.values_mut() {
+        cam.intrinsics.pp += d;
+    }
+    (input, gt)
+}
+
+/// The principal point's prior at the image centre is weighed against the data's measured noise
+/// σ̂, not against 1 px: with sharp keypoints, a prior stated against 1 px outweighs the data and
+/// holds the principal point near the centre.
+#[test]
+fn the_principal_point_prior_is_weighed_against_the_measured_noise() {
+    for seed in [1u64, 2, 3] {
+        let (input, gt) = sharp_scene(seed);
+        let solve = |noise_scaled_loss: bool| {
+            let sfm = SfmOptions {
+                noise_scaled_loss,
+                ..Default::default()
+            };
+            let out = reconstruct(&input, &sfm, &NoProgress).expect("reconstruction");
+            out.models.into_iter().next().expect("a model")
+        };
+        let scaled = solve(true);
+        let fixed = solve(false);
+        let e_scaled = principal_point_error_px(&scaled.reconstruction, &gt);
+        let e_fixed = principal_point_error_px(&fixed.reconstruction, &gt);
+        // The Huber scale of the last adjustment is 1.345 σ̂.
+        let last = scaled.summary.metric_ba.last().expect("adjustments");
+        let sigma = last.loss_scale_px / 1.345;
+        eprintln!("seed {seed}: principal point error {e_scaled:.2} px (prior against 1 px: {e_fixed:.2} px), σ̂ {sigma:.3} px");
+        assert!(
+            e_scaled < 4.0,
+            "seed {seed}: principal point {e_scaled} px off"
+        );
+        assert!(
+            e_scaled < e_fixed / 2.0,
+            "seed {seed}: {e_scaled} px against {e_fixed} px"
+        );
+        assert!(
+            (sigma / 0.15 - 1.0).abs() < 0.25,
+            "seed {seed}: σ̂ = {sigma} px for 0.15 px of noise"
+        );
+    }
+}
