@@ -237,6 +237,10 @@ pub struct InputArgs {
     /// scale (σ ∝ √scale, the default).
     #[arg(long)]
     pub unweighted_observations: bool,
+    /// Sparse: a fixed Huber scale (1.5 px) and priors stated against 1 px of noise in metric BA,
+    /// instead of both from the observations' measured noise (the default).
+    #[arg(long)]
+    pub fixed_loss_scale: bool,
     /// Sparse: a known calibration `FX,FY,CX,CY` in pixels, COLMAP's convention (the top-left
     /// pixel's centre at 0.5, 0.5, as in a COLMAP `cameras.txt`). It pins the focal lengths and the
     /// principal point of every camera in metric BA; without it the cameras are self-calibrated.
@@ -299,6 +303,7 @@ impl InputArgs {
         sfm.distortion = self.distortion;
         sfm.refine_principal_point = !self.fixed_principal_point;
         sfm.scale_weighted_observations = !self.unweighted_observations;
+        sfm.noise_scaled_loss = !self.fixed_loss_scale;
         sfm.known_intrinsics = self.intrinsics;
         sfm.principal_point_prior = self.principal_point_prior;
         sfm.estimate_aspect = match self.aspect {

@@ -29,8 +29,10 @@ pub struct MetricBaRecord {
     pub observations_removed: usize,
     pub points_removed: usize,
     /// The Huber scale of this adjustment (pixels of a median-σ keypoint).
-    #[serde(default)]
     pub loss_scale_px: f64,
+    /// The observations' noise σ̂ measured before this adjustment ([`Noise::observation`]), when
+    /// the loss and the priors were scaled by it.
+    pub noise_px: Option<f64>,
 }
 
 impl MetricBaRecord {
@@ -38,6 +40,7 @@ impl MetricBaRecord {
         step: &str,
         s: &handheld_bundle::BundleSummary,
         loss: RobustLoss,
+        noise: Option<Noise>,
         removed: usize,
         points: usize,
     ) -> Self {
@@ -47,6 +50,7 @@ impl MetricBaRecord {
         };
         Self {
             loss_scale_px,
+            noise_px: noise.map(|n| n.observation),
             step: step.to_string(),
             iterations: s.iterations,
             initial_rms_px: s.initial_rms_px,
@@ -154,8 +158,8 @@ fn adjust_metric(
         if only_final && name != "final" {
             continue;
         }
-        let (loss, prior_scale) = if name == "f+k1" {
-            (first_step_loss(rec, o.loss_scale_px), 1.0)
+        let (loss, prior_scale, noise) = if name == "f+k1" {
+            (first_step_loss(rec, o.loss_scale_px), 1.0, None)
         } else {
             noise_scaled_loss(ctx, rec)
         };
@@ -177,7 +181,7 @@ fn adjust_metric(
             .map_err(|e| format!("metric bundle adjustment ({name}): {e}"))?;
         keep_scale(rec);
         let (ro, rp) = filter_metric(rec, thr, o.min_track_length);
-        records.push(MetricBaRecord::of(name, &s, loss, ro, rp));
+        records.push(MetricBaRecord::of(name, &s, loss, noise, ro, rp));
         // The model reported is the optimum of the observations it keeps: the ones the last
         // filter removed had pulled on it, and on the weakly determined parameters (the
         // principal point against the rotations) that pull is worth pixels (herzjesu-P8: 12 px
@@ -186,7 +190,7 @@ fn adjust_metric(
             let s = bundle_adjust_metric(rec, &config, &bopts)
                 .map_err(|e| format!("metric bundle adjustment (survivors): {e}"))?;
             keep_scale(rec);
-            records.push(MetricBaRecord::of("survivors", &s, loss, 0, 0));
+            records.push(MetricBaRecord::of("survivors", &s, loss, noise, 0, 0));
         }
     }
     Ok(records)
@@ -250,12 +254,20 @@ fn first_step_loss(rec: &MetricReconstruction, final_scale_px: f64) -> RobustLos
     RobustLoss::Huber((HUBER_95 * median / 1.1774).max(final_scale_px))
 }
 
-/// The observations' noise σ̂ in pixels of a median-σ keypoint (σᵢ: the keypoint's localisation
-/// σ, [`Context::keypoint_sigma`]): the median of the weighted residual norms ‖rᵢ‖ / σᵢ over
-/// 1.1774 (the median of a 2D Gaussian error's norm), times √(n / (n − p)) for the `p` parameters
-/// the adjustment fitted to the `n` residuals (the points' 3 and the views' 6; a 2-view point
-/// keeps only a quarter of its noise in its residuals). `None` without redundant observations.
-pub(crate) fn noise_sigma(ctx: &Context, rec: &MetricReconstruction) -> Option<f64> {
+/// The spread of a model's residuals and the noise of its observations, in pixels of a median-σ
+/// keypoint (σᵢ: the keypoint's localisation σ, [`Context::keypoint_sigma`]).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Noise {
+    /// σ_r = median(‖rᵢ‖ / σᵢ) / 1.1774 (the median of a 2D Gaussian error's norm is 1.1774 σ).
+    pub residual: f64,
+    /// σ̂ = σ_r √(n / (n − p)): the `p` parameters the adjustment fitted to the `n` residuals (the
+    /// points' 3 and the views' 6) took part of the noise out of them; a 2-view point keeps only
+    /// a quarter of it.
+    pub observation: f64,
+}
+
+/// The [`Noise`] of the adjusted model `rec`; `None` without redundant observations.
+pub(crate) fn noise_sigma(ctx: &Context, rec: &MetricReconstruction) -> Option<Noise> {
     let mut e = Vec::new();
     for p in rec.points.values() {
         for el in &p.track.elements {
@@ -283,8 +295,11 @@ pub(crate) fn noise_sigma(ctx: &Context, rec: &MetricReconstruction) -> Option<f
         return None;
     }
     let mid = e.len() / 2;
-    let median = *e.select_nth_unstable_by(mid, f64::total_cmp).1;
-    Some(median / 1.1774 * (n / (n - p)).sqrt())
+    let residual = *e.select_nth_unstable_by(mid, f64::total_cmp).1 / 1.1774;
+    Some(Noise {
+        residual,
+        observation: residual * (n / (n - p)).sqrt(),
+    })
 }
 
 /// Smallest σ̂ [`noise_scaled_loss`] uses: exact synthetic data would otherwise make the Huber scale
@@ -305,17 +320,23 @@ const MIN_NOISE_SIGMA_PX: f64 = 0.01;
 /// mismatches along the epipolar lines, 1–2 px off, counted as inliers and pulled the principal
 /// point (herzjesu-P8: 616 observations, 1.8 %, more than 1.5 px from the ground-truth cameras'
 /// reprojection moved it by 2.5 px).
-fn noise_scaled_loss(ctx: &Context, rec: &MetricReconstruction) -> (RobustLoss, f64) {
+fn noise_scaled_loss(
+    ctx: &Context,
+    rec: &MetricReconstruction,
+) -> (RobustLoss, f64, Option<Noise>) {
     let fixed = ctx.opts.loss_scale_px;
     if !ctx.opts.noise_scaled_loss {
-        return (RobustLoss::Huber(fixed), 1.0);
+        return (RobustLoss::Huber(fixed), 1.0, None);
     }
     match noise_sigma(ctx, rec) {
-        Some(s) if s.is_finite() => {
-            let s = s.max(MIN_NOISE_SIGMA_PX);
-            (RobustLoss::Huber((HUBER_95 * s).min(fixed)), 1.0 / s)
+        Some(n) if n.residual.is_finite() && n.observation.is_finite() => {
+            // The loss acts on the residuals: its scale is theirs. The priors compete with the
+            // observations' information, whose noise is σ̂.
+            let r = n.residual.max(MIN_NOISE_SIGMA_PX);
+            let s = n.observation.max(MIN_NOISE_SIGMA_PX);
+            (RobustLoss::Huber((HUBER_95 * r).min(fixed)), 1.0 / s, Some(n))
         }
-        _ => (RobustLoss::Huber(fixed), 1.0),
+        _ => (RobustLoss::Huber(fixed), 1.0, None),
     }
 }
 
@@ -374,7 +395,7 @@ pub(crate) fn held_adjustment(
 ) -> Result<(f64, MetricReconstruction), String> {
     let Setup { full, priors, .. } = setup(ctx, rec, estimate_aspect);
     // The same loss and priors as the schedule's last adjustments.
-    let (loss, prior_scale) = noise_scaled_loss(ctx, rec);
+    let (loss, prior_scale, _) = noise_scaled_loss(ctx, rec);
     let priors = scaled_priors(&priors, prior_scale);
     // The ratios need about a per cent: the schedule's first-step tolerances do.
     let bopts = BundleOptions {

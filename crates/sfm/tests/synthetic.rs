@@ -373,9 +373,8 @@ fn the_principal_point_prior_is_weighed_against_the_measured_noise() {
         let fixed = solve(false);
         let e_scaled = principal_point_error_px(&scaled.reconstruction, &gt);
         let e_fixed = principal_point_error_px(&fixed.reconstruction, &gt);
-        // The Huber scale of the last adjustment is 1.345 σ̂.
         let last = scaled.summary.metric_ba.last().expect("adjustments");
-        let sigma = last.loss_scale_px / 1.345;
+        let sigma = last.noise_px.expect("the noise measured");
         eprintln!("seed {seed}: principal point error {e_scaled:.2} px (prior against 1 px: {e_fixed:.2} px), σ̂ {sigma:.3} px");
         assert!(
             e_scaled < 4.0,
