@@ -597,7 +597,10 @@ mod tests {
         assert!(m.reconstruction.views.contains_key(&ids[7]));
         let truth = piece(4..8);
         let err = relative_rotation_error_deg(&m.reconstruction, &truth);
-        assert!(err < 0.1, "relative rotations {err}° from the truth");
+        // A wrong merge is degrees off. The merged 4-view model (0.5 px of noise) determines its
+        // principal point to a few pixels, weighed against its prior by the measured noise, and
+        // each pixel of it trades against ~0.05° of the rotations.
+        assert!(err < 0.3, "relative rotations {err}° from the truth");
         assert_eq!(m.summary.points, m.reconstruction.points.len());
         assert!(
             m.summary.uncertainty.is_some() || m.summary.uncertainty_note.is_some(),

@@ -173,7 +173,7 @@ fn adjust_metric(
             max_iterations: iters,
             loss,
             // Tight tolerances only for the last adjustment; the earlier ones feed a filter.
-            function_tolerance: if name == "final" { 1e-7 } else { 1e-5 },
+            function_tolerance: if name == "final" { 1e-6 } else { 1e-5 },
             parameter_tolerance: if name == "final" { 1e-10 } else { 1e-8 },
             ..Default::default()
         };

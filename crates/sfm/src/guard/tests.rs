@@ -76,6 +76,8 @@ fn adjusted(removed: usize, rms: f64) -> Vec<MetricBaRecord> {
         seconds: 0.0,
         observations_removed: removed,
         points_removed: 0,
+        loss_scale_px: 1.5,
+        noise_px: None,
     }]
 }
 
