@@ -11,9 +11,9 @@ use handheld_core::Progress;
 use rayon::prelude::*;
 
 use crate::linear::Factorizer;
+use crate::loss::RobustLoss;
 use crate::options::{BundleError, BundleOptions, BundleSummary, LinearSolverKind, Termination};
 use crate::problem::{CameraModel, Problem};
-use crate::loss::RobustLoss;
 use crate::residual::{pose_plus, sphere_plus, NUM_INTRINSICS};
 use crate::schur::{
     assemble, back_substitute, invert_points, jacobian_step_norm2, linearize, ReducedMatrix,
@@ -278,7 +278,7 @@ fn run(
         let ratio = change / model_decrease;
         let success =
             cand_cost.is_finite() && model_decrease > 0.0 && ratio > opts.min_relative_decrease;
-        if success && ratio > EXTRAPOLATION_RATIO {
+        if opts.extrapolate && success && ratio > EXTRAPOLATION_RATIO {
             change = lin.cost - extrapolate(p, &st, &mut cand, dc, &dp, cand_cost, &loss);
         }
         // Converged when an accepted step gains almost nothing, or when even the linear model

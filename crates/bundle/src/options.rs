@@ -56,6 +56,9 @@ pub struct BundleOptions {
     pub dense_max_dimension: usize,
     /// Worker threads; 0 uses rayon's global pool. Default 0.
     pub num_threads: usize,
+    /// Try an accepted step again longer when it gained more than its model promised (a robust
+    /// loss in its linear part, see `lm::extrapolate`). Default true.
+    pub extrapolate: bool,
 }
 
 impl Default for BundleOptions {
@@ -73,6 +76,7 @@ impl Default for BundleOptions {
             linear_solver: LinearSolverKind::Auto,
             dense_max_dimension: 1500,
             num_threads: 0,
+            extrapolate: true,
         }
     }
 }

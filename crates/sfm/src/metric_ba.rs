@@ -334,7 +334,11 @@ fn noise_scaled_loss(
             // observations' information, whose noise is σ̂.
             let r = n.residual.max(MIN_NOISE_SIGMA_PX);
             let s = n.observation.max(MIN_NOISE_SIGMA_PX);
-            (RobustLoss::Huber((HUBER_95 * r).min(fixed)), 1.0 / s, Some(n))
+            (
+                RobustLoss::Huber((HUBER_95 * r).min(fixed)),
+                1.0 / s,
+                Some(n),
+            )
         }
         _ => (RobustLoss::Huber(fixed), 1.0, None),
     }
