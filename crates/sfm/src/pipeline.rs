@@ -276,6 +276,15 @@ pub(crate) fn build_model(
         frame::principal_point_test(ctx, &mut rec, &mut metric_ba, estimate_aspect, &mut report);
         record(&mut timings, "principal_point_test", t_pp);
     }
+    // A warning about the focal length names the frame it judged; the adjustments after it (the
+    // views registered later, the predicted matches, the principal point's test) move it
+    // (dinoSparseRing: 3051 px then, 3169 px reported).
+    if let (Some(w), Some(f)) = (
+        report.focal_ambiguity.as_mut(),
+        guard::focal_lengths(&rec).first(),
+    ) {
+        w.push_str(&format!("; the reported model's focal length is {f:.0} px"));
+    }
     // The aspect ratio a camera that only translates cannot determine, judged on the final model
     // (a video's in-between frames are adjusted with it last).
     if estimate_aspect && report.focal_ambiguity.is_none() && ctx.opts.known_intrinsics.is_none() {
