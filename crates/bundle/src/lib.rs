@@ -35,7 +35,8 @@ mod structure;
 pub use covariance::{metric_uncertainty, MetricUncertainty, PointUncertainty};
 pub use loss::RobustLoss;
 pub use metric::{
-    bundle_adjust_metric, GaussianPrior, IntrinsicParam, IntrinsicsMask, MetricBundleConfig,
+    bundle_adjust_metric, observation_sigma, GaussianPrior, IntrinsicParam, IntrinsicsMask,
+    MetricBundleConfig,
 };
 pub use options::{BundleError, BundleOptions, BundleSummary, LinearSolverKind, Termination};
 pub use problem::{CameraModel, Problem};

@@ -202,13 +202,11 @@ pub(crate) fn metric_problem(
             p.obs_point.push(idx);
             p.obs_xy.push([obs.xy.x, obs.xy.y]);
             if !config.keypoint_sigma.is_empty() {
-                let s = config
-                    .keypoint_sigma
-                    .get(&el.image_id)
-                    .and_then(|s| s.get(el.point2d_idx as usize))
-                    .copied()
-                    .unwrap_or(1.0);
-                p.obs_sigma.push(s);
+                p.obs_sigma.push(observation_sigma(
+                    &config.keypoint_sigma,
+                    el.image_id,
+                    el.point2d_idx,
+                ));
             }
         }
         p.points.push([pt.xyz.x, pt.xyz.y, pt.xyz.z, 1.0]);
@@ -241,6 +239,16 @@ pub(crate) fn block_to_pose(b: &[f64; 12]) -> handheld_core::Rigid3 {
     let m = Matrix3::new(b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7], b[8]);
     let q = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(m));
     handheld_core::Rigid3::from_parts(Translation3::from(Vector3::new(b[9], b[10], b[11])), q)
+}
+
+/// The localisation σ of keypoint `idx` of view `image` in `sigmas` (as in
+/// [`MetricBundleConfig::keypoint_sigma`]); 1 px where none is given.
+pub fn observation_sigma(sigmas: &BTreeMap<ImageId, Arc<[f64]>>, image: ImageId, idx: u32) -> f64 {
+    sigmas
+        .get(&image)
+        .and_then(|s| s.get(idx as usize))
+        .copied()
+        .unwrap_or(1.0)
 }
 
 /// Metric bundle adjustment (§3.4) of poses, points and the refined intrinsics, in place. Each point's

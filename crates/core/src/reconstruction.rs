@@ -98,24 +98,31 @@ impl MetricReconstruction {
             .project(&view.cam_from_world, p)
     }
 
-    /// Reprojection errors (pixels) of every track element whose point and view exist.
+    /// Every track element whose point and view exist, with its reprojection error in pixels
+    /// (`None` when the point is behind the view).
+    pub fn residuals(&self) -> impl Iterator<Item = (&TrackElement, Option<f64>)> + '_ {
+        self.points.values().flat_map(move |p| {
+            p.track.elements.iter().filter_map(move |el| {
+                let obs = self
+                    .views
+                    .get(&el.image_id)?
+                    .observations
+                    .get(el.point2d_idx as usize)?;
+                Some((
+                    el,
+                    self.project(el.image_id, &p.xyz)
+                        .map(|px| (px - obs.xy).norm()),
+                ))
+            })
+        })
+    }
+
+    /// Reprojection errors (pixels) of every track element whose point and view exist; infinite
+    /// for a point behind its view.
     pub fn reprojection_errors(&self) -> Vec<f64> {
-        let mut out = Vec::new();
-        for p in self.points.values() {
-            for el in &p.track.elements {
-                let Some(view) = self.views.get(&el.image_id) else {
-                    continue;
-                };
-                let Some(obs) = view.observations.get(el.point2d_idx as usize) else {
-                    continue;
-                };
-                match self.project(el.image_id, &p.xyz) {
-                    Some(px) => out.push((px - obs.xy).norm()),
-                    None => out.push(f64::INFINITY),
-                }
-            }
-        }
-        out
+        self.residuals()
+            .map(|(_, e)| e.unwrap_or(f64::INFINITY))
+            .collect()
     }
 
     /// Mean reprojection error in pixels over all observations (NaN when there are none).

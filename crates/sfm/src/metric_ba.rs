@@ -11,11 +11,13 @@ use handheld_bundle::{
     MetricBundleConfig, RobustLoss,
 };
 use handheld_core::{CameraId, ImageId, MetricReconstruction, PointId};
-use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::context::Context;
+use crate::noise::{noise_scaled_loss, scaled_priors, Noise};
 use crate::options::Distortion;
+pub(crate) use crate::profile::{focal_profile, held_adjustment, principal_point_spread};
+pub use crate::profile::{PrincipalPointSpread, PROFILE_STEP};
 
 /// One metric bundle adjustment, for the summary.
 #[derive(Clone, Debug, Serialize)]
@@ -234,7 +236,7 @@ pub(crate) fn keep_scale(rec: &mut MetricReconstruction) {
 }
 
 /// Huber's tuning constant for 95 % efficiency under Gaussian noise (Holland & Welsch 1977).
-const HUBER_95: f64 = 1.345;
+pub(crate) const HUBER_95: f64 = 1.345;
 
 /// The loss of the schedule's first adjustment. A new metric frame starts far from its optimum
 /// (tens of pixels RMS): with the final Huber scale almost every residual is then in the loss's
@@ -254,275 +256,9 @@ fn first_step_loss(rec: &MetricReconstruction, final_scale_px: f64) -> RobustLos
     RobustLoss::Huber((HUBER_95 * median / 1.1774).max(final_scale_px))
 }
 
-/// The spread of a model's residuals and the noise of its observations, in pixels of a median-σ
-/// keypoint (σᵢ: the keypoint's localisation σ, [`Context::keypoint_sigma`]).
-#[derive(Clone, Copy, Debug)]
-pub(crate) struct Noise {
-    /// σ_r = median(‖rᵢ‖ / σᵢ) / 1.1774 (the median of a 2D Gaussian error's norm is 1.1774 σ).
-    pub residual: f64,
-    /// σ̂ = σ_r √(n / (n − p)): the `p` parameters the adjustment fitted to the `n` residuals (the
-    /// points' 3 and the views' 6) took part of the noise out of them; a 2-view point keeps only
-    /// a quarter of it.
-    pub observation: f64,
-}
-
-/// The [`Noise`] of the adjusted model `rec`; `None` without redundant observations.
-pub(crate) fn noise_sigma(ctx: &Context, rec: &MetricReconstruction) -> Option<Noise> {
-    let mut e = Vec::new();
-    for p in rec.points.values() {
-        for el in &p.track.elements {
-            let Some(view) = rec.views.get(&el.image_id) else {
-                continue;
-            };
-            let Some(obs) = view.observations.get(el.point2d_idx as usize) else {
-                continue;
-            };
-            let Some(px) = rec.project(el.image_id, &p.xyz) else {
-                continue;
-            };
-            let s = ctx
-                .keypoint_sigma
-                .get(&el.image_id)
-                .and_then(|s| s.get(el.point2d_idx as usize))
-                .copied()
-                .unwrap_or(1.0);
-            e.push((px - obs.xy).norm() / s);
-        }
-    }
-    let n = 2.0 * e.len() as f64;
-    let p = 3.0 * rec.points.len() as f64 + 6.0 * rec.views.len() as f64;
-    if e.is_empty() || n <= p {
-        return None;
-    }
-    let mid = e.len() / 2;
-    let residual = *e.select_nth_unstable_by(mid, f64::total_cmp).1 / 1.1774;
-    Some(Noise {
-        residual,
-        observation: residual * (n / (n - p)).sqrt(),
-    })
-}
-
-/// Smallest σ̂ [`noise_scaled_loss`] uses: exact synthetic data would otherwise make the Huber scale
-/// vanish and every residual an L1 term.
-const MIN_NOISE_SIGMA_PX: f64 = 0.01;
-
-/// The loss of the adjustments after the first, and the factor on the priors' σ, from the
-/// observations' measured noise σ̂ ([`noise_sigma`]), as in Huber's proposal 2 (Huber 1981 §7.8):
-/// the scale is Huber's 95 %-efficiency constant times σ̂ (never above
-/// `SfmOptions::loss_scale_px`), and the priors are weighed against data of noise σ̂.
-///
-/// The adjustment's cost counts a residual of 1 px (of a median-σ keypoint) as one unit of χ², so a
-/// prior with σ in pixels is a statement against data of σ = 1 px. Real keypoints are better than
-/// that (herzjesu-P8: σ̂ = 0.24 px), so the data's cost must be divided by σ̂², or equivalently
-/// each prior's σ multiplied by 1/σ̂: otherwise the principal point's prior at the image centre
-/// outweighs the data 17-fold (templeSparseRing: 17 px from the centre in truth, held at 3 px from
-/// it by the prior under a tight loss). And a fixed 1.5 px Huber scale is 6 σ̂ there: the
-/// mismatches along the epipolar lines, 1–2 px off, counted as inliers and pulled the principal
-/// point (herzjesu-P8: 616 observations, 1.8 %, more than 1.5 px from the ground-truth cameras'
-/// reprojection moved it by 2.5 px).
-fn noise_scaled_loss(
-    ctx: &Context,
-    rec: &MetricReconstruction,
-) -> (RobustLoss, f64, Option<Noise>) {
-    let fixed = ctx.opts.loss_scale_px;
-    if !ctx.opts.noise_scaled_loss {
-        return (RobustLoss::Huber(fixed), 1.0, None);
-    }
-    match noise_sigma(ctx, rec) {
-        Some(n) if n.residual.is_finite() && n.observation.is_finite() => {
-            // The loss acts on the residuals: its scale is theirs. The priors compete with the
-            // observations' information, whose noise is σ̂.
-            let r = n.residual.max(MIN_NOISE_SIGMA_PX);
-            let s = n.observation.max(MIN_NOISE_SIGMA_PX);
-            (
-                RobustLoss::Huber((HUBER_95 * r).min(fixed)),
-                1.0 / s,
-                Some(n),
-            )
-        }
-        _ => (RobustLoss::Huber(fixed), 1.0, None),
-    }
-}
-
-/// `priors` with every σ multiplied by `factor`.
-fn scaled_priors(
-    priors: &BTreeMap<CameraId, Vec<(IntrinsicParam, GaussianPrior)>>,
-    factor: f64,
-) -> BTreeMap<CameraId, Vec<(IntrinsicParam, GaussianPrior)>> {
-    let mut out = priors.clone();
-    for v in out.values_mut() {
-        for (_, g) in v.iter_mut() {
-            g.sigma *= factor;
-        }
-    }
-    out
-}
-
-/// Relative change of the focal length at which [`focal_profile`] probes the fit: far enough to
-/// leave a determined focal length's valley by a wide margin (a sound frame's focal length is
-/// within a few per cent), near enough to stay in the basin of the kept frame.
-pub const PROFILE_STEP: f64 = 0.2;
-
-/// The profile of the fit along the focal length (a likelihood-ratio test in the spirit of
-/// Hartley & Zisserman §A6.4's parameter profiling): the adjusted model `rec` is adjusted again on
-/// the same observations (no filtering), once with every parameter free and once each with the
-/// focal length held at `(1 ∓ PROFILE_STEP) ×` its value, everything else (poses, points, the
-/// other intrinsics) free. Returns the robust cost of the two held adjustments relative to the
-/// free one's. A determined focal length makes them large (the metric constraints break); a
-/// critical motion (pure translation, a turntable's single axis) leaves them near 1, whatever
-/// the covariance says: the formal σ of the focal length is a local, linear statement, and it
-/// reads a few pixels on data where two focal lengths 20 % apart fit equally well.
-pub(crate) fn focal_profile(
-    ctx: &Context,
-    rec: &MetricReconstruction,
-    estimate_aspect: bool,
-) -> Result<[f64; 2], String> {
-    let sample = subsample_points(rec, PROFILE_MAX_POINTS);
-    let free = held_adjustment(ctx, &sample, estimate_aspect, None)?
-        .0
-        .max(f64::MIN_POSITIVE);
-    let (low, high) = rayon::join(
-        || held_adjustment(ctx, &sample, estimate_aspect, Some(1.0 - PROFILE_STEP)),
-        || held_adjustment(ctx, &sample, estimate_aspect, Some(1.0 + PROFILE_STEP)),
-    );
-    Ok([low?.0 / free, high?.0 / free])
-}
-
-/// `rec` adjusted on its observations as they are (no filtering) with its focal lengths scaled by
-/// `scale` and held there, or free (`None`); every other parameter the schedule refines is free.
-/// Returns the robust cost and the adjusted model.
-pub(crate) fn held_adjustment(
-    ctx: &Context,
-    rec: &MetricReconstruction,
-    estimate_aspect: bool,
-    scale: Option<f64>,
-) -> Result<(f64, MetricReconstruction), String> {
-    let Setup { full, priors, .. } = setup(ctx, rec, estimate_aspect);
-    // The same loss and priors as the schedule's last adjustments.
-    let (loss, prior_scale, _) = noise_scaled_loss(ctx, rec);
-    let priors = scaled_priors(&priors, prior_scale);
-    // The ratios need about a per cent: the schedule's first-step tolerances do.
-    let bopts = BundleOptions {
-        max_iterations: 100,
-        loss,
-        function_tolerance: 1e-5,
-        parameter_tolerance: 1e-8,
-        ..Default::default()
-    };
-    let mut r = rec.clone();
-    if let Some(sc) = scale {
-        for cam in r.cameras.values_mut() {
-            cam.intrinsics.f *= sc;
-        }
-    }
-    let config = MetricBundleConfig {
-        refine: IntrinsicsMask {
-            f: scale.is_none(),
-            ..full
-        },
-        priors,
-        keypoint_sigma: ctx.keypoint_sigma.clone(),
-        ..Default::default()
-    };
-    bundle_adjust_metric(&mut r, &config, &bopts)
-        .map(|s| (s.final_cost, r))
-        .map_err(|e| format!("focal profile: {e}"))
-}
-
 /// The image centre in Handheld's pixel convention: the principal point's prior mean.
 pub(crate) fn image_centre(width: u32, height: u32) -> nalgebra::Vector2<f64> {
     nalgebra::Vector2::new((width as f64 - 1.0) / 2.0, (height as f64 - 1.0) / 2.0)
-}
-
-/// Groups of views the principal point's jackknife leaves out in turn.
-const JACKKNIFE_GROUPS: usize = 8;
-
-/// How far the data put the principal point from the image centre, against how well they
-/// determine it: per intrinsics group, the offset of the freely adjusted principal point from the
-/// centre, and its standard deviation from a grouped delete-a-group jackknife over the views
-/// (Efron & Stein 1981; Shao & Tu, *The Jackknife and Bootstrap* §2.3: σ² = (g−1)/g Σ (θ_i − θ̄)²),
-/// each replicate adjusted (everything the schedule refines, free) on the profile's sample of
-/// points with one group of views left out.
-///
-/// Why not the covariance: the principal point trades off against the cameras' rotations to
-/// first order (a shift δ is a rotation by δ/f but for terms in δ·x² that k1 and the structure
-/// partly absorb), so what decides it are small, view-dependent effects, and errors that are
-/// correlated within a view (unmodelled distortion, localisation biases) move it by pixels while
-/// the formal σ, which assumes independent errors, reads a fraction of a pixel (fountain-P11:
-/// σ 0.2 px, error 4 px). Leaving views out measures the spread those view-dependent errors cause.
-pub(crate) fn principal_point_spread(
-    ctx: &Context,
-    rec: &MetricReconstruction,
-    estimate_aspect: bool,
-) -> Result<Vec<PrincipalPointSpread>, String> {
-    let sample = subsample_points(rec, PROFILE_MAX_POINTS);
-    let free = held_adjustment(ctx, &sample, estimate_aspect, None)?.1;
-    let ids: Vec<ImageId> = sample.views.keys().copied().collect();
-    let g = ids.len().min(JACKKNIFE_GROUPS);
-    if g < 3 {
-        return Err("too few views for the principal point's jackknife".into());
-    }
-    let replicates: Vec<Option<MetricReconstruction>> = (0..g)
-        .into_par_iter()
-        .map(|k| {
-            let out: BTreeSet<ImageId> = ids.iter().copied().skip(k).step_by(g).collect();
-            let part = without_views(&sample, &out);
-            held_adjustment(ctx, &part, estimate_aspect, None)
-                .ok()
-                .map(|(_, r)| r)
-        })
-        .collect();
-    let mut out = Vec::new();
-    for (id, cam) in &free.cameras {
-        let pps: Vec<nalgebra::Vector2<f64>> = replicates
-            .iter()
-            .flatten()
-            .filter_map(|r| r.cameras.get(id).map(|c| c.intrinsics.pp))
-            .collect();
-        if pps.len() < 3 {
-            continue;
-        }
-        let n = pps.len() as f64;
-        let mean = pps.iter().sum::<nalgebra::Vector2<f64>>() / n;
-        let var = pps
-            .iter()
-            .map(|p| (p - mean).component_mul(&(p - mean)))
-            .sum::<nalgebra::Vector2<f64>>()
-            * ((n - 1.0) / n);
-        out.push(PrincipalPointSpread {
-            camera_id: id.0,
-            offset_px: (cam.intrinsics.pp - image_centre(cam.width, cam.height)).into(),
-            sigma_px: var.map(f64::sqrt).into(),
-        });
-    }
-    Ok(out)
-}
-
-/// One intrinsics group's principal point against its spread ([`principal_point_spread`]).
-#[derive(Clone, Debug, Serialize)]
-pub struct PrincipalPointSpread {
-    pub camera_id: u32,
-    /// The freely adjusted principal point minus the image centre, pixels.
-    pub offset_px: [f64; 2],
-    /// Its jackknife standard deviation, pixels.
-    pub sigma_px: [f64; 2],
-}
-
-impl PrincipalPointSpread {
-    /// Σ (offset / σ)²: χ² with 2 degrees of freedom when the principal point is at the centre.
-    pub fn chi2(&self) -> f64 {
-        (0..2)
-            .map(|k| (self.offset_px[k] / self.sigma_px[k].max(1e-9)).powi(2))
-            .sum()
-    }
-
-    /// Whether the image centre is expected to be closer to the true principal point than the
-    /// free estimate: `Σ offset² < 2 Σ σ²` (see `frame::principal_point_test`).
-    pub fn held_is_closer(&self) -> bool {
-        let o2: f64 = self.offset_px.iter().map(|o| o * o).sum();
-        let s2: f64 = self.sigma_px.iter().map(|s| s * s).sum();
-        o2 < 2.0 * s2
-    }
 }
 
 /// `rec` without the views `out`: their observations are detached, and points left with fewer
@@ -546,32 +282,11 @@ pub(crate) fn without_views(
     r
 }
 
-/// Points the profile adjusts at most: a costs ratio needs a sample, not every point (fountain-P11
-/// has 18 000), and the profile then costs a fraction of the schedule (0.1 s there).
-const PROFILE_MAX_POINTS: usize = 1000;
-
-/// `rec` with every k-th point only (by id, so the same model gives the same sample), at most
-/// `max` of them; the observations of the others are detached.
-fn subsample_points(rec: &MetricReconstruction, max: usize) -> MetricReconstruction {
-    let mut out = rec.clone();
-    let n = out.points.len();
-    if n <= max {
-        return out;
-    }
-    let step = n.div_ceil(max);
-    let dropped: Vec<_> = out
-        .points
-        .keys()
-        .enumerate()
-        .filter(|(k, _)| k % step != 0)
-        .map(|(_, id)| *id)
-        .collect();
-    remove_points(&mut out, dropped);
-    out
-}
-
 /// Removes the points `ids` and detaches their observations from the views.
-fn remove_points(rec: &mut MetricReconstruction, ids: impl IntoIterator<Item = PointId>) {
+pub(crate) fn remove_points(
+    rec: &mut MetricReconstruction,
+    ids: impl IntoIterator<Item = PointId>,
+) {
     for id in ids {
         if let Some(p) = rec.points.remove(&id) {
             for el in p.track.elements {
@@ -585,13 +300,13 @@ fn remove_points(rec: &mut MetricReconstruction, ids: impl IntoIterator<Item = P
 
 /// What every adjustment of the schedule shares: the intrinsics refined in the first step
 /// (`base`) and in the later ones (`full`), and the soft priors.
-struct Setup {
-    base: IntrinsicsMask,
-    full: IntrinsicsMask,
-    priors: BTreeMap<CameraId, Vec<(IntrinsicParam, GaussianPrior)>>,
+pub(crate) struct Setup {
+    pub base: IntrinsicsMask,
+    pub full: IntrinsicsMask,
+    pub priors: BTreeMap<CameraId, Vec<(IntrinsicParam, GaussianPrior)>>,
 }
 
-fn setup(ctx: &Context, rec: &MetricReconstruction, estimate_aspect: bool) -> Setup {
+pub(crate) fn setup(ctx: &Context, rec: &MetricReconstruction, estimate_aspect: bool) -> Setup {
     let o = ctx.opts;
     let distortion = o.distortion != Distortion::None && !long_lens(rec);
     let base = IntrinsicsMask {
