@@ -59,6 +59,16 @@ impl Sim3 {
         Point3::from(self.scale * (self.rotation * p.coords) + self.translation)
     }
 
+    /// The inverse similarity `a_from_b` of this `b_from_a`.
+    pub fn inverse(&self) -> Self {
+        let rotation = self.rotation.inverse();
+        Self {
+            scale: 1.0 / self.scale,
+            rotation,
+            translation: -(rotation * self.translation) / self.scale,
+        }
+    }
+
     /// Maps a pose `cam_from_a` to `cam_from_b` for this `b_from_a` (the scale goes into the translation).
     pub fn transform_pose(&self, cam_from_a: &Rigid3) -> Rigid3 {
         let r = cam_from_a.rotation * self.rotation.inverse();
@@ -114,6 +124,18 @@ pub fn rotation_angle_deg(q: &UnitQuaternion<f64>) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_similarity_and_its_inverse_cancel() {
+        let s = Sim3 {
+            scale: 0.3,
+            rotation: UnitQuaternion::from_scaled_axis(Vector3::new(0.4, -0.2, 1.1)),
+            translation: Vector3::new(1.0, -5.0, 2.5),
+        };
+        let p = Point3::new(0.7, 2.0, -3.0);
+        let back = s.inverse().transform_point(&s.transform_point(&p));
+        assert!((back - p).norm() < 1e-12, "{back}");
+    }
 
     #[test]
     fn center_round_trip() {

@@ -13,10 +13,13 @@
 //! full metric schedule). The merge is kept only when that adjustment does not collapse
 //! (`guard::collapsed`) and every view still agrees with its verified pairs (`consistency.rs`);
 //! otherwise the models stay apart, as before.
+//!
+//! Pieces that share too few triangulated points for that are merged through their 2D–3D links
+//! instead ([`sightings`]): the keypoints of one piece's views matched to the other piece's points.
 
 use std::collections::{BTreeMap, BTreeSet};
 
-use handheld_core::{CameraId, ImageId, MetricReconstruction, PointId, Sim3};
+use handheld_core::{CameraId, ImageId, MetricReconstruction, PointId, Sim3, TrackElement};
 use nalgebra::{Point3, Vector2};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -25,6 +28,8 @@ use serde::Serialize;
 use crate::context::Context;
 use crate::metric_ba::{self, MetricBaRecord};
 use crate::{consistency, guard, SfmModel};
+
+mod sightings;
 
 /// Fewest RANSAC inliers a merge needs (a similarity has 7 degrees of freedom; 3
 /// correspondences fix it). templeSparseRing without view 8 splits into 11 + 4 views that share
@@ -44,6 +49,10 @@ pub struct MergeRecord {
     /// 3D–3D correspondences found through the verified pairs, and those the similarity explains.
     pub correspondences: usize,
     pub inliers: usize,
+    /// 2D–3D links (keypoints of one model's views matched to the other model's points) and those
+    /// the similarity explains; zero when the 3D–3D correspondences sufficed.
+    pub sightings: usize,
+    pub sighting_inliers: usize,
     /// Scale of the similarity that maps the merged model into this one's frame.
     pub scale: f64,
 }
@@ -198,6 +207,7 @@ fn union(
     b: &MetricReconstruction,
     a_from_b: &Sim3,
     fused: &[(PointId, PointId)],
+    attach: &Attachments,
 ) -> MetricReconstruction {
     let mut out = a.clone();
     let mut b = b.clone();
@@ -270,6 +280,30 @@ fn union(
         }
         out.views.insert(*vid, v);
     }
+    let MetricReconstruction { views, points, .. } = &mut out;
+    let targets = attach.to_a.iter().copied().chain(
+        attach
+            .to_b
+            .iter()
+            .filter_map(|&(view, key, pb)| point_map.get(&pb).map(|&p| (view, key, p))),
+    );
+    for (view, key, p) in targets {
+        let (Some(o), Some(pt)) = (
+            views
+                .get_mut(&view)
+                .and_then(|v| v.observations.get_mut(key as usize)),
+            points.get_mut(&p),
+        ) else {
+            continue;
+        };
+        if o.point_id.is_none() && pt.track.elements.iter().all(|e| e.image_id != view) {
+            pt.track.elements.push(TrackElement {
+                image_id: view,
+                point2d_idx: key,
+            });
+            o.point_id = Some(p);
+        }
+    }
     // A fused B point whose observation in some view duplicated the A point's was left out of
     // the track: its observation there is detached.
     for v in out.views.values_mut() {
@@ -290,6 +324,15 @@ fn union(
     out
 }
 
+/// Free keypoints that join a point of the other model in the union: `(view, keypoint, point)`,
+/// with B's views' keypoints joining A's points (`to_a`) and A's views' keypoints joining B's
+/// points (`to_b`, B's ids).
+#[derive(Default)]
+struct Attachments {
+    to_a: Vec<(ImageId, u32, PointId)>,
+    to_b: Vec<(ImageId, u32, PointId)>,
+}
+
 /// Tries to merge `b` into `a`: the merged, adjusted model with its adjustment records and the
 /// merge record, or why not.
 pub(crate) fn merge(
@@ -299,12 +342,41 @@ pub(crate) fn merge(
     estimate_aspect: bool,
 ) -> Result<(MetricReconstruction, Vec<MetricBaRecord>, MergeRecord), String> {
     let corr = correspondences(ctx, a, b);
-    let (sim, inliers) = similarity(ctx, a, b, &corr).ok_or_else(|| {
-        format!(
-            "{} 3D–3D correspondences through the verified pairs, fewer than {MIN_MERGE_INLIERS} (or under half) explained by one similarity",
-            corr.len()
-        )
-    })?;
+    let mut attach = Attachments::default();
+    let (mut n_links, mut n_link_inliers) = (0, 0);
+    let (sim, inliers) = match similarity(ctx, a, b, &corr) {
+        Some(found) => found,
+        None => {
+            let links = sightings::Links::new(ctx, a, b);
+            let mut rng = ChaCha8Rng::seed_from_u64(ctx.opts.seed ^ 0x5349_4748);
+            let (sim, (ib, ia)) = sightings::similarity(
+                ctx,
+                a,
+                b,
+                &links,
+                MIN_MERGE_INLIER_FRACTION,
+                &mut rng,
+            )
+            .ok_or_else(|| {
+                format!(
+                    "{} 3D–3D correspondences and {} 2D–3D links through the verified pairs, too few \
+                     (or under half) explained by one similarity",
+                    corr.len(),
+                    links.len()
+                )
+            })?;
+            n_links = links.len();
+            n_link_inliers = ib.len() + ia.len();
+            let key = |s: &sightings::Sighting| (s.view, s.key, s.point);
+            attach.to_a = ib.iter().map(|&k| key(&links.b_sees_a[k])).collect();
+            attach.to_b = ia.iter().map(|&k| key(&links.a_sees_b[k])).collect();
+            let thr = ctx.opts.metric_max_error_px;
+            let explained = (0..corr.len())
+                .filter(|&k| explains(a, b, &sim, &corr[k], thr))
+                .collect();
+            (sim, explained)
+        }
+    };
     // One fusion per point on each side (the correspondence seen first).
     let (mut used_a, mut used_b) = (BTreeSet::new(), BTreeSet::new());
     let fused: Vec<(PointId, PointId)> = inliers
@@ -319,7 +391,7 @@ pub(crate) fn merge(
             fresh
         })
         .collect();
-    let mut merged = union(ctx, a, b, &sim, &fused);
+    let mut merged = union(ctx, a, b, &sim, &fused, &attach);
     let records = metric_ba::refine_metric(ctx, &mut merged, estimate_aspect)?;
     if let Some(why) = guard::collapsed(&merged, &records) {
         return Err(format!("the adjustment of the merged model {why}"));
@@ -335,6 +407,8 @@ pub(crate) fn merge(
         views_added: b.views.len(),
         correspondences: corr.len(),
         inliers: inliers.len(),
+        sightings: n_links,
+        sighting_inliers: n_link_inliers,
         scale: sim.scale,
     };
     Ok((merged, records, record))
@@ -418,11 +492,13 @@ pub(crate) fn merge_models(ctx: &Context, models: &mut Vec<SfmModel>) {
             }
         }
         tracing::info!(
-            "merged a model of {} views into the model of {} views ({} of {} 3D–3D correspondences)",
+            "merged a model of {} views into the model of {} views ({} of {} 3D–3D correspondences, {} of {} 2D–3D links)",
             record.views_added,
             models[i].summary.registered,
             record.inliers,
-            record.correspondences
+            record.correspondences,
+            record.sighting_inliers,
+            record.sightings
         );
         models.remove(k);
         let m = &mut models[i];

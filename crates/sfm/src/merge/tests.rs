@@ -64,6 +64,99 @@ fn two_pieces_of_one_scene_in_different_frames_are_merged() {
     merged.validate().expect("consistent references");
 }
 
+#[test]
+fn pieces_that_triangulated_none_of_their_common_points_merge_through_their_sightings() {
+    let (input, gt) = scene();
+    let graph = CorrespondenceGraph::build(&input, 8);
+    let opts = SfmOptions::default();
+    let ctx = Context::new(&input, &graph, &opts);
+    let ids: Vec<ImageId> = gt.views.keys().copied().collect();
+    let (first, second): (BTreeSet<ImageId>, BTreeSet<ImageId>) = (
+        ids[4..].iter().copied().collect(),
+        ids[..4].iter().copied().collect(),
+    );
+    let a = metric_ba::without_views(&gt, &first);
+    let mut b = metric_ba::without_views(&gt, &second);
+    // B never triangulated a point that A holds: no 3D–3D correspondence is left, only B's
+    // keypoints matched to A's points (and A's to B's).
+    let shared: Vec<PointId> = b
+        .points
+        .keys()
+        .filter(|p| a.points.contains_key(p))
+        .copied()
+        .collect();
+    assert!(!shared.is_empty());
+    metric_ba::remove_points(&mut b, shared);
+    b.transform(&Sim3 {
+        scale: 0.37,
+        rotation: UnitQuaternion::from_scaled_axis(Vector3::new(0.3, -1.1, 0.4)),
+        translation: Vector3::new(5.0, -2.0, 9.0),
+    });
+    let (merged, _, record) = merge(&ctx, &a, &b, false).expect("the pieces see common points");
+    assert_eq!(record.correspondences, 0, "{record:?}");
+    assert_eq!(merged.views.len(), 8);
+    assert!(
+        record.sighting_inliers as f64 > 0.9 * record.sightings as f64,
+        "{record:?}"
+    );
+    assert!(
+        (record.scale - 1.0 / 0.37).abs() < 0.01 * record.scale,
+        "{record:?}"
+    );
+    let mut whole = gt.clone();
+    metric_ba::refine_metric(&ctx, &mut whole, false).expect("adjustment");
+    let reference = relative_rotation_error_deg(&whole, &gt);
+    let err = relative_rotation_error_deg(&merged, &gt);
+    assert!(
+        err < reference + 0.02,
+        "relative rotations {err}° off, the whole scene's {reference}°"
+    );
+    // The sightings joined A's points: the common points are one track each again.
+    let long = merged
+        .points
+        .values()
+        .filter(|p| {
+            let v: BTreeSet<ImageId> = p.track.elements.iter().map(|e| e.image_id).collect();
+            v.iter().any(|i| first.contains(i)) && v.iter().any(|i| second.contains(i))
+        })
+        .count();
+    assert!(long > 0, "no track spans both pieces");
+    merged.validate().expect("consistent references");
+}
+
+#[test]
+fn pieces_linked_only_by_chance_matches_stay_apart() {
+    let (mut input, gt) = scene();
+    let ids: Vec<ImageId> = gt.views.keys().copied().collect();
+    // Every pair between the pieces keeps its size, but its matches are drawn at random.
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    for pair in input.pairs.iter_mut().filter(|p| (p.a < 4) != (p.b < 4)) {
+        let (na, nb) = (
+            input.images[pair.a].keypoints.len() as u32,
+            input.images[pair.b].keypoints.len() as u32,
+        );
+        for m in pair.matches.iter_mut() {
+            *m = (rng.random_range(0..na), rng.random_range(0..nb));
+        }
+    }
+    let graph = CorrespondenceGraph::build(&input, 8);
+    let opts = SfmOptions::default();
+    let ctx = Context::new(&input, &graph, &opts);
+    let first: BTreeSet<ImageId> = ids[4..].iter().copied().collect();
+    let second: BTreeSet<ImageId> = ids[..4].iter().copied().collect();
+    let a = metric_ba::without_views(&gt, &first);
+    let mut b = metric_ba::without_views(&gt, &second);
+    let shared: Vec<PointId> = b
+        .points
+        .keys()
+        .filter(|p| a.points.contains_key(p))
+        .copied()
+        .collect();
+    metric_ba::remove_points(&mut b, shared);
+    let err = merge(&ctx, &a, &b, false).expect_err("chance matches explain no similarity");
+    assert!(err.contains("2D–3D links"), "{err}");
+}
+
 /// The seeded scene with no verified pair between its first four views and its last four.
 fn split_scene() -> (
     SfmInput,
