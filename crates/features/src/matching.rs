@@ -236,17 +236,19 @@ const SCAN_LANES: usize = 16;
 
 /// Updates a row's two best keys `2 s − ‖b‖²` (the largest is the nearest descriptor) over one
 /// block of scores starting at column `j0`. Most chunks of columns hold nothing better than the
-/// second best so far: their maximum, computed branch-free, skips them; the others are scanned in
+/// second best so far: a branch-free test of every key against it skips them; the others are scanned in
 /// order, so ties resolve exactly as a plain scan does (the first column wins).
 #[inline]
 fn scan_row(srow: &[f32], nbb: &[f32], j0: usize, bst: &mut Best2) {
     let mut c0 = 0;
     for (sc, nc) in srow.chunks(SCAN_LANES).zip(nbb.chunks(SCAN_LANES)) {
-        let mx = sc
+        // An OR of comparisons is associative, so it vectorises (a float max reduction is not).
+        let s2 = bst.s2;
+        let any = sc
             .iter()
             .zip(nc)
-            .fold(f32::NEG_INFINITY, |a, (&sv, &nj)| a.max(2.0 * sv - nj));
-        if mx > bst.s2 {
+            .fold(false, |a, (&sv, &nj)| a | (2.0 * sv - nj > s2));
+        if any {
             for (c, (&sv, &nj)) in sc.iter().zip(nc).enumerate() {
                 let key = 2.0 * sv - nj;
                 if key > bst.s2 {
