@@ -100,6 +100,34 @@ fn pair_disagreement(
     deg.is_finite().then_some(deg)
 }
 
+/// The weighted median (by inliers) of the disagreements of the verified pairs between the views
+/// `a` and the views `b` of `rec`, and how many pairs were usable; `None` when none was. A merged
+/// model whose two pieces sit at the wrong angle to each other agrees with the pairs inside each
+/// piece, so every view's own median ([`inconsistent_views`]) passes; only the pairs across show it.
+pub(crate) fn across(
+    ctx: &Context,
+    rec: &MetricReconstruction,
+    a: &BTreeSet<ImageId>,
+    b: &BTreeSet<ImageId>,
+) -> Option<(f64, usize)> {
+    let side = |i: usize| {
+        let id = ctx.input.images[i].id;
+        (a.contains(&id), b.contains(&id))
+    };
+    let v: Vec<(f64, f64)> = ctx
+        .input
+        .pairs
+        .iter()
+        .filter(|p| {
+            let (x, y) = (side(p.a), side(p.b));
+            (x.0 && y.1) || (x.1 && y.0)
+        })
+        .filter_map(|p| pair_disagreement(ctx, rec, p).map(|d| (d, p.matches.len() as f64)))
+        .collect();
+    let n = v.len();
+    (n > 0).then(|| (weighted_median(v), n))
+}
+
 /// The weighted median of `(value, weight)`.
 fn weighted_median(mut v: Vec<(f64, f64)>) -> f64 {
     v.sort_by(|a, b| a.0.total_cmp(&b.0));
@@ -244,6 +272,7 @@ mod tests {
     use crate::graph::CorrespondenceGraph;
     use crate::test_scene::scene;
     use crate::SfmOptions;
+    use handheld_core::ImageId;
     use nalgebra::{UnitQuaternion, Vector3};
 
     #[test]
@@ -270,6 +299,32 @@ mod tests {
         assert!((flagged[0].1.median_deg - 12.0).abs() < 0.5, "{flagged:?}");
         assert_eq!(flagged[0].1.partners, 7);
         assert!(max_kept.expect("others") < 0.2);
+    }
+
+    #[test]
+    fn two_pieces_put_together_at_a_wrong_angle_show_only_across() {
+        let (input, mut rec) = scene();
+        let graph = CorrespondenceGraph::build(&input, 8);
+        let opts = SfmOptions::default();
+        let ctx = Context::new(&input, &graph, &opts);
+        let ids: Vec<ImageId> = rec.views.keys().copied().collect();
+        let (a, b): (BTreeSet<ImageId>, BTreeSet<ImageId>) = (
+            ids[..4].iter().copied().collect(),
+            ids[4..].iter().copied().collect(),
+        );
+        let (d, n) = across(&ctx, &rec, &a, &b).expect("pairs across");
+        assert!(d < 0.2, "the true poses disagree by {d}°");
+        assert_eq!(n, 16);
+        // The second piece, turned by 11° about the scene's origin as a whole: its own pairs agree.
+        let turn = UnitQuaternion::from_axis_angle(&Vector3::y_axis(), 11f64.to_radians());
+        for id in &b {
+            let v = rec.views.get_mut(id).expect("view");
+            v.cam_from_world.rotation *= turn.inverse();
+        }
+        let (d, _) = across(&ctx, &rec, &a, &b).expect("pairs across");
+        assert!((d - 11.0).abs() < 0.5, "across {d}°");
+        let inside = across(&ctx, &rec, &b, &b).expect("pairs inside");
+        assert!(inside.0 < 0.2, "inside {inside:?}");
     }
 
     #[test]

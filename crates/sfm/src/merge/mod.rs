@@ -334,7 +334,8 @@ struct Attachments {
 }
 
 /// Tries to merge `b` into `a`: the merged, adjusted model with its adjustment records and the
-/// merge record, or why not.
+/// merge record, or why not. The similarity from the 3D–3D correspondences is tried first; when
+/// there is none, or its merged model fails a check, the one from the 2D–3D links.
 pub(crate) fn merge(
     ctx: &Context,
     a: &MetricReconstruction,
@@ -342,41 +343,87 @@ pub(crate) fn merge(
     estimate_aspect: bool,
 ) -> Result<(MetricReconstruction, Vec<MetricBaRecord>, MergeRecord), String> {
     let corr = correspondences(ctx, a, b);
-    let mut attach = Attachments::default();
-    let (mut n_links, mut n_link_inliers) = (0, 0);
-    let (sim, inliers) = match similarity(ctx, a, b, &corr) {
-        Some(found) => found,
-        None => {
-            let links = sightings::Links::new(ctx, a, b);
-            let mut rng = ChaCha8Rng::seed_from_u64(ctx.opts.seed ^ 0x5349_4748);
-            let (sim, (ib, ia)) = sightings::similarity(
-                ctx,
-                a,
-                b,
-                &links,
-                MIN_MERGE_INLIER_FRACTION,
-                &mut rng,
-            )
-            .ok_or_else(|| {
-                format!(
-                    "{} 3D–3D correspondences and {} 2D–3D links through the verified pairs, too few \
-                     (or under half) explained by one similarity",
-                    corr.len(),
-                    links.len()
-                )
-            })?;
-            n_links = links.len();
-            n_link_inliers = ib.len() + ia.len();
-            let key = |s: &sightings::Sighting| (s.view, s.key, s.point);
-            attach.to_a = ib.iter().map(|&k| key(&links.b_sees_a[k])).collect();
-            attach.to_b = ia.iter().map(|&k| key(&links.a_sees_b[k])).collect();
-            let thr = ctx.opts.metric_max_error_px;
-            let explained = (0..corr.len())
-                .filter(|&k| explains(a, b, &sim, &corr[k], thr))
-                .collect();
-            (sim, explained)
+    let mut why = Vec::new();
+    match similarity(ctx, a, b, &corr) {
+        Some((sim, inliers)) => {
+            let record = MergeRecord {
+                views_added: b.views.len(),
+                correspondences: corr.len(),
+                inliers: inliers.len(),
+                sightings: 0,
+                sighting_inliers: 0,
+                scale: sim.scale,
+            };
+            match adjusted_union(ctx, a, b, &corr, &sim, &inliers, &Attachments::default(), estimate_aspect) {
+                Ok((merged, records)) => return Ok((merged, records, record)),
+                Err(e) => why.push(format!(
+                    "through {} of {} 3D–3D correspondences, {e}",
+                    inliers.len(),
+                    corr.len()
+                )),
+            }
         }
+        None => why.push(format!(
+            "{} 3D–3D correspondences through the verified pairs, fewer than {MIN_MERGE_INLIERS} (or under half) explained by one similarity",
+            corr.len()
+        )),
+    }
+    let links = sightings::Links::new(ctx, a, b);
+    let mut rng = ChaCha8Rng::seed_from_u64(ctx.opts.seed ^ 0x5349_4748);
+    let Some((sim, (ib, ia))) =
+        sightings::similarity(ctx, a, b, &links, MIN_MERGE_INLIER_FRACTION, &mut rng)
+    else {
+        why.push(format!(
+            "{} 2D–3D links, too few (or under half) explained by one similarity",
+            links.len()
+        ));
+        return Err(why.join("; "));
     };
+    let key = |s: &sightings::Sighting| (s.view, s.key, s.point);
+    let attach = Attachments {
+        to_a: ib.iter().map(|&k| key(&links.b_sees_a[k])).collect(),
+        to_b: ia.iter().map(|&k| key(&links.a_sees_b[k])).collect(),
+    };
+    let thr = ctx.opts.metric_max_error_px;
+    let explained: Vec<usize> = (0..corr.len())
+        .filter(|&k| explains(a, b, &sim, &corr[k], thr))
+        .collect();
+    let record = MergeRecord {
+        views_added: b.views.len(),
+        correspondences: corr.len(),
+        inliers: explained.len(),
+        sightings: links.len(),
+        sighting_inliers: ib.len() + ia.len(),
+        scale: sim.scale,
+    };
+    match adjusted_union(ctx, a, b, &corr, &sim, &explained, &attach, estimate_aspect) {
+        Ok((merged, records)) => Ok((merged, records, record)),
+        Err(e) => {
+            why.push(format!(
+                "through {} of {} 2D–3D links, {e}",
+                record.sighting_inliers,
+                links.len()
+            ));
+            Err(why.join("; "))
+        }
+    }
+}
+
+/// `b` mapped by `a_from_b` into `a` (the corresponding points fused, the attached keypoints
+/// joined), adjusted by the full metric schedule, and checked: nothing collapsed, every view agrees
+/// with its verified pairs, and the pairs between the two pieces agree with how they were put
+/// together.
+#[allow(clippy::too_many_arguments)]
+fn adjusted_union(
+    ctx: &Context,
+    a: &MetricReconstruction,
+    b: &MetricReconstruction,
+    corr: &[Correspondence],
+    a_from_b: &Sim3,
+    inliers: &[usize],
+    attach: &Attachments,
+    estimate_aspect: bool,
+) -> Result<(MetricReconstruction, Vec<MetricBaRecord>), String> {
     // One fusion per point on each side (the correspondence seen first).
     let (mut used_a, mut used_b) = (BTreeSet::new(), BTreeSet::new());
     let fused: Vec<(PointId, PointId)> = inliers
@@ -391,7 +438,7 @@ pub(crate) fn merge(
             fresh
         })
         .collect();
-    let mut merged = union(ctx, a, b, &sim, &fused, &attach);
+    let mut merged = union(ctx, a, b, a_from_b, &fused, attach);
     let records = metric_ba::refine_metric(ctx, &mut merged, estimate_aspect)?;
     if let Some(why) = guard::collapsed(&merged, &records) {
         return Err(format!("the adjustment of the merged model {why}"));
@@ -403,15 +450,21 @@ pub(crate) fn merge(
             d.image, d.median_deg
         ));
     }
-    let record = MergeRecord {
-        views_added: b.views.len(),
-        correspondences: corr.len(),
-        inliers: inliers.len(),
-        sightings: n_links,
-        sighting_inliers: n_link_inliers,
-        scale: sim.scale,
-    };
-    Ok((merged, records, record))
+    let (va, vb): (BTreeSet<ImageId>, BTreeSet<ImageId>) = (
+        a.views.keys().copied().collect(),
+        b.views.keys().copied().collect(),
+    );
+    if let Some((d, n)) = consistency::across(ctx, &merged, &va, &vb) {
+        tracing::debug!(
+            "the merged pieces agree with the {n} verified pairs between them to {d:.2}°"
+        );
+        if d > consistency::MAX_DISAGREEMENT_DEG {
+            return Err(format!(
+                "the merged pieces disagree with the {n} verified pairs between them by {d:.1}°"
+            ));
+        }
+    }
+    Ok((merged, records))
 }
 
 /// Merges models pairwise while a merge succeeds: the largest model with each smaller one
