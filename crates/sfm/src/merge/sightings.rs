@@ -126,7 +126,7 @@ pub(super) fn inliers(
     links: &Links,
     a_from_b: &Sim3,
     thr: f64,
-) -> (Vec<usize>, Vec<usize>) {
+) -> Inliers {
     let b_from_a = a_from_b.inverse();
     let within = |r: Option<Vector2<f64>>| r.is_some_and(|r| r.norm() <= thr);
     (
@@ -345,6 +345,9 @@ fn refine(
     sim
 }
 
+/// The inlier sightings of each direction: `(b_sees_a, a_sees_b)` indices.
+pub(super) type Inliers = (Vec<usize>, Vec<usize>);
+
 /// Number of seeded RANSAC draws in each direction.
 const SIGHTING_SAMPLES: usize = 500;
 
@@ -358,7 +361,7 @@ pub(super) fn similarity(
     links: &Links,
     min_fraction: f64,
     rng: &mut ChaCha8Rng,
-) -> Option<(Sim3, (Vec<usize>, Vec<usize>))> {
+) -> Option<(Sim3, Inliers)> {
     if links.len() < MIN_SIGHTING_INLIERS {
         return None;
     }
@@ -381,8 +384,8 @@ pub(super) fn similarity(
         hypotheses(a, b, &links.a_sees_b, &ga, rng, &mut drawn);
         candidates.append(&mut drawn);
     }
-    let count = |(x, y): &(Vec<usize>, Vec<usize>)| x.len() + y.len();
-    let mut best: Option<(Sim3, (Vec<usize>, Vec<usize>))> = None;
+    let count = |(x, y): &Inliers| x.len() + y.len();
+    let mut best: Option<(Sim3, Inliers)> = None;
     for sim in candidates {
         if !(sim.scale.is_finite() && sim.scale > 0.0) {
             continue;
