@@ -171,6 +171,12 @@ impl Stage for Sparse {
             warnings.push(format!("the images form {} separate models; the largest is in sparse/, the others in sparse/models/", result.models.len()));
         }
         let best = &result.models[0].summary;
+        for m in best.merged.iter().filter(|m| m.cross_pairs == 0) {
+            warnings.push(format!(
+                "{} views were merged into the model through their shared points alone: no verified pair between the two pieces was strong enough to confirm how they were put together (sparse/summary.json, merged)",
+                m.views_added
+            ));
+        }
         let kept = best
             .self_calibration
             .candidates

@@ -53,8 +53,22 @@ pub struct MergeRecord {
     /// the similarity explains; zero when the 3D–3D correspondences sufficed.
     pub sightings: usize,
     pub sighting_inliers: usize,
+    /// Verified pairs between the two pieces strong enough to fix a relative rotation, and the
+    /// merged model's weighted-median disagreement with them (degrees); none usable means the
+    /// merge rests on the correspondences alone.
+    pub cross_pairs: usize,
+    pub cross_disagreement_deg: Option<f64>,
     /// Scale of the similarity that maps the merged model into this one's frame.
     pub scale: f64,
+}
+
+impl MergeRecord {
+    /// The record with the check across the pieces (`consistency::across`) filled in.
+    fn across(mut self, across: Option<(f64, usize)>) -> Self {
+        self.cross_disagreement_deg = across.map(|x| x.0);
+        self.cross_pairs = across.map_or(0, |x| x.1);
+        self
+    }
 }
 
 /// A correspondence: a point of A, a point of B, and one observation of it in A (the view and
@@ -352,10 +366,12 @@ pub(crate) fn merge(
                 inliers: inliers.len(),
                 sightings: 0,
                 sighting_inliers: 0,
+                cross_pairs: 0,
+                cross_disagreement_deg: None,
                 scale: sim.scale,
             };
             match adjusted_union(ctx, a, b, &corr, &sim, &inliers, &Attachments::default(), estimate_aspect) {
-                Ok((merged, records)) => return Ok((merged, records, record)),
+                Ok((merged, records, across)) => return Ok((merged, records, record.across(across))),
                 Err(e) => why.push(format!(
                     "through {} of {} 3D–3D correspondences, {e}",
                     inliers.len(),
@@ -394,10 +410,12 @@ pub(crate) fn merge(
         inliers: explained.len(),
         sightings: links.len(),
         sighting_inliers: ib.len() + ia.len(),
+        cross_pairs: 0,
+        cross_disagreement_deg: None,
         scale: sim.scale,
     };
     match adjusted_union(ctx, a, b, &corr, &sim, &explained, &attach, estimate_aspect) {
-        Ok((merged, records)) => Ok((merged, records, record)),
+        Ok((merged, records, across)) => Ok((merged, records, record.across(across))),
         Err(e) => {
             why.push(format!(
                 "through {} of {} 2D–3D links, {e}",
@@ -423,7 +441,14 @@ fn adjusted_union(
     inliers: &[usize],
     attach: &Attachments,
     estimate_aspect: bool,
-) -> Result<(MetricReconstruction, Vec<MetricBaRecord>), String> {
+) -> Result<
+    (
+        MetricReconstruction,
+        Vec<MetricBaRecord>,
+        Option<(f64, usize)>,
+    ),
+    String,
+> {
     // One fusion per point on each side (the correspondence seen first).
     let (mut used_a, mut used_b) = (BTreeSet::new(), BTreeSet::new());
     let fused: Vec<(PointId, PointId)> = inliers
@@ -454,7 +479,8 @@ fn adjusted_union(
         a.views.keys().copied().collect(),
         b.views.keys().copied().collect(),
     );
-    if let Some((d, n)) = consistency::across(ctx, &merged, &va, &vb) {
+    let across = consistency::across(ctx, &merged, &va, &vb);
+    if let Some((d, n)) = across {
         tracing::debug!(
             "the merged pieces agree with the {n} verified pairs between them to {d:.2}°"
         );
@@ -463,8 +489,10 @@ fn adjusted_union(
                 "the merged pieces disagree with the {n} verified pairs between them by {d:.1}°"
             ));
         }
+    } else {
+        tracing::debug!("no verified pair between the merged pieces fixes a relative rotation");
     }
-    Ok((merged, records))
+    Ok((merged, records, across))
 }
 
 /// Merges models pairwise while a merge succeeds: the largest model with each smaller one
