@@ -20,25 +20,58 @@ fn relative_rotation_error_deg(est: &MetricReconstruction, gt: &MetricReconstruc
     worst
 }
 
+/// The seeded scene's views 4.. (`first`) and ..4 (`second`), and the two pieces without them:
+/// `(first, second, a, b)`, `a` holding views 0–3 and `b` views 4–7.
+fn halves(
+    gt: &MetricReconstruction,
+) -> (
+    BTreeSet<ImageId>,
+    BTreeSet<ImageId>,
+    MetricReconstruction,
+    MetricReconstruction,
+) {
+    let ids: Vec<ImageId> = gt.views.keys().copied().collect();
+    let first: BTreeSet<ImageId> = ids[4..].iter().copied().collect();
+    let second: BTreeSet<ImageId> = ids[..4].iter().copied().collect();
+    let a = metric_ba::without_views(gt, &first);
+    let b = metric_ba::without_views(gt, &second);
+    (first, second, a, b)
+}
+
+/// A frame of its own for the second piece: another scale, orientation and origin.
+fn elsewhere() -> Sim3 {
+    Sim3 {
+        scale: 0.37,
+        rotation: UnitQuaternion::from_scaled_axis(Vector3::new(0.3, -1.1, 0.4)),
+        translation: Vector3::new(5.0, -2.0, 9.0),
+    }
+}
+
+/// The merged model is as accurate as the whole scene adjusted in one piece from the truth
+/// (0.5 px noise).
+fn assert_as_accurate_as_the_whole(
+    ctx: &Context,
+    merged: &MetricReconstruction,
+    gt: &MetricReconstruction,
+) {
+    let mut whole = gt.clone();
+    metric_ba::refine_metric(ctx, &mut whole, false).expect("adjustment");
+    let reference = relative_rotation_error_deg(&whole, gt);
+    let err = relative_rotation_error_deg(merged, gt);
+    assert!(
+        err < reference + 0.02,
+        "relative rotations {err}° off, the whole scene's {reference}°"
+    );
+}
+
 #[test]
 fn two_pieces_of_one_scene_in_different_frames_are_merged() {
     let (input, gt) = scene();
     let graph = CorrespondenceGraph::build(&input, 8);
     let opts = SfmOptions::default();
     let ctx = Context::new(&input, &graph, &opts);
-    let ids: Vec<ImageId> = gt.views.keys().copied().collect();
-    let (first, second): (BTreeSet<ImageId>, BTreeSet<ImageId>) = (
-        ids[4..].iter().copied().collect(),
-        ids[..4].iter().copied().collect(),
-    );
-    let a = metric_ba::without_views(&gt, &first);
-    let mut b = metric_ba::without_views(&gt, &second);
-    // The second piece in a frame of its own: another scale, orientation and origin.
-    b.transform(&Sim3 {
-        scale: 0.37,
-        rotation: UnitQuaternion::from_scaled_axis(Vector3::new(0.3, -1.1, 0.4)),
-        translation: Vector3::new(5.0, -2.0, 9.0),
-    });
+    let (_, _, a, mut b) = halves(&gt);
+    b.transform(&elsewhere());
     let (merged, _, record) = merge(&ctx, &a, &b, false).expect("the pieces share points");
     assert_eq!(merged.views.len(), 8);
     assert_eq!(record.views_added, 4);
@@ -50,15 +83,7 @@ fn two_pieces_of_one_scene_in_different_frames_are_merged() {
         (record.scale - 1.0 / 0.37).abs() < 0.01 * record.scale,
         "{record:?}"
     );
-    // As accurate as the whole scene adjusted in one piece from the truth (0.5 px noise).
-    let mut whole = gt.clone();
-    metric_ba::refine_metric(&ctx, &mut whole, false).expect("adjustment");
-    let reference = relative_rotation_error_deg(&whole, &gt);
-    let err = relative_rotation_error_deg(&merged, &gt);
-    assert!(
-        err < reference + 0.02,
-        "relative rotations {err}° off, the whole scene's {reference}°"
-    );
+    assert_as_accurate_as_the_whole(&ctx, &merged, &gt);
     // The shared points are one point each: fewer points than the two pieces hold together.
     assert!(merged.points.len() < a.points.len() + b.points.len());
     merged.validate().expect("consistent references");
@@ -70,13 +95,7 @@ fn pieces_that_triangulated_none_of_their_common_points_merge_through_their_sigh
     let graph = CorrespondenceGraph::build(&input, 8);
     let opts = SfmOptions::default();
     let ctx = Context::new(&input, &graph, &opts);
-    let ids: Vec<ImageId> = gt.views.keys().copied().collect();
-    let (first, second): (BTreeSet<ImageId>, BTreeSet<ImageId>) = (
-        ids[4..].iter().copied().collect(),
-        ids[..4].iter().copied().collect(),
-    );
-    let a = metric_ba::without_views(&gt, &first);
-    let mut b = metric_ba::without_views(&gt, &second);
+    let (first, second, a, mut b) = halves(&gt);
     // B never triangulated a point that A holds: no 3D–3D correspondence is left, only B's
     // keypoints matched to A's points (and A's to B's).
     let shared: Vec<PointId> = b
@@ -87,11 +106,7 @@ fn pieces_that_triangulated_none_of_their_common_points_merge_through_their_sigh
         .collect();
     assert!(!shared.is_empty());
     metric_ba::remove_points(&mut b, shared);
-    b.transform(&Sim3 {
-        scale: 0.37,
-        rotation: UnitQuaternion::from_scaled_axis(Vector3::new(0.3, -1.1, 0.4)),
-        translation: Vector3::new(5.0, -2.0, 9.0),
-    });
+    b.transform(&elsewhere());
     let (merged, _, record) = merge(&ctx, &a, &b, false).expect("the pieces see common points");
     assert_eq!(record.correspondences, 0, "{record:?}");
     assert_eq!(merged.views.len(), 8);
@@ -103,14 +118,7 @@ fn pieces_that_triangulated_none_of_their_common_points_merge_through_their_sigh
         (record.scale - 1.0 / 0.37).abs() < 0.01 * record.scale,
         "{record:?}"
     );
-    let mut whole = gt.clone();
-    metric_ba::refine_metric(&ctx, &mut whole, false).expect("adjustment");
-    let reference = relative_rotation_error_deg(&whole, &gt);
-    let err = relative_rotation_error_deg(&merged, &gt);
-    assert!(
-        err < reference + 0.02,
-        "relative rotations {err}° off, the whole scene's {reference}°"
-    );
+    assert_as_accurate_as_the_whole(&ctx, &merged, &gt);
     // The sightings joined A's points: the common points are one track each again.
     let long = merged
         .points
