@@ -19,17 +19,20 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 
-use handheld_core::{CameraId, ImageId, MetricReconstruction, PointId, Sim3, TrackElement};
+use handheld_core::{ImageId, MetricReconstruction, PointId, Sim3};
 use nalgebra::{Point3, Vector2};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
 use crate::context::Context;
-use crate::metric_ba::{self, MetricBaRecord};
-use crate::{consistency, guard, SfmModel};
+use crate::metric_ba::MetricBaRecord;
+use crate::SfmModel;
 
 mod sightings;
+mod union;
+
+use union::{adjusted_union, Attachments};
 
 /// Fewest RANSAC inliers a merge needs (a similarity has 7 degrees of freedom; 3
 /// correspondences fix it). templeSparseRing without view 8 splits into 11 + 4 views that share
@@ -95,6 +98,29 @@ fn point_of(ctx: &Context, rec: &MetricReconstruction) -> BTreeMap<(usize, u32),
     out
 }
 
+/// Every verified match between a view of `x` and a view of `y`, oriented as
+/// `(x's input image, its keypoint, y's input image, its keypoint)`, in the pairs' order.
+fn matches_between<'a>(
+    ctx: &'a Context,
+    x: &'a MetricReconstruction,
+    y: &'a MetricReconstruction,
+) -> impl Iterator<Item = (usize, u32, usize, u32)> + 'a {
+    ctx.input.pairs.iter().flat_map(move |pair| {
+        [(pair.a, pair.b, false), (pair.b, pair.a, true)]
+            .into_iter()
+            .filter(move |&(ix, iy, _)| {
+                x.views.contains_key(&ctx.input.images[ix].id)
+                    && y.views.contains_key(&ctx.input.images[iy].id)
+            })
+            .flat_map(move |(ix, iy, swap)| {
+                pair.matches.iter().map(move |&(m0, m1)| {
+                    let (kx, ky) = if swap { (m1, m0) } else { (m0, m1) };
+                    (ix, kx, iy, ky)
+                })
+            })
+    })
+}
+
 /// 3D–3D correspondences between the points of `a` and `b` through the verified pairs.
 fn correspondences(
     ctx: &Context,
@@ -104,26 +130,17 @@ fn correspondences(
     let (pa, pb) = (point_of(ctx, a), point_of(ctx, b));
     let mut seen = BTreeSet::new();
     let mut out = Vec::new();
-    for pair in &ctx.input.pairs {
-        for (ia, ib, swap) in [(pair.a, pair.b, false), (pair.b, pair.a, true)] {
-            let (ida, idb) = (ctx.input.images[ia].id, ctx.input.images[ib].id);
-            if !a.views.contains_key(&ida) || !b.views.contains_key(&idb) {
-                continue;
-            }
-            for &(m0, m1) in &pair.matches {
-                let (ka, kb) = if swap { (m1, m0) } else { (m0, m1) };
-                let (Some(&x), Some(&y)) = (pa.get(&(ia, ka)), pb.get(&(ib, kb))) else {
-                    continue;
-                };
-                if seen.insert((x, y)) {
-                    out.push(Correspondence {
-                        a: x,
-                        b: y,
-                        view: ida,
-                        xy: ctx.input.images[ia].keypoints[ka as usize],
-                    });
-                }
-            }
+    for (ia, ka, ib, kb) in matches_between(ctx, a, b) {
+        let (Some(&x), Some(&y)) = (pa.get(&(ia, ka)), pb.get(&(ib, kb))) else {
+            continue;
+        };
+        if seen.insert((x, y)) {
+            out.push(Correspondence {
+                a: x,
+                b: y,
+                view: ctx.input.images[ia].id,
+                xy: ctx.input.images[ia].keypoints[ka as usize],
+            });
         }
     }
     out
@@ -211,142 +228,6 @@ fn similarity(
     Some((best_sim, best))
 }
 
-/// `b` mapped by `a_from_b` into `a`'s frame and added to it: `b`'s intrinsics groups become
-/// `a`'s groups of the same camera key (new groups otherwise), its points get fresh ids, and the
-/// corresponding points are fused (the B point's observations join the A point's track, unless
-/// the A point already has an observation in that view).
-fn union(
-    ctx: &Context,
-    a: &MetricReconstruction,
-    b: &MetricReconstruction,
-    a_from_b: &Sim3,
-    fused: &[(PointId, PointId)],
-    attach: &Attachments,
-) -> MetricReconstruction {
-    let mut out = a.clone();
-    let mut b = b.clone();
-    b.transform(a_from_b);
-    let key = |id: ImageId| {
-        ctx.input
-            .images
-            .iter()
-            .find(|im| im.id == id)
-            .map(|im| im.camera_key.clone())
-    };
-    let mut camera_map: BTreeMap<CameraId, CameraId> = BTreeMap::new();
-    let mut next_camera = out.cameras.keys().map(|c| c.0).max().unwrap_or(0) + 1;
-    for (cid, cam) in &b.cameras {
-        let k = b
-            .views
-            .values()
-            .find(|v| v.camera_id == *cid)
-            .and_then(|v| key(v.id));
-        let target = out
-            .views
-            .values()
-            .find(|v| k.is_some() && key(v.id) == k)
-            .map(|v| v.camera_id);
-        let id = target.unwrap_or_else(|| {
-            let id = CameraId(next_camera);
-            next_camera += 1;
-            let mut c = cam.clone();
-            c.id = id;
-            out.cameras.insert(id, c);
-            id
-        });
-        camera_map.insert(*cid, id);
-    }
-    let mut next_point = out.points.keys().map(|p| p.0).max().unwrap_or(0) + 1;
-    let mut point_map: BTreeMap<PointId, PointId> = BTreeMap::new();
-    let into: BTreeMap<PointId, PointId> = fused.iter().map(|&(pa, pb)| (pb, pa)).collect();
-    for (pid, p) in &b.points {
-        match into.get(pid) {
-            Some(&pa) => {
-                let Some(target) = out.points.get_mut(&pa) else {
-                    continue;
-                };
-                let have: BTreeSet<ImageId> =
-                    target.track.elements.iter().map(|e| e.image_id).collect();
-                let mut kept = false;
-                for e in &p.track.elements {
-                    if !have.contains(&e.image_id) {
-                        target.track.elements.push(*e);
-                        kept = true;
-                    }
-                }
-                if kept {
-                    point_map.insert(*pid, pa);
-                }
-            }
-            None => {
-                let id = PointId(next_point);
-                next_point += 1;
-                out.points.insert(id, p.clone());
-                point_map.insert(*pid, id);
-            }
-        }
-    }
-    for (vid, v) in &b.views {
-        let mut v = v.clone();
-        v.camera_id = camera_map.get(&v.camera_id).copied().unwrap_or(v.camera_id);
-        for o in v.observations.iter_mut() {
-            o.point_id = o.point_id.and_then(|p| point_map.get(&p).copied());
-        }
-        out.views.insert(*vid, v);
-    }
-    let MetricReconstruction { views, points, .. } = &mut out;
-    let targets = attach.to_a.iter().copied().chain(
-        attach
-            .to_b
-            .iter()
-            .filter_map(|&(view, key, pb)| point_map.get(&pb).map(|&p| (view, key, p))),
-    );
-    for (view, key, p) in targets {
-        let (Some(o), Some(pt)) = (
-            views
-                .get_mut(&view)
-                .and_then(|v| v.observations.get_mut(key as usize)),
-            points.get_mut(&p),
-        ) else {
-            continue;
-        };
-        if o.point_id.is_none() && pt.track.elements.iter().all(|e| e.image_id != view) {
-            pt.track.elements.push(TrackElement {
-                image_id: view,
-                point2d_idx: key,
-            });
-            o.point_id = Some(p);
-        }
-    }
-    // A fused B point whose observation in some view duplicated the A point's was left out of
-    // the track: its observation there is detached.
-    for v in out.views.values_mut() {
-        for (k, o) in v.observations.iter_mut().enumerate() {
-            if let Some(p) = o.point_id {
-                let listed = out.points.get(&p).is_some_and(|q| {
-                    q.track
-                        .elements
-                        .iter()
-                        .any(|e| e.image_id == v.id && e.point2d_idx as usize == k)
-                });
-                if !listed {
-                    o.point_id = None;
-                }
-            }
-        }
-    }
-    out
-}
-
-/// Free keypoints that join a point of the other model in the union: `(view, keypoint, point)`,
-/// with B's views' keypoints joining A's points (`to_a`) and A's views' keypoints joining B's
-/// points (`to_b`, B's ids).
-#[derive(Default)]
-struct Attachments {
-    to_a: Vec<(ImageId, u32, PointId)>,
-    to_b: Vec<(ImageId, u32, PointId)>,
-}
-
 /// Tries to merge `b` into `a`: the merged, adjusted model with its adjustment records and the
 /// merge record, or why not. The similarity from the 3D–3D correspondences is tried first; when
 /// there is none, or its merged model fails a check, the one from the 2D–3D links.
@@ -425,74 +306,6 @@ pub(crate) fn merge(
             Err(why.join("; "))
         }
     }
-}
-
-/// `b` mapped by `a_from_b` into `a` (the corresponding points fused, the attached keypoints
-/// joined), adjusted by the full metric schedule, and checked: nothing collapsed, every view agrees
-/// with its verified pairs, and the pairs between the two pieces agree with how they were put
-/// together.
-#[allow(clippy::too_many_arguments)]
-fn adjusted_union(
-    ctx: &Context,
-    a: &MetricReconstruction,
-    b: &MetricReconstruction,
-    corr: &[Correspondence],
-    a_from_b: &Sim3,
-    inliers: &[usize],
-    attach: &Attachments,
-    estimate_aspect: bool,
-) -> Result<
-    (
-        MetricReconstruction,
-        Vec<MetricBaRecord>,
-        Option<(f64, usize)>,
-    ),
-    String,
-> {
-    // One fusion per point on each side (the correspondence seen first).
-    let (mut used_a, mut used_b) = (BTreeSet::new(), BTreeSet::new());
-    let fused: Vec<(PointId, PointId)> = inliers
-        .iter()
-        .map(|&k| (corr[k].a, corr[k].b))
-        .filter(|(x, y)| {
-            let fresh = !used_a.contains(x) && !used_b.contains(y);
-            if fresh {
-                used_a.insert(*x);
-                used_b.insert(*y);
-            }
-            fresh
-        })
-        .collect();
-    let mut merged = union(ctx, a, b, a_from_b, &fused, attach);
-    let records = metric_ba::refine_metric(ctx, &mut merged, estimate_aspect)?;
-    if let Some(why) = guard::collapsed(&merged, &records) {
-        return Err(format!("the adjustment of the merged model {why}"));
-    }
-    let (flagged, _) = consistency::inconsistent_views(ctx, &merged);
-    if let Some((_, d)) = flagged.first() {
-        return Err(format!(
-            "in the merged model {} disagrees with its verified pairs by {:.1}°",
-            d.image, d.median_deg
-        ));
-    }
-    let (va, vb): (BTreeSet<ImageId>, BTreeSet<ImageId>) = (
-        a.views.keys().copied().collect(),
-        b.views.keys().copied().collect(),
-    );
-    let across = consistency::across(ctx, &merged, &va, &vb);
-    if let Some((d, n)) = across {
-        tracing::debug!(
-            "the merged pieces agree with the {n} verified pairs between them to {d:.2}°"
-        );
-        if d > consistency::MAX_DISAGREEMENT_DEG {
-            return Err(format!(
-                "the merged pieces disagree with the {n} verified pairs between them by {d:.1}°"
-            ));
-        }
-    } else {
-        tracing::debug!("no verified pair between the merged pieces fixes a relative rotation");
-    }
-    Ok((merged, records, across))
 }
 
 /// Merges models pairwise while a merge succeeds: the largest model with each smaller one

@@ -34,7 +34,7 @@ use nalgebra::{SMatrix, SVector, UnitQuaternion, Vector2, Vector3};
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 
-use super::point_of;
+use super::{matches_between, point_of};
 use crate::context::Context;
 
 /// Fewest sightings the similarity must explain (a similarity has 7 degrees of freedom; each
@@ -60,26 +60,18 @@ pub(super) fn sightings(
     let points = point_of(ctx, seen);
     let mut taken = BTreeSet::new();
     let mut out = Vec::new();
-    for pair in &ctx.input.pairs {
-        for (is, iv, swap) in [(pair.a, pair.b, false), (pair.b, pair.a, true)] {
-            let (ids, idv) = (ctx.input.images[is].id, ctx.input.images[iv].id);
-            if !seen.views.contains_key(&ids) || !viewer.views.contains_key(&idv) {
-                continue;
-            }
-            for &(m0, m1) in &pair.matches {
-                let (ks, kv) = if swap { (m1, m0) } else { (m0, m1) };
-                let Some(&point) = points.get(&(is, ks)) else {
-                    continue;
-                };
-                if taken.insert((idv, kv)) {
-                    out.push(Sighting {
-                        view: idv,
-                        key: kv,
-                        xy: ctx.input.images[iv].keypoints[kv as usize],
-                        point,
-                    });
-                }
-            }
+    for (iv, kv, is, ks) in matches_between(ctx, viewer, seen) {
+        let Some(&point) = points.get(&(is, ks)) else {
+            continue;
+        };
+        let view = ctx.input.images[iv].id;
+        if taken.insert((view, kv)) {
+            out.push(Sighting {
+                view,
+                key: kv,
+                xy: ctx.input.images[iv].keypoints[kv as usize],
+                point,
+            });
         }
     }
     out

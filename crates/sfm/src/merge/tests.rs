@@ -2,6 +2,7 @@
 
 use super::*;
 use crate::graph::CorrespondenceGraph;
+use crate::metric_ba;
 use crate::test_scene::scene;
 use crate::{SfmInput, SfmOptions};
 use nalgebra::{UnitQuaternion, Vector3};
