@@ -7,7 +7,7 @@ use clap::Args;
 use handheld_pipeline::augment::{AugmentOptions, ObjectSource, PlacementMode};
 use handheld_pipeline::files::stage;
 
-use crate::args::{GlobalArgs, InputArgs};
+use crate::common::{GlobalArgs, InputArgs};
 use crate::ui;
 
 #[derive(Debug, Args)]
@@ -57,25 +57,10 @@ pub fn run(a: &AugmentArgs, g: &GlobalArgs, bars: &ui::Bars) -> Result<()> {
     aug.place.height_fraction = a.object_height;
     // A bad object file is named before any work is done.
     aug.object.load()?;
-    let occlusion = aug.occlusion;
     options.augment = Some(aug);
-    if occlusion {
-        // The mesh hides the object where the real scene is nearer; without one (its stage
-        // failed, e.g. a scene too large for the volume), the object is drawn over everything.
-        if let Err(e) = handheld_pipeline::reconstruct(
-            &a.input.input,
-            &a.input.output,
-            &options,
-            Some(stage::MESH),
-            a.input.force,
-            bars,
-        ) {
-            if e.invalid_option().is_some() {
-                return Err(e.into());
-            }
-            tracing::warn!("no mesh for occlusion ({e:#}); the object is drawn over everything");
-        }
-    }
+    // One run: the augment stage uses the mesh when there is one (for occlusion), so the graph
+    // runs the mesh stage first and goes on without it when it fails (e.g. a scene too large
+    // for the volume): the object is then drawn over everything, with a warning.
     let reports = handheld_pipeline::reconstruct(
         &a.input.input,
         &a.input.output,
@@ -84,6 +69,6 @@ pub fn run(a: &AugmentArgs, g: &GlobalArgs, bars: &ui::Bars) -> Result<()> {
         a.input.force,
         bars,
     )?;
-    crate::report_stages(g, &a.input.output, &reports);
+    ui::report_stages(g, &a.input.output, &reports);
     Ok(())
 }

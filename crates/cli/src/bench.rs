@@ -8,7 +8,7 @@ use clap::Args;
 use handheld_dense::StereoMethod;
 use handheld_eval::bench::{self, BenchLoss, BenchSolver, BundleProblem};
 
-use crate::args::{choice, choice_name, GlobalArgs};
+use crate::common::{choice, choice_name, GlobalArgs};
 use crate::ui::{print_result, Bars};
 
 /// Prints a report: `human` gets the report's JSON.

@@ -4,6 +4,7 @@
 mod args;
 mod augment;
 mod bench;
+mod common;
 mod demo;
 mod render;
 mod report;
@@ -14,7 +15,7 @@ use std::process::ExitCode;
 use clap::Parser;
 
 use args::{BenchCommand, Cli, Command, GlobalArgs};
-use handheld_pipeline::{files, StageReport};
+use handheld_pipeline::files;
 
 /// Tells glibc's allocator to keep freed memory for reuse. By default it hands every block above
 /// a dynamic threshold back to the kernel (mmap/munmap, and trimming the heap top), and bundle
@@ -145,18 +146,6 @@ fn run_until(
     let options = a.options()?;
     let reports =
         handheld_pipeline::reconstruct(&a.input, &a.output, &options, until, a.force, bars)?;
-    report_stages(g, &a.output, &reports);
+    ui::report_stages(g, &a.output, &reports);
     Ok(())
-}
-
-pub(crate) fn report_stages(g: &GlobalArgs, workspace: &std::path::Path, reports: &[StageReport]) {
-    let value = serde_json::json!({ "workspace": workspace, "stages": reports });
-    let mut human = format!("workspace: {}", workspace.display());
-    for r in reports {
-        human.push_str(&format!(
-            "\n  {:<10} {:<11} {:>7.2} s  {}",
-            r.stage, r.status, r.seconds, r.summary
-        ));
-    }
-    ui::print_result(g, &value, &human);
 }

@@ -5,13 +5,12 @@ use std::path::PathBuf;
 use anyhow::Result;
 use clap::Args;
 use handheld_pipeline::render::{
-    render_flight, render_view, FlightOptions, PathKind, RenderMethod, RenderScene, ViewSpec,
-    DEFAULT_METHOD,
+    render_flight, render_view, FlightOptions, PathKind, RenderMethod, ViewSpec, DEFAULT_METHOD,
 };
-use handheld_pipeline::Workspace;
+use handheld_pipeline::{PipelineError, Workspace};
 use handheld_render::IbrOptions;
 
-use crate::args::GlobalArgs;
+use crate::common::GlobalArgs;
 use crate::ui;
 
 #[derive(Debug, Args)]
@@ -51,7 +50,7 @@ pub struct RenderArgs {
 }
 
 pub fn run(a: &RenderArgs, g: &GlobalArgs, bars: &ui::Bars) -> Result<()> {
-    let method = RenderMethod::parse(&a.method)?;
+    let method = RenderMethod::parse(&a.method).map_err(PipelineError::from)?;
     let ibr = IbrOptions {
         subdivision_px: a.subdivision_px,
         ..Default::default()
@@ -60,14 +59,14 @@ pub fn run(a: &RenderArgs, g: &GlobalArgs, bars: &ui::Bars) -> Result<()> {
     let value = if let Some(p) = &a.path {
         let o = FlightOptions {
             method,
-            path: PathKind::parse(p)?,
+            path: PathKind::parse(p).map_err(PipelineError::from)?,
             frames: a.frames,
             width: a.width.unwrap_or(FlightOptions::default().width),
             fps: a.fps,
             ibr,
         };
-        o.validate()?;
-        let scene = RenderScene::load(&ws, &[], 1600)?;
+        o.validate().map_err(PipelineError::from)?;
+        let scene = handheld_pipeline::render::load_scene(&ws, &[], 1600)?;
         serde_json::to_value(render_flight(&scene, &o, &a.output, bars)?.0)?
     } else {
         let spec = match (&a.view, &a.pose) {

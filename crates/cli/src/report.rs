@@ -6,7 +6,7 @@ use anyhow::Result;
 use clap::Args;
 use handheld_pipeline::Workspace;
 
-use crate::args::GlobalArgs;
+use crate::common::GlobalArgs;
 use crate::ui;
 
 #[derive(Debug, Args)]
@@ -21,7 +21,7 @@ pub fn run(a: &ReportArgs, g: &GlobalArgs) -> Result<()> {
     }
     let ws = Workspace::open(&a.workspace)?;
     let t = std::time::Instant::now();
-    let s = handheld_pipeline::report::write_workspace_report(&ws)?;
+    let s = handheld_pipeline::write_report(&ws)?;
     let mut value = serde_json::to_value(&s)?;
     value["seconds"] = serde_json::json!(t.elapsed().as_secs_f64());
     let human = format!(

@@ -7,7 +7,9 @@ use std::sync::Mutex;
 use handheld_core::Progress;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
-use crate::args::GlobalArgs;
+use handheld_pipeline::StageReport;
+
+use crate::common::GlobalArgs;
 
 /// Sets up `tracing` on stderr at the level the flags ask for (`RUST_LOG` overrides).
 pub fn init_logging(g: &GlobalArgs) {
@@ -100,4 +102,17 @@ pub fn print_result(g: &GlobalArgs, value: &serde_json::Value, human: &str) {
     } else if !g.quiet {
         println!("{human}");
     }
+}
+
+/// Prints what each stage of a run did (`--json`: the reports as one object).
+pub fn report_stages(g: &GlobalArgs, workspace: &std::path::Path, reports: &[StageReport]) {
+    let value = serde_json::json!({ "workspace": workspace, "stages": reports });
+    let mut human = format!("workspace: {}", workspace.display());
+    for r in reports {
+        human.push_str(&format!(
+            "\n  {:<10} {:<11} {:>7.2} s  {}",
+            r.stage, r.status, r.seconds, r.summary
+        ));
+    }
+    ui::print_result(g, &value, &human);
 }

@@ -94,3 +94,15 @@ impl<T, E: Into<Box<dyn std::error::Error + Send + Sync>>> Context<T>
         })
     }
 }
+
+/// A rendering option or scene error: an option names its flag.
+impl From<handheld_render::scene::SceneError> for PipelineError {
+    fn from(e: handheld_render::scene::SceneError) -> Self {
+        match e {
+            handheld_render::scene::SceneError::Option { option, reason } => {
+                PipelineError::option(option, reason)
+            }
+            handheld_render::scene::SceneError::Scene(reason) => PipelineError::Graph(reason),
+        }
+    }
+}

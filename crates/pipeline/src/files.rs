@@ -50,8 +50,8 @@ pub const TRACKS_JSON: &str = "tracks.json";
 pub const DATABASE: &str = "database.db";
 /// `matches/pairs.json`: one summary per verified pair.
 pub const PAIRS_JSON: &str = "pairs.json";
-/// Every stage's own detailed summary file.
-pub const SUMMARY_JSON: &str = "summary.json";
+/// Every stage's own detailed summary file (written by the runner).
+pub use crate::stage::SUMMARY_FILE as SUMMARY_JSON;
 /// `sparse/points.ply`.
 pub const POINTS_PLY: &str = "points.ply";
 /// `sparse/models/<k>/`: the further models of a broken sequence.
@@ -65,6 +65,8 @@ pub const COLMAP_MODEL_FILES: [&str; 6] = [
     "images.bin",
     "points3D.bin",
 ];
+/// The longer side of the report's thumbnails (`features/thumbs/`, made while the image is decoded).
+pub const THUMB: u32 = 240;
 /// `dense/fused.ply`.
 pub const FUSED_PLY: &str = "fused.ply";
 /// `dense/preview/`.

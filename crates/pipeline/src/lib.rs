@@ -12,7 +12,6 @@
 //! # Ok(()) }
 //! ```
 
-pub mod augment;
 pub mod error;
 pub mod files;
 pub mod manifest;
@@ -23,11 +22,17 @@ pub mod render;
 pub mod report;
 pub mod stage;
 pub mod stages;
+pub mod warning;
 
 pub use error::{Context, PipelineError, Result};
 pub use manifest::{Fingerprint, StageManifest, Workspace, HANDHELD_VERSION, WORKSPACE_FORMAT};
 pub use options::PipelineOptions;
-pub use stage::{AnyStage, Pipeline, Produced, Stage, StageContext, StageReport, StageStatus};
+pub use stage::{
+    AnyStage, Pipeline, Produced, Stage, StageContext, StageReport, StageStatus, SummaryFile,
+};
+/// The augment stage and its options (`stages::augment`).
+pub use stages::augment;
+pub use warning::Warning;
 
 /// Runs the standard graph on `input` (a photo folder or a video) into the workspace `ws`, up to
 /// `until` (everything with `None`). At the end, also when a stage failed, `ws/report.html` is
@@ -49,7 +54,7 @@ pub fn reconstruct(
     let result = pipeline.run(&ws, until, force, progress);
     if ws.manifest(files::stage::INGEST).is_some() {
         let t = std::time::Instant::now();
-        match report::write_workspace_report(&ws) {
+        match report::write_workspace_report(&ws, &pipeline.names()) {
             Ok(r) => tracing::info!(
                 "report: {} ({:.1} MB) in {:.2} s",
                 r.html.display(),
@@ -60,4 +65,17 @@ pub fn reconstruct(
         }
     }
     result
+}
+
+/// Rebuilds the report of a workspace (`handheld report`): the standard graph's stages, and the
+/// augment stage when the workspace has one.
+pub fn write_report(ws: &Workspace) -> Result<handheld_report::ReportSummary> {
+    let options = PipelineOptions {
+        augment: ws
+            .manifest(files::stage::AUGMENT)
+            .map(|_| augment::AugmentOptions::default()),
+        ..Default::default()
+    };
+    let pipeline = Pipeline::standard(std::path::Path::new(""), &options)?;
+    report::write_workspace_report(ws, &pipeline.names())
 }

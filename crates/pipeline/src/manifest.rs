@@ -45,9 +45,9 @@ pub struct StageManifest {
     pub outputs: Vec<String>,
     /// The stage's typed summary, serialised (counts, errors) for reports.
     pub summary: serde_json::Value,
-    /// Warnings the stage gave, in words a user understands, with what to do.
+    /// Warnings the stage gave: a code, the message in plain language, what to do, details.
     #[serde(default)]
-    pub warnings: Vec<String>,
+    pub warnings: Vec<crate::warning::Warning>,
 }
 
 /// Accumulates what a stage's result depends on.

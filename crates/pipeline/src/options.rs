@@ -3,7 +3,6 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::error::Result;
 use crate::stages::dense::DenseStageOptions;
 use crate::stages::features::FeaturesStageOptions;
 use crate::stages::ingest::IngestStageOptions;
@@ -24,22 +23,5 @@ pub struct PipelineOptions {
     pub render: crate::stages::render::RenderStageOptions,
     /// The augment stage runs (and is in the graph) only when an object is given.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub augment: Option<crate::augment::AugmentOptions>,
-}
-
-impl PipelineOptions {
-    /// Checks every stage's options; the error names the first option out of range.
-    pub fn validate(&self) -> Result<()> {
-        crate::stages::ingest::validate(&self.ingest)?;
-        self.features.validate()?;
-        self.matches.validate()?;
-        self.sparse.validate()?;
-        self.dense.validate()?;
-        self.mesh.validate()?;
-        self.render.validate()?;
-        if let Some(a) = &self.augment {
-            a.validate()?;
-        }
-        Ok(())
-    }
+    pub augment: Option<crate::stages::augment::AugmentOptions>,
 }

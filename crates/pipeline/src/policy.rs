@@ -7,6 +7,8 @@ use handheld_io::ingest::InputKind;
 use handheld_sfm::ModelSummary;
 use serde::{Deserialize, Serialize};
 
+use crate::warning::{code, Warning};
+
 /// Largest photo set matched exhaustively under [`PairMode::Auto`].
 pub const EXHAUSTIVE_MAX_PHOTOS: usize = 40;
 
@@ -92,7 +94,7 @@ pub enum FocalVerdict {
     /// Degenerate, but the final adjustment determines the focal length well: a note.
     WellDetermined(String),
     /// Degenerate and uncertain: a warning with what to do.
-    Doubtful(String),
+    Doubtful(Warning),
 }
 
 /// Under critical motion (§3.4) the focal length comes from the priors and the focal hypotheses,
@@ -101,9 +103,14 @@ pub enum FocalVerdict {
 /// [`FOCAL_WELL_DETERMINED`] or better is only noted.
 pub fn focal_verdict(best: &ModelSummary, calibration_given: bool) -> FocalVerdict {
     if let (Some(w), false) = (&best.self_calibration.focal_ambiguity, calibration_given) {
-        return FocalVerdict::Doubtful(format!(
-            "{w}; the focal length, and with it the depths and the camera's speed, may be wrong: give the calibration with --intrinsics FX,FY,CX,CY"
-        ));
+        return FocalVerdict::Doubtful(
+            Warning::new(
+                code::FOCAL_UNDETERMINED,
+                "the images do not fix the focal length, so it, and with it the depths and the camera's speed, may be wrong",
+            )
+            .advice("give the calibration with --intrinsics FX,FY,CX,CY, or add views that rotate the camera")
+            .details(w.clone()),
+        );
     }
     let Some(why) = &best.self_calibration.degenerate else {
         return FocalVerdict::Calibrated;
@@ -138,10 +145,17 @@ pub fn focal_verdict(best: &ModelSummary, calibration_given: bool) -> FocalVerdi
             f.join(", ")
         ))
     } else {
-        FocalVerdict::Doubtful(format!(
-            "self-calibration was degenerate ({why}); the focal length ({}) was chosen among the priors' hypotheses and may be wrong: check it, or give the calibration with --intrinsics",
-            f.join(", ")
-        ))
+        FocalVerdict::Doubtful(
+            Warning::new(
+                code::FOCAL_UNDETERMINED,
+                format!(
+                    "the camera's motion does not fix the focal length by itself; {} was chosen among the candidates and may be wrong",
+                    f.join(", ")
+                ),
+            )
+            .advice("check it, or give the calibration with --intrinsics FX,FY,CX,CY")
+            .details(format!("self-calibration was degenerate: {why}")),
+        )
     }
 }
 

@@ -6,70 +6,53 @@ use std::path::Path;
 
 use handheld_core::MetricReconstruction;
 use handheld_mesh::{simplify, SimplifyOptions};
-use handheld_report::{ImageEntry, ReportInput, ReportSummary, ViewerCamera};
+use handheld_report::{ImageEntry, ReportInput, ReportSummary, ReportWarning, ViewerCamera};
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
 use crate::error::Result;
 use crate::files::{
-    stage, thumbnail_file_name, MODEL_GLB, PAIRS_JSON, PREVIEW_DIR, SUMMARY_JSON, THUMBS_DIR,
+    stage, thumbnail_file_name, MODEL_GLB, PAIRS_JSON, PREVIEW_DIR, SUMMARY_JSON, THUMB, THUMBS_DIR,
 };
 use crate::manifest::Workspace;
 use crate::stages::dense::DenseStageSummary;
 use crate::stages::sparse::SparseSummary;
-
-/// The standard stages, in order, for "not run yet".
-const STAGES: [&str; 7] = [
-    stage::INGEST,
-    stage::FEATURES,
-    stage::MATCHES,
-    stage::SPARSE,
-    stage::DENSE,
-    stage::MESH,
-    stage::RENDER,
-];
+use crate::warning::{code, Warning};
 
 /// Faces of the mesh shown in the viewer, and the atlas's longer side.
 pub const VIEWER_FACES: usize = 100_000;
 pub const VIEWER_ATLAS: u32 = 2048;
-/// The longer side of the report's thumbnails (made by the features stage, `files::THUMBS_DIR`).
-pub(crate) const THUMB: u32 = 240;
 
-/// What the warnings of the stages say, in words with what to do.
-fn explain(stage: &str, w: &str) -> String {
-    let lower = w.to_lowercase();
-    let advice = if lower.contains("focal length")
-        && (lower.contains("undetermined") || lower.contains("not determined"))
-    {
-        " What to do: give the calibration with --intrinsics FX,FY,CX,CY (or a focal prior), or add views that rotate the camera."
-    } else if lower.contains("critical") {
-        " What to do: the camera motion does not fix the calibration (critical motion); give --intrinsics."
-    } else {
-        ""
-    };
-    format!("{stage}: {w}{advice}")
+/// A stage's warning for the report: the stage, the message and what to do; the details folded.
+fn report_warning(stage: &str, w: &Warning) -> ReportWarning {
+    ReportWarning {
+        code: w.code.clone(),
+        text: format!("{stage}: {}", w.message),
+        advice: w.advice.clone(),
+        details: w.details.clone(),
+    }
 }
 
-/// Gathers the report of `ws` and writes it (`report.html`, `report/`).
-pub fn write_workspace_report(ws: &Workspace) -> Result<ReportSummary> {
+/// Gathers the report of `ws` and writes it (`report.html`, `report/`). `stages` are the graph's
+/// stages in run order ([`crate::Pipeline::names`]): those without a manifest are "not run yet".
+pub fn write_workspace_report(ws: &Workspace, stages: &[&str]) -> Result<ReportSummary> {
     let mut input = ReportInput {
         title: format!("Handheld report: {}", ws.root.display()),
         ..Default::default()
     };
-    for s in STAGES {
+    for s in stages {
         match ws.manifest(s) {
             Some(m) => {
                 for w in &m.warnings {
-                    input.warnings.push(explain(s, w));
+                    input.warnings.push(report_warning(s, w));
                 }
             }
             None => input.missing.push(s.to_string()),
         }
     }
     let timings = ws.timings();
-    input.stage_times = STAGES
+    input.stage_times = stages
         .iter()
-        .chain([stage::AUGMENT].iter())
         .filter_map(|s| {
             timings
                 .get(*s)
@@ -139,84 +122,9 @@ pub fn write_workspace_report(ws: &Workspace) -> Result<ReportSummary> {
         input.pairs = Some((names.len(), cells));
     }
     let _ = PAIRS_JSON;
-    // Dense: previews and fill.
-    if let Ok(Some(d)) = ws.summary::<DenseStageSummary>(stage::DENSE) {
-        let full: Option<DenseStageSummary> = std::fs::read(ws.path(stage::DENSE, SUMMARY_JSON))
-            .ok()
-            .and_then(|b| serde_json::from_slice(&b).ok());
-        let per_view = full.and_then(|f| f.per_view).unwrap_or_default();
-        for v in per_view {
-            if let Some(&k) = index.get(&v.image) {
-                let preview = format!("{}/{PREVIEW_DIR}/{}.depth.png", stage::DENSE, v.image);
-                if ws.root.join(&preview).exists() {
-                    input.images[k].depth_preview = Some(preview);
-                }
-                input.images[k].fill = Some(v.fill);
-            }
-        }
-        let _ = d;
-    }
-    // Mesh: decimated, atlas reduced.
-    let glb = ws.path(stage::MESH, MODEL_GLB);
-    if ws.manifest(stage::MESH).is_some() && glb.exists() {
-        if let Ok((mesh, tex)) = handheld_io::glb::read_glb(&glb) {
-            let mesh = if mesh.faces.len() > VIEWER_FACES {
-                simplify(
-                    &mesh,
-                    &SimplifyOptions {
-                        target_faces: VIEWER_FACES,
-                        max_relative_error: 1.0,
-                        lock_border: false,
-                    },
-                )
-                .map(|m| m.0)
-                .unwrap_or(mesh)
-            } else {
-                mesh
-            };
-            let tex = tex.map(|t| {
-                if t.width().max(t.height()) > VIEWER_ATLAS {
-                    image::DynamicImage::ImageRgb8(t)
-                        .resize(
-                            VIEWER_ATLAS,
-                            VIEWER_ATLAS,
-                            image::imageops::FilterType::Triangle,
-                        )
-                        .to_rgb8()
-                } else {
-                    t
-                }
-            });
-            input.mesh = Some((mesh, tex));
-        }
-    }
-    // Renders.
-    for (label, path) in [
-        (
-            "Held-out view: the model | the photo | the difference",
-            "mesh/holdout.png",
-        ),
-        ("Image-based fly-through (§5.2)", "render/flight.mp4"),
-        ("Augmented video (§5.3)", "augment/augmented.mp4"),
-    ] {
-        if ws.root.join(path).exists() {
-            input.renders.push((label.to_string(), path.to_string()));
-        }
-    }
-    if let Ok(rd) = std::fs::read_dir(ws.root.join("bench").join("render-every-8").join("images")) {
-        let mut v: Vec<String> = rd
-            .flatten()
-            .map(|e| e.file_name().to_string_lossy().into_owned())
-            .filter(|n| n.ends_with(".png"))
-            .collect();
-        v.sort();
-        for n in v {
-            input.renders.push((
-                format!("Novel-view hold-out {n}: photo | each method"),
-                format!("bench/render-every-8/images/{n}"),
-            ));
-        }
-    }
+    dense_part(ws, &index, &mut input);
+    input.mesh = viewer_mesh(ws);
+    input.renders = renders(ws);
     let out = handheld_report::render_report(&input)
         .map_err(|e| crate::error::PipelineError::workspace(&ws.root, e.to_string()))?;
     for (rel, bytes) in &out.files {
@@ -248,9 +156,14 @@ fn sparse_part(
             }
         }
         if let Some(d) = &s.self_calibration_degenerate {
-            input.warnings.push(explain(
-                "sparse",
-                &format!("self-calibration is degenerate (critical motion): {d}"),
+            input.warnings.push(report_warning(
+                stage::SPARSE,
+                &Warning::new(
+                    code::FOCAL_UNDETERMINED,
+                    "the camera's motion does not fix the calibration by itself (critical motion)",
+                )
+                .advice("give the calibration with --intrinsics FX,FY,CX,CY, or add views that rotate the camera")
+                .details(d.clone()),
             ));
         }
     }
@@ -375,4 +288,95 @@ fn sparse_part(
 /// Whether a path is inside the workspace (the report links only to such files).
 pub fn inside(ws: &Path, p: &Path) -> bool {
     p.starts_with(ws)
+}
+
+/// The dense stage's depth previews and fill, per image.
+fn dense_part(ws: &Workspace, index: &BTreeMap<String, usize>, input: &mut ReportInput) {
+    if let Ok(Some(d)) = ws.summary::<DenseStageSummary>(stage::DENSE) {
+        let full: Option<DenseStageSummary> = std::fs::read(ws.path(stage::DENSE, SUMMARY_JSON))
+            .ok()
+            .and_then(|b| serde_json::from_slice(&b).ok());
+        let per_view = full.and_then(|f| f.per_view).unwrap_or_default();
+        for v in per_view {
+            if let Some(&k) = index.get(&v.image) {
+                let preview = format!("{}/{PREVIEW_DIR}/{}.depth.png", stage::DENSE, v.image);
+                if ws.root.join(&preview).exists() {
+                    input.images[k].depth_preview = Some(preview);
+                }
+                input.images[k].fill = Some(v.fill);
+            }
+        }
+        let _ = d;
+    }
+}
+
+/// The mesh for the viewer: decimated to [`VIEWER_FACES`], its atlas reduced to [`VIEWER_ATLAS`].
+fn viewer_mesh(ws: &Workspace) -> Option<(handheld_core::TriMesh, Option<image::RgbImage>)> {
+    let glb = ws.path(stage::MESH, MODEL_GLB);
+    if ws.manifest(stage::MESH).is_some() && glb.exists() {
+        if let Ok((mesh, tex)) = handheld_io::glb::read_glb(&glb) {
+            let mesh = if mesh.faces.len() > VIEWER_FACES {
+                simplify(
+                    &mesh,
+                    &SimplifyOptions {
+                        target_faces: VIEWER_FACES,
+                        max_relative_error: 1.0,
+                        lock_border: false,
+                    },
+                )
+                .map(|m| m.0)
+                .unwrap_or(mesh)
+            } else {
+                mesh
+            };
+            let tex = tex.map(|t| {
+                if t.width().max(t.height()) > VIEWER_ATLAS {
+                    image::DynamicImage::ImageRgb8(t)
+                        .resize(
+                            VIEWER_ATLAS,
+                            VIEWER_ATLAS,
+                            image::imageops::FilterType::Triangle,
+                        )
+                        .to_rgb8()
+                } else {
+                    t
+                }
+            });
+            return Some((mesh, tex));
+        }
+    }
+    None
+}
+
+/// The renders beside the workspace's stages: held-out view, fly-through, augmented video, and the
+/// novel-view benchmark's images.
+fn renders(ws: &Workspace) -> Vec<(String, String)> {
+    let mut renders = Vec::new();
+    for (label, path) in [
+        (
+            "Held-out view: the model | the photo | the difference",
+            "mesh/holdout.png",
+        ),
+        ("Image-based fly-through (§5.2)", "render/flight.mp4"),
+        ("Augmented video (§5.3)", "augment/augmented.mp4"),
+    ] {
+        if ws.root.join(path).exists() {
+            renders.push((label.to_string(), path.to_string()));
+        }
+    }
+    if let Ok(rd) = std::fs::read_dir(ws.root.join("bench").join("render-every-8").join("images")) {
+        let mut v: Vec<String> = rd
+            .flatten()
+            .map(|e| e.file_name().to_string_lossy().into_owned())
+            .filter(|n| n.ends_with(".png"))
+            .collect();
+        v.sort();
+        for n in v {
+            renders.push((
+                format!("Novel-view hold-out {n}: photo | each method"),
+                format!("bench/render-every-8/images/{n}"),
+            ));
+        }
+    }
+    renders
 }

@@ -8,7 +8,7 @@ use std::path::Path;
 
 use handheld_core::{NoProgress, Rigid3};
 use handheld_pipeline::files::{stage, write_json};
-use handheld_pipeline::render::{render_view, RenderMethod, RenderScene, ViewSpec};
+use handheld_pipeline::render::{render_view, RenderMethod, ViewSpec};
 use handheld_pipeline::{
     Pipeline, PipelineOptions, Produced, Stage, StageContext, StageStatus, Workspace,
 };
@@ -172,7 +172,8 @@ fn the_stage_graph_runs_through_the_library() {
         assert_eq!(t.width().max(t.height()), 240);
     }
     // Rendering before the dense stage falls back to the fixed plane, and says so.
-    let plane_only = RenderScene::load(&ws, &[], 1600).expect("scene without depth");
+    let plane_only =
+        handheld_pipeline::render::load_scene(&ws, &[], 1600).expect("scene without depth");
     assert!(
         plane_only
             .warnings

@@ -13,6 +13,7 @@ pub mod ibr;
 pub mod metrics;
 pub mod path;
 pub mod raster;
+pub mod scene;
 
 pub use ibr::{FrameStats, IbrError, IbrMethod, IbrOptions, IbrScene, Plane, Renderer};
 pub use metrics::{quality, Quality};

@@ -72,13 +72,33 @@ pub struct ViewerCamera {
     pub thumb: String,
 }
 
+/// A stage's warning: what happened in plain language, what to do, and the figures behind it
+/// (folded away on the page). `code` is the stable kind (`focal_undetermined`, ...).
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct ReportWarning {
+    pub code: String,
+    pub text: String,
+    pub advice: Option<String>,
+    pub details: Option<String>,
+}
+
+impl From<&str> for ReportWarning {
+    fn from(text: &str) -> Self {
+        Self {
+            code: "note".into(),
+            text: text.into(),
+            ..Default::default()
+        }
+    }
+}
+
 /// Everything the report shows.
 #[derive(Clone, Debug, Default)]
 pub struct ReportInput {
     pub title: String,
     pub verdict: Verdict,
     /// Warnings in words a user understands, with what to do.
-    pub warnings: Vec<String>,
+    pub warnings: Vec<ReportWarning>,
     /// Stages that have not run (the report says what is missing).
     pub missing: Vec<String>,
     pub images: Vec<ImageEntry>,
@@ -344,7 +364,19 @@ fn page(input: &ReportInput, thumbs: &[Option<String>]) -> String {
         h.push_str("<div class=\"ok\">No warnings.</div>");
     }
     for w in &input.warnings {
-        let _ = write!(h, "<div class=\"warn\">{}</div>", esc(w));
+        let _ = write!(
+            h,
+            "<div class=\"warn\" data-code=\"{}\">{}",
+            esc(&w.code),
+            esc(&w.text)
+        );
+        if let Some(a) = &w.advice {
+            let _ = write!(h, "<br><b>What to do:</b> {}", esc(a));
+        }
+        if let Some(d) = &w.details {
+            let _ = write!(h, "<details><summary>details</summary>{}</details>", esc(d));
+        }
+        h.push_str("</div>");
     }
     for m in &input.missing {
         let _ = write!(h, "<div class=\"missing\">Not run yet: {}</div>", esc(m));

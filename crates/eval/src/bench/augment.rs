@@ -106,7 +106,7 @@ pub fn bench_augment(o: &AugmentBenchOptions) -> Result<AugmentBenchReport> {
         for (img, cam, pose) in &frames {
             let mut frame = img.clone();
             let occ = if occlusion {
-                handheld_pipeline::augment::scene_depth(
+                handheld_render::augment::scene_depth(
                     &seq.mesh, cam, pose, &placed, &mut zbuf, &mut depth,
                 );
                 Some(&depth)

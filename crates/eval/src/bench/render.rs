@@ -13,9 +13,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use handheld_core::{Camera, FloatMap, ImageId, NoProgress, Progress, Rigid3};
-use handheld_pipeline::render::{
-    flight_poses, write_png, FlightOptions, PathKind, RenderMethod, RenderScene,
-};
+use handheld_pipeline::render::{write_png, FlightOptions, PathKind, RenderMethod, RenderScene};
 use handheld_pipeline::stages::dense::{densify, DenseStageOptions};
 use handheld_pipeline::stages::mesh::{build, MeshStageOptions};
 use handheld_pipeline::Workspace;
@@ -230,7 +228,7 @@ pub fn bench_render(o: &RenderBenchOptions, progress: &dyn Progress) -> Result<R
             &serde_json::to_vec_pretty(&key).unwrap_or_default(),
         )?;
     }
-    let scene = RenderScene::from_folders(
+    let scene = handheld_pipeline::render::scene_from_folders(
         &rec,
         &paths,
         &dense_dir,
@@ -377,7 +375,9 @@ fn score_view(
         }
         let mut out = empty();
         let t = Instant::now();
-        scene.render(renderer, camera, pose, method, ibr, &mut out)?;
+        scene
+            .render(renderer, camera, pose, method, ibr, &mut out)
+            .map_err(handheld_pipeline::PipelineError::from)?;
         let seconds = t.elapsed().as_secs_f64();
         methods.push(MethodScore {
             method,
@@ -481,14 +481,16 @@ fn speed_run(
         ibr: o.ibr.clone(),
         ..Default::default()
     };
-    let (camera, poses) = flight_poses(scene, &fo);
+    let (camera, poses) = scene.flight_poses(&fo);
     let mut out = empty();
     let mut times = Vec::with_capacity(poses.len());
     let mut support = Vec::with_capacity(poses.len());
     let mut leaves = Vec::with_capacity(poses.len());
     for pose in &poses {
         let t = Instant::now();
-        let stats = scene.render(renderer, &camera, pose, method, &o.ibr, &mut out)?;
+        let stats = scene
+            .render(renderer, &camera, pose, method, &o.ibr, &mut out)
+            .map_err(handheld_pipeline::PipelineError::from)?;
         times.push(t.elapsed().as_secs_f64());
         if let Some(s) = stats {
             support.push(s.seconds_support);

@@ -6,8 +6,9 @@
 use std::path::Path;
 
 use handheld_pipeline::augment::ObjectSource;
-use handheld_pipeline::augment::{anchor_of, placed_vertices, PlacementFile, PLACEMENT_JSON};
+use handheld_pipeline::augment::{PlacementFile, PLACEMENT_JSON};
 use handheld_pipeline::files;
+use handheld_render::augment::{anchor_of, placed_vertices};
 use nalgebra::Vector2;
 use serde::{Deserialize, Serialize};
 
@@ -87,15 +88,15 @@ pub fn augment_accuracy(out: &Path, workspace: &Path, video: bool) -> Result<Aug
             .zip(&theirs)
             .map(|(a, b)| Some((*a)? - (*b)?))
             .collect();
-        let j = handheld_pipeline::augment::jitter(&ours);
-        let jg = handheld_pipeline::augment::jitter(&theirs);
+        let j = handheld_render::augment::jitter(&ours);
+        let jg = handheld_render::augment::jitter(&theirs);
         Ok(ProjectionError {
             median_px: median_nan(&mut errs),
             max_px: max,
             jitter_px: j,
             jitter_gt_px: jg,
             jitter_above_gt_px: j - jg,
-            added_jitter_px: handheld_pipeline::augment::jitter(&diff),
+            added_jitter_px: handheld_render::augment::jitter(&diff),
         })
     };
     Ok(AugmentAccuracy {

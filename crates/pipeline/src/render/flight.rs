@@ -3,37 +3,14 @@
 
 use std::path::{Path, PathBuf};
 
-use handheld_core::{Camera, Progress, Rigid3};
-use handheld_render::path;
-use handheld_render::{IbrOptions, Rendered, Renderer};
+use handheld_core::Progress;
+use handheld_render::scene::{FlightOptions, PathKind, RenderMethod, RenderScene};
+use handheld_render::{Rendered, Renderer};
 use image::RgbImage;
 use serde::{Deserialize, Serialize};
 
-use super::{virtual_camera, RenderMethod, RenderScene, DEFAULT_METHOD};
-use crate::error::{PipelineError, Result};
-
-/// A camera path through or around the recorded views.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum PathKind {
-    /// Through the recorded cameras in name order.
-    Through,
-    /// Around the scene, over the arc the cameras cover.
-    Orbit,
-}
-
-impl PathKind {
-    pub fn parse(s: &str) -> Result<Self> {
-        match s {
-            "through" => Ok(Self::Through),
-            "orbit" => Ok(Self::Orbit),
-            _ => Err(PipelineError::option(
-                "--path",
-                format!("unknown path `{s}`; use orbit or through"),
-            )),
-        }
-    }
-}
+use super::load::scene_error;
+use crate::error::Result;
 
 /// What a path rendering did.
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -51,69 +28,6 @@ pub struct FlightSummary {
     pub warnings: Vec<String>,
 }
 
-/// Options of a path rendering.
-#[derive(Clone, Debug, Serialize, Deserialize)]
-#[serde(default)]
-pub struct FlightOptions {
-    pub method: RenderMethod,
-    pub path: PathKind,
-    pub frames: usize,
-    /// Output width (the height follows the recorded camera's aspect).
-    pub width: u32,
-    pub fps: u32,
-    pub ibr: IbrOptions,
-}
-
-impl Default for FlightOptions {
-    fn default() -> Self {
-        Self {
-            method: DEFAULT_METHOD,
-            path: PathKind::Through,
-            frames: 48,
-            width: 640,
-            fps: 24,
-            ibr: IbrOptions::default(),
-        }
-    }
-}
-
-impl FlightOptions {
-    pub fn validate(&self) -> Result<()> {
-        if self.frames < 2 {
-            return Err(PipelineError::option(
-                "--frames",
-                format!("must be at least 2, got {}", self.frames),
-            ));
-        }
-        if self.width < 16 || self.width > 8192 {
-            return Err(PipelineError::option(
-                "--width",
-                format!("must be between 16 and 8192, got {}", self.width),
-            ));
-        }
-        if self.fps == 0 {
-            return Err(PipelineError::option("--fps", "must be at least 1"));
-        }
-        self.ibr
-            .validate()
-            .map_err(|e| PipelineError::option("--method", e.to_string()))
-    }
-}
-
-/// The poses and virtual camera of a path.
-pub fn flight_poses(scene: &RenderScene, opts: &FlightOptions) -> (Camera, Vec<Rigid3>) {
-    let camera = virtual_camera(&scene.views[0].1, opts.width);
-    let keys: Vec<Rigid3> = scene.views.iter().map(|v| v.2).collect();
-    let poses = match opts.path {
-        PathKind::Through => path::through(&keys, opts.frames),
-        PathKind::Orbit => {
-            let focus = scene.scene.focus(&scene.points);
-            path::orbit(&keys, &focus, opts.frames)
-        }
-    };
-    (camera, poses)
-}
-
 /// Renders a camera path and encodes it as H.264 at `output` (written under a temporary name and
 /// renamed when complete).
 /// Returns the summary and the middle frame. When the `ffmpeg` program cannot be run, the video
@@ -124,8 +38,8 @@ pub fn render_flight(
     output: &Path,
     progress: &dyn Progress,
 ) -> Result<(FlightSummary, Option<RgbImage>)> {
-    opts.validate()?;
-    let (camera, poses) = flight_poses(scene, opts);
+    opts.validate().map_err(scene_error)?;
+    let (camera, poses) = scene.flight_poses(opts);
     let mut renderer = Renderer::new();
     let mut times = Vec::with_capacity(poses.len());
     let mut covered = 0.0;
@@ -155,14 +69,16 @@ pub fn render_flight(
     progress.start("rendering the fly-through", poses.len() as u64);
     for (k, pose) in poses.iter().enumerate() {
         let t = std::time::Instant::now();
-        scene.render(
-            &mut renderer,
-            &camera,
-            pose,
-            opts.method,
-            &opts.ibr,
-            &mut out,
-        )?;
+        scene
+            .render(
+                &mut renderer,
+                &camera,
+                pose,
+                opts.method,
+                &opts.ibr,
+                &mut out,
+            )
+            .map_err(scene_error)?;
         times.push(t.elapsed().as_secs_f64());
         covered += out.covered.iter().filter(|c| **c).count() as f64 / out.covered.len() as f64;
         if let Some(w) = writer.as_mut() {

@@ -4,12 +4,13 @@ use std::path::{Path, PathBuf};
 
 use handheld_core::{Camera, Rigid3};
 use handheld_dense::scale_camera;
+use handheld_render::scene::{virtual_camera, RenderMethod};
 use handheld_render::{IbrOptions, Rendered, Renderer};
 use image::RgbImage;
 use nalgebra::{Quaternion, Translation3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
-use super::{virtual_camera, write_png, RenderMethod, RenderScene};
+use super::load::{load_scene, scene_error, write_png};
 use crate::error::{PipelineError, Result};
 use crate::files::stage;
 use crate::manifest::Workspace;
@@ -121,7 +122,7 @@ pub fn render_view(
         ViewSpec::Image(name) => (vec![name.clone()], None),
         ViewSpec::PoseFile(p) => (Vec::new(), Some(PoseFile::read(p)?)),
     };
-    let scene = RenderScene::load(ws, &exclude, 1600)?;
+    let scene = load_scene(ws, &exclude, 1600)?;
     let (camera, pose) = match (spec, pose_file) {
         (ViewSpec::Image(name), _) => {
             let dense = ws.root.join(stage::DENSE);
@@ -178,7 +179,9 @@ pub fn render_view(
         depth: handheld_core::FloatMap::filled(0, 0, 1, 0.0),
     };
     let t = std::time::Instant::now();
-    scene.render(&mut renderer, &camera, &pose, method, ibr, &mut out)?;
+    scene
+        .render(&mut renderer, &camera, &pose, method, ibr, &mut out)
+        .map_err(scene_error)?;
     let seconds = t.elapsed().as_secs_f64();
     write_png(output, &out.image)?;
     let mut warnings = scene.warnings.clone();

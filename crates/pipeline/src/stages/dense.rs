@@ -27,7 +27,7 @@ use crate::files::{stage, write_json, FUSED_PLY, PREVIEW_DIR, SUMMARY_JSON};
 use crate::manifest::Workspace;
 use crate::policy::image_id;
 use crate::preview::write_preview;
-use crate::stage::{Produced, Stage, StageContext};
+use crate::stage::{Produced, Stage, StageContext, SummaryFile};
 
 /// Options of the dense stage.
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -154,6 +154,10 @@ impl Stage for Dense {
 
     fn options(&self) -> &DenseStageOptions {
         &self.options
+    }
+
+    fn validate(&self) -> Result<()> {
+        self.options.validate()
     }
 
     fn run(&self, ctx: &StageContext, dir: &Path) -> Result<Produced<DenseStageSummary>> {
@@ -316,7 +320,8 @@ pub fn densify(
     write_json(&dir.join(SUMMARY_JSON), &s)?;
     outputs.extend([FUSED_PLY.into(), CAMERAS_FILE.into(), SUMMARY_JSON.into()]);
     s.per_view = None;
-    Ok(Produced::new(outputs, s))
+    // `summary.json` (with the per-view figures) is written here, as `densify_model` needs it too.
+    Ok(Produced::new(outputs, s).summary_file(SummaryFile::Own))
 }
 
 /// The dense stage on any COLMAP model (text or binary) and the folder of its images, into `out`

@@ -6,7 +6,7 @@ use std::path::Path;
 use std::time::Instant;
 
 use handheld_features::extract::{extract_features, ExtractionOptions};
-use handheld_features::video::{tracking_verdict, VideoTrackingOptions};
+use handheld_features::video::{tracking_verdict, VideoTrackingOptions, VideoTracks};
 use handheld_io::features_file::{write_features, FeatureFile};
 use handheld_io::images::{load_image, ImageIngestOptions};
 use handheld_io::ingest::InputKind;
@@ -14,9 +14,10 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Context, PipelineError, Result};
-use crate::files::{feature_file_name, stage, thumbnail_file_name, THUMBS_DIR};
+use crate::files::{feature_file_name, stage, thumbnail_file_name, THUMB, THUMBS_DIR, TRACKS_JSON};
 use crate::policy::FEW_FEATURES;
 use crate::stage::{Produced, Stage, StageContext};
+use crate::warning::{code, Warning};
 
 /// How correspondences are found.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -115,6 +116,10 @@ impl Stage for Features {
         &self.options
     }
 
+    fn validate(&self) -> Result<()> {
+        self.options.validate()
+    }
+
     fn run(&self, ctx: &StageContext, dir: &Path) -> Result<Produced<FeaturesSummary>> {
         let ingest = ctx.ws.read_ingest()?;
         let mut warnings = Vec::new();
@@ -123,19 +128,21 @@ impl Stage for Features {
                 super::tracks::track(&ingest, &self.options.video_tracking(), ctx.progress)?;
             match tracking_verdict(&tracks) {
                 // Asked for KLT, or KLT held: the tracks are the features.
-                Ok(()) => return super::tracks::write_tracking(&tracks, dir),
+                Ok(()) => return write_tracking(&tracks, dir),
                 Err(why) if self.options.tracking == TrackingMode::Klt => {
-                    let mut p = super::tracks::write_tracking(&tracks, dir)?;
-                    p.warnings
-                        .push(format!("{why}; --tracking sift may do better"));
+                    let mut p = write_tracking(&tracks, dir)?;
+                    p.warnings.push(
+                        Warning::new(code::TRACKING, why).advice("--tracking sift may do better"),
+                    );
                     return Ok(p);
                 }
                 // Descriptor matching between the frames instead (issue #18: the video mode must
                 // not break the sequence into pieces where tracking fails).
                 Err(why) => {
-                    let w = format!("{why}; SIFT features and descriptor matching between the frames are used instead");
-                    tracing::warn!("{w}");
-                    warnings.push(w);
+                    warnings.push(Warning::new(
+                        code::TRACKING,
+                        format!("{why}; SIFT features and descriptor matching between the frames are used instead"),
+                    ));
                 }
             }
         }
@@ -175,27 +182,28 @@ impl Stage for Features {
         secs.sort_by(|a, b| a.total_cmp(b));
         let min = counts.iter().min().copied().unwrap_or(0);
         if min < FEW_FEATURES {
-            warnings.push(format!("an image has only {min} features: textureless, blurred or tiny images match poorly"));
+            warnings.push(Warning::new(
+                code::IMAGE,
+                format!("an image has only {min} features: textureless, blurred or tiny images match poorly"),
+            ));
         }
-        Ok(Produced {
-            outputs: (0..counts.len()).map(feature_file_name).collect(),
-            summary: FeaturesSummary::Sift {
+        Ok(Produced::new(
+            (0..counts.len()).map(feature_file_name).collect(),
+            FeaturesSummary::Sift {
                 images: counts.len(),
                 features_per_image_median: median(&counts),
                 features_min: min,
                 extraction_seconds_median: secs.get(secs.len() / 2).copied(),
             },
-            warnings,
-        })
+        )
+        .warn(warnings))
     }
 }
 
-/// Writes the report's thumbnail of `image` (at most [`crate::report::THUMB`] pixels on a side,
+/// Writes the report's thumbnail of `image` (at most [`THUMB`] pixels on a side,
 /// JPEG), atomically.
 fn write_thumbnail(path: &Path, image: &image::DynamicImage) -> Result<()> {
-    let t = image
-        .thumbnail(crate::report::THUMB, crate::report::THUMB)
-        .to_rgb8();
+    let t = image.thumbnail(THUMB, THUMB).to_rgb8();
     let mut bytes = Vec::new();
     image::codecs::jpeg::JpegEncoder::new_with_quality(&mut bytes, 90)
         .encode_image(&t)
@@ -262,4 +270,43 @@ fn median(v: &[usize]) -> usize {
     let mut s = v.to_vec();
     s.sort_unstable();
     s.get(s.len() / 2).copied().unwrap_or(0)
+}
+
+/// Writes one feature file per frame (the live tracks as keypoints, no descriptors) and
+/// `tracks.json`.
+pub fn write_tracking(tracks: &VideoTracks, dir: &Path) -> Result<Produced<FeaturesSummary>> {
+    for k in 0..tracks.num_frames() {
+        write_features(
+            &dir.join(feature_file_name(k)),
+            &to_file(tracks.features(k)),
+        )?;
+    }
+    let bytes = serde_json::to_vec(&tracks)
+        .map_err(|e| PipelineError::workspace(dir.join(TRACKS_JSON), e.to_string()))?;
+    handheld_io::atomic::write_bytes_atomic(&dir.join(TRACKS_JSON), &bytes)?;
+    let mut counts: Vec<usize> = tracks.points.iter().map(Vec::len).collect();
+    counts.sort_unstable();
+    let mut outputs: Vec<String> = (0..tracks.num_frames()).map(feature_file_name).collect();
+    outputs.push(TRACKS_JSON.into());
+    let mut warnings = Vec::new();
+    if tracks.keyframes.len() < 2 {
+        warnings.push(Warning::new(
+            code::TRACKING,
+            format!(
+                "only {} key-frame(s): the camera hardly moves, or tracking failed",
+                tracks.keyframes.len()
+            ),
+        ));
+    }
+    Ok(Produced::new(
+        outputs,
+        FeaturesSummary::Klt {
+            images: tracks.num_frames(),
+            tracking: "klt".into(),
+            tracks_per_frame_median: counts.get(counts.len() / 2).copied(),
+            keyframes: tracks.keyframes.len(),
+            keyframe_frames: tracks.keyframes.iter().map(|k| k.0).collect(),
+        },
+    )
+    .warn(warnings))
 }

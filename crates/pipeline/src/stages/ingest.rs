@@ -10,6 +10,7 @@ use crate::error::{PipelineError, Result};
 use crate::files::{stage, write_json, FRAMES_DIR, IMAGES_JSON};
 use crate::manifest::Fingerprint;
 use crate::stage::{Produced, Stage, StageContext};
+use crate::warning::{code, Warning};
 
 /// Options of the ingest stage.
 pub type IngestStageOptions = IngestOptions;
@@ -41,6 +42,10 @@ impl Stage for Ingest {
 
     fn options(&self) -> &IngestOptions {
         &self.options
+    }
+
+    fn validate(&self) -> Result<()> {
+        validate(&self.options)
     }
 
     fn fingerprint_inputs(&self, fp: &mut Fingerprint) -> Result<()> {
@@ -80,12 +85,12 @@ impl Stage for Ingest {
         let warnings = result
             .skipped
             .iter()
-            .map(|(p, why)| format!("{}: skipped ({why})", p.display()))
+            .map(|(p, why)| Warning::new(code::IMAGE, format!("{}: skipped ({why})", p.display())))
             .collect();
         let first = result.images.first().map(|i| &i.info);
-        Ok(Produced {
-            outputs: vec![IMAGES_JSON.into()],
-            summary: IngestSummary {
+        Ok(Produced::new(
+            vec![IMAGES_JSON.into()],
+            IngestSummary {
                 kind: result.kind,
                 images: result.images.len(),
                 skipped: result.skipped.len(),
@@ -97,8 +102,8 @@ impl Stage for Ingest {
                     .filter(|i| i.info.focal_prior_px.is_some())
                     .count(),
             },
-            warnings,
-        })
+        )
+        .warn(warnings))
     }
 }
 

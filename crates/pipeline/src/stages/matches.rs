@@ -117,6 +117,10 @@ impl Stage for Matches {
         &self.options
     }
 
+    fn validate(&self) -> Result<()> {
+        self.options.validate()
+    }
+
     fn run(&self, ctx: &StageContext, dir: &Path) -> Result<Produced<MatchesSummary>> {
         let opts = &self.options;
         let ws = ctx.ws;

@@ -21,10 +21,9 @@ use image::RgbImage;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Context, PipelineError, Result};
-use crate::files::{
-    stage, write_json, HOLDOUT_PNG, MODEL_GLB, MODEL_OBJ, MODEL_PLY, SUMMARY_JSON, VIEWS_DIR,
-};
-use crate::stage::{Produced, Stage, StageContext};
+use crate::files::{stage, HOLDOUT_PNG, MODEL_GLB, MODEL_OBJ, MODEL_PLY, VIEWS_DIR};
+use crate::stage::{Produced, Stage, StageContext, SummaryFile};
+use crate::warning::{code, Warning};
 
 /// Which surface models the mesh stage builds.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -158,6 +157,10 @@ impl Stage for Mesh {
         &self.options
     }
 
+    fn validate(&self) -> Result<()> {
+        self.options.validate()
+    }
+
     fn run(&self, ctx: &StageContext, dir: &Path) -> Result<Produced<MeshStageSummary>> {
         let paths = ctx.ws.image_paths()?;
         build(
@@ -204,11 +207,17 @@ pub fn build(
             let (mesh, s) = match mesh_from_depth_map(v, &opts.single, bars) {
                 Ok(r) if !r.0.faces.is_empty() => r,
                 Ok(_) => {
-                    warnings.push(format!("{}: the depth map gives no triangles", v.name));
+                    warnings.push(Warning::new(
+                        code::VIEW_SKIPPED,
+                        format!("{}: the depth map gives no triangles", v.name),
+                    ));
                     continue;
                 }
                 Err(e) => {
-                    warnings.push(format!("{}: no single-view mesh: {e}", v.name));
+                    warnings.push(Warning::new(
+                        code::VIEW_SKIPPED,
+                        format!("{}: no single-view mesh: {e}", v.name),
+                    ));
                     continue;
                 }
             };
@@ -271,14 +280,12 @@ pub fn build(
         });
         summary.fusion = Some(fs);
     }
-    write_json(&dir.join(SUMMARY_JSON), &summary)?;
-    outputs.push(SUMMARY_JSON.into());
+    // `summary.json` keeps the per-view list; the manifest does not.
+    let file = SummaryFile::full(&summary)?;
     summary.view_mesh_list = None;
-    Ok(Produced {
-        outputs,
-        summary,
-        warnings,
-    })
+    Ok(Produced::new(outputs, summary)
+        .warn(warnings)
+        .summary_file(file))
 }
 
 /// Renders the textured model from a view left out of it and compares with the photo; writes
@@ -339,5 +346,7 @@ pub fn mesh_dense_folder(
         .map(|(path, image)| (image, path))
         .collect();
     std::fs::create_dir_all(out).map_err(|e| handheld_io::IoError::io(out, e))?;
-    Ok(build(dense, &paths, opts, out, progress)?.summary)
+    let produced = build(dense, &paths, opts, out, progress)?;
+    produced.write_summary_file(out)?;
+    Ok(produced.summary)
 }

@@ -7,7 +7,12 @@
 //!
 //! `dense` reads `sparse` (and `features` for a video's key-frames); `mesh` reads `dense` only
 //! (plus the image list), so a stage that needs the sparse model never waits for a mesh;
-//! `render` reads sparse, dense and mesh.
+//! `render` reads sparse, and dense and mesh when they are there; `augment` (only with an object)
+//! reads sparse, and the mesh when it is there.
+//!
+//! A stage is one file here (its name, reads, options and their check, summary and body: see
+//! [`crate::Stage`]) and one `register` line below; its options are checked when it is
+//! registered.
 
 pub mod augment;
 pub mod dense;
@@ -29,7 +34,6 @@ impl Pipeline {
     /// The standard graph on one input (a photo folder or a video file). The options are checked
     /// first; the error names the first option out of range.
     pub fn standard(input: &Path, o: &PipelineOptions) -> Result<Self> {
-        o.validate()?;
         let mut p = Pipeline::new();
         p.register(ingest::Ingest {
             input: input.to_path_buf(),
@@ -57,5 +61,13 @@ impl Pipeline {
             p.register(augment::Augment { options: a.clone() })?;
         }
         Ok(p)
+    }
+}
+
+impl PipelineOptions {
+    /// Checks every stage's options (each stage checks its own when the standard graph registers
+    /// it); the error names the first option out of range.
+    pub fn validate(&self) -> Result<()> {
+        Pipeline::standard(Path::new(""), self).map(|_| ())
     }
 }

@@ -9,9 +9,11 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 use crate::error::Result;
-use crate::files::{stage, write_json, SUMMARY_JSON};
-use crate::render::{render_flight, write_png, FlightOptions, FlightSummary, RenderScene};
+use crate::files::stage;
+use crate::render::{load_scene, render_flight, scene_error, write_png, FlightSummary};
 use crate::stage::{Produced, Stage, StageContext};
+use crate::warning::{code, Warning};
+use handheld_render::scene::FlightOptions;
 
 /// `render/flight.mp4`.
 pub const FLIGHT_MP4: &str = "flight.mp4";
@@ -27,7 +29,7 @@ pub struct RenderStageOptions {
 
 impl RenderStageOptions {
     pub fn validate(&self) -> Result<()> {
-        self.flight.validate()
+        self.flight.validate().map_err(scene_error)
     }
 }
 
@@ -41,8 +43,9 @@ impl Stage for Render {
     type Summary = FlightSummary;
 
     const NAME: &'static str = stage::RENDER;
-    const READS: &'static [&'static str] =
-        &[stage::INGEST, stage::SPARSE, stage::DENSE, stage::MESH];
+    const READS: &'static [&'static str] = &[stage::INGEST, stage::SPARSE];
+    /// Without depth maps the views render with the fixed plane; without the mesh, no proxy.
+    const READS_IF_PRESENT: &'static [&'static str] = &[stage::DENSE, stage::MESH];
     const ABOUT: &'static str =
         "image-based rendering (§5.2): a fly-through through the recorded cameras (flight.mp4)";
 
@@ -50,12 +53,16 @@ impl Stage for Render {
         &self.options
     }
 
+    fn validate(&self) -> Result<()> {
+        self.options.validate()
+    }
+
     fn run(&self, ctx: &StageContext, dir: &Path) -> Result<Produced<FlightSummary>> {
-        let scene = RenderScene::load(ctx.ws, &[], 1600)?;
+        let scene = load_scene(ctx.ws, &[], 1600)?;
         let mp4 = dir.join(FLIGHT_MP4);
         let mut outputs = Vec::new();
-        let (summary, middle) = render_flight(&scene, &self.options.flight, &mp4, ctx.progress)?;
-        let mut summary = summary;
+        let (mut summary, middle) =
+            render_flight(&scene, &self.options.flight, &mp4, ctx.progress)?;
         if let Some(frame) = middle {
             write_png(&dir.join(FLIGHT_PNG), &frame)?;
             outputs.push(FLIGHT_PNG.to_string());
@@ -64,13 +71,11 @@ impl Stage for Render {
             outputs.push(FLIGHT_MP4.to_string());
         }
         summary.output = mp4;
-        write_json(&dir.join(SUMMARY_JSON), &summary)?;
-        outputs.push(SUMMARY_JSON.into());
-        let warnings = summary.warnings.clone();
-        Ok(Produced {
-            outputs,
-            summary,
-            warnings,
-        })
+        let warnings = summary
+            .warnings
+            .iter()
+            .map(|w| Warning::new(code::FALLBACK, w.clone()))
+            .collect();
+        Ok(Produced::new(outputs, summary).warn(warnings))
     }
 }

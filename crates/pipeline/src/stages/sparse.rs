@@ -25,7 +25,8 @@ use crate::error::{Context, PipelineError, Result};
 use crate::files::{stage, write_json, COLMAP_MODEL_FILES, MODELS_DIR, POINTS_PLY, SUMMARY_JSON};
 use crate::manifest::Workspace;
 use crate::policy::{camera_key, focal_verdict, image_id, quantize_descriptor, FocalVerdict};
-use crate::stage::{Produced, Stage, StageContext};
+use crate::stage::{Produced, Stage, StageContext, SummaryFile};
+use crate::warning::{code, Warning};
 
 /// Options of the sparse stage: keypoint refinement (photos), then SfM.
 #[derive(Clone, Debug, Default, Serialize, Deserialize)]
@@ -110,6 +111,10 @@ impl Stage for Sparse {
         &self.options
     }
 
+    fn validate(&self) -> Result<()> {
+        self.options.validate()
+    }
+
     fn run(&self, ctx: &StageContext, dir: &Path) -> Result<Produced<SparseSummary>> {
         let ws = ctx.ws;
         let opts = &self.options.sfm;
@@ -163,19 +168,34 @@ impl Stage for Sparse {
                 outputs.push(format!("{MODELS_DIR}/{k}"));
             }
         }
-        let mut warnings: Vec<String> = unregistered
+        let mut warnings: Vec<Warning> = unregistered
             .iter()
-            .map(|u| format!("{}: not registered ({})", u.image, u.reason))
+            .map(|u| {
+                Warning::new(
+                    code::UNREGISTERED,
+                    format!("{}: not registered ({})", u.image, u.reason),
+                )
+            })
             .collect();
         if result.models.len() > 1 {
-            warnings.push(format!("the images form {} separate models; the largest is in sparse/, the others in sparse/models/", result.models.len()));
+            warnings.push(
+                Warning::new(
+                    code::SEPARATE_MODELS,
+                    format!("the images form {} separate models; the largest is in sparse/, the others in sparse/models/", result.models.len()),
+                )
+                .advice("add photos that link the pieces (overlapping views between them)"),
+            );
         }
         let best = &result.models[0].summary;
         for m in best.merged.iter().filter(|m| m.cross_pairs == 0) {
-            warnings.push(format!(
-                "{} views were merged into the model through their shared points alone: no verified pair between the two pieces was strong enough to confirm how they were put together (sparse/summary.json, merged)",
-                m.views_added
-            ));
+            warnings.push(Warning::new(
+                code::UNCONFIRMED_MERGE,
+                format!(
+                    "{} views were merged into the model through their shared points alone: no verified pair between the two pieces was strong enough to confirm how they were put together",
+                    m.views_added
+                ),
+            )
+            .details("sparse/summary.json, merged"));
         }
         let kept = best
             .self_calibration
@@ -199,8 +219,7 @@ impl Stage for Sparse {
         }
         let first_choice = matches!(kept, "self-calibration" | "known calibration");
         if let (Some((source, why)), false) = (failed.first(), first_choice) {
-            let mut w =
-                format!("the metric frame from {source} was rejected ({why}); the model uses the frame from {kept}");
+            let mut details = format!("{source}: {why}");
             let others = failed.len() - 1;
             if others > 0 {
                 let (n, verb) = if others == 1 {
@@ -208,20 +227,26 @@ impl Stage for Sparse {
                 } else {
                     (format!("{others} other candidates"), "were")
                 };
-                w.push_str(&format!(
-                    " ({n} {verb} rejected too; each, with its reason and score, is in sparse/summary.json under self_calibration.candidates)"
+                details.push_str(&format!(
+                    "; {n} {verb} rejected too; each, with its reason and score, is in sparse/summary.json under self_calibration.candidates"
                 ));
             }
-            warnings.push(w);
+            warnings.push(
+                Warning::new(
+                    code::METRIC_FRAME_REJECTED,
+                    format!("the metric frame from {source} failed its checks; the model uses the frame from {kept}"),
+                )
+                .details(details),
+            );
         }
         match focal_verdict(best, opts.known_intrinsics.is_some()) {
             FocalVerdict::Calibrated => {}
             FocalVerdict::WellDetermined(note) => tracing::info!("{note}"),
             FocalVerdict::Doubtful(w) => warnings.push(w),
         }
-        Ok(Produced {
+        Ok(Produced::new(
             outputs,
-            summary: SparseSummary {
+            SparseSummary {
                 models: result.models.len(),
                 registered: best.registered,
                 total_images: best.total_images,
@@ -231,8 +256,9 @@ impl Stage for Sparse {
                 self_calibration_degenerate: best.self_calibration.degenerate.clone(),
                 unregistered,
             },
-            warnings,
-        })
+        )
+        .warn(warnings)
+        .summary_file(SummaryFile::Own))
     }
 }
 

@@ -13,6 +13,7 @@
 //! - [`object_box`], [`object_axes`]: the two objects the project ships, made here.
 
 mod composite;
+mod frames;
 mod objects;
 mod place;
 #[cfg(test)]
@@ -24,6 +25,10 @@ use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
 pub use composite::{CompositeStats, Compositor, SUB};
+pub use frames::{
+    anchor_of, frame_rms, jitter, placed_vertices, scene_depth, visible_somewhere, FrameFigures,
+    FrameLoop, TrackedFrame,
+};
 pub use objects::{object_axes, object_box};
 pub use place::{auto_place, PlaceOptions, PlacementReport, SupportPlane};
 
