@@ -106,7 +106,12 @@ fn handheld_args(words: &[String]) -> Option<Vec<String>> {
     };
     let args = words[start..]
         .iter()
-        .take_while(|w| !matches!(w.as_str(), "|" | "&&" | "||" | ";" | ">" | "2>" | ">>" | "&"))
+        .take_while(|w| {
+            !matches!(
+                w.as_str(),
+                "|" | "&&" | "||" | ";" | ">" | "2>" | ">>" | "&"
+            )
+        })
         .cloned()
         .collect();
     Some(args)
@@ -169,7 +174,15 @@ fn shown_commands(path: &Path) -> Vec<Shown> {
 fn shell_words_split_like_a_shell() {
     assert_eq!(
         shell_words(r#"handheld render ws --pose "my pose.json" -o v.png   # a comment"#),
-        ["handheld", "render", "ws", "--pose", "my pose.json", "-o", "v.png"]
+        [
+            "handheld",
+            "render",
+            "ws",
+            "--pose",
+            "my pose.json",
+            "-o",
+            "v.png"
+        ]
     );
     let w = shell_words("QT_QPA_PLATFORM=offscreen target/release/handheld bench matching");
     assert_eq!(handheld_args(&w).unwrap(), ["bench", "matching"]);
@@ -194,8 +207,22 @@ fn an_unknown_flag_before_help_is_rejected() {
             .code()
     };
     assert_eq!(run(&["reconstruct", "in", "-o", "ws", "--help"]), Some(0));
-    assert_eq!(run(&["reconstruct", "in", "-o", "ws", "--no-such-flag", "--help"]), Some(2));
-    assert_eq!(run(&["reconstruct", "in", "-o", "ws", "--pairs", "nonsense", "--help"]), Some(2));
+    assert_eq!(
+        run(&["reconstruct", "in", "-o", "ws", "--no-such-flag", "--help"]),
+        Some(2)
+    );
+    assert_eq!(
+        run(&[
+            "reconstruct",
+            "in",
+            "-o",
+            "ws",
+            "--pairs",
+            "nonsense",
+            "--help"
+        ]),
+        Some(2)
+    );
     assert_eq!(run(&["no-such-command", "--help"]), Some(2));
 }
 
@@ -224,7 +251,10 @@ fn every_documented_command_parses() {
                 s.file,
                 s.line,
                 s.text,
-                String::from_utf8_lossy(&out.stderr).lines().next().unwrap_or("(no message)")
+                String::from_utf8_lossy(&out.stderr)
+                    .lines()
+                    .next()
+                    .unwrap_or("(no message)")
             ));
         }
     }

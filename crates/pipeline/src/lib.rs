@@ -12,6 +12,9 @@
 //! - [`report`]: gathering the report of whatever stages exist (manifests' warnings, summaries, the sparse model, pairs,
 //!   dense previews, the mesh decimated for the viewer) into the report crate's input; `reconstruct` writes it at the
 //!   end, also after a failure;
+//! - rendering and augmenting a workspace: loading what the render crate needs from the workspace's files and writing
+//!   what it returns (one view or a pose file to PNG, a path streamed to H.264, the augmented video with the input's
+//!   audio, the camera-track exports); the rendering, placement and compositing themselves live in `handheld-render`;
 //! - [`error`]: the typed `PipelineError`.
 //!
 //! ```no_run
