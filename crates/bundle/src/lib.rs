@@ -19,6 +19,10 @@
 //! - `schur`, `linear`, `lm` (private): linearisation, Schur complement, Cholesky, trust-region loop;
 //! - [`metric`] and [`projective`]: the public entry points on the core reconstructions;
 //! - [`covariance`]: marginal covariances of points and camera centres from the Schur system.
+//!
+//! Where the rest lives: shared intrinsics, masks (parameters held fixed), priors on the intrinsics and per-observation
+//! σ are part of [`Problem`]; a step that gains more than its model promised is tried again longer
+//! (`lm.rs`, [`BundleOptions::extrapolate`]).
 
 pub mod covariance;
 mod linear;

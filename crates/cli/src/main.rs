@@ -1,5 +1,11 @@
 //! `handheld`: the thin command-line front end. It parses arguments, calls the library stages and
 //! writes results; all the work lives in the stage crates.
+//!
+//! Where each piece lives: `args.rs` parses the arguments and maps them onto the libraries' `*Options` (every default
+//! read from the library, never restated); `demo.rs`, `bench.rs`, `render.rs`, `augment.rs`, `report.rs` map one
+//! command each onto `handheld_pipeline` or `handheld_eval`; `ui.rs` prints text or JSON (logs, progress bars). On
+//! glibc, `main.rs` tells the allocator to keep freed memory for reuse. No domain logic. The commands shown in the
+//! README and `docs/` are parse-checked by `tests/docs.rs`.
 
 mod args;
 mod augment;

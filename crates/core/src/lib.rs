@@ -10,6 +10,21 @@
 //! [`maps`] (dense float maps such as depth), [`posed_view`] (a posed view with its image and
 //! optional depth maps, the vocabulary of the dense, surface and rendering stages), [`geometry3d`] (point clouds and triangle meshes).
 //! Nothing here touches a file: input and output live in `handheld-io`.
+//!
+//! Where each piece lives:
+//! - `ids.rs`: newtype ids;
+//! - `camera.rs`: `Intrinsics` (eq. 2's K: focal length f, aspect ratio r, skew s, principal point u, v; eq. 3's radial
+//!   k1 + k2) and `Camera` (an intrinsics group);
+//! - `pose.rs`: `Rigid3` poses named `cam_from_world` (`p_in_cam = cam_from_world · p_in_world`), `Sim3` and Umeyama
+//!   alignment; a camera in a pose is one type, `PosedCamera { camera, cam_from_world }`;
+//! - `projective.rs`: `ProjectiveCamera {P}`, `ProjectivePoint {X}`, `ProjectiveReconstruction`;
+//! - `reconstruction.rs`: `Track`, `View` (with optional video `FrameInfo`), `Point3D`, `MetricReconstruction` (many
+//!   views sharing intrinsics groups);
+//! - `maps.rs`: `FloatMap` (depth, variance, confidence, visibility);
+//! - `posed_view.rs`: `PosedView`, a view's name, camera, pose and RGB image, with optional depth, variance, confidence
+//!   and visibility: the one posed-view type of dense, mesh and render;
+//! - `geometry3d.rs`: `PointCloud`, `TriMesh`; `closest.rs`: point-to-triangle distance;
+//! - `progress.rs`: the `Progress` trait every stage reports through.
 
 pub mod camera;
 pub mod closest;

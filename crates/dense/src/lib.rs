@@ -37,6 +37,19 @@
 //!   / speckle filtering, and hole filling;
 //! - `stereo` (private): [`match_rectified`] and the reusable [`StereoMatcher`], band tiling for
 //!   bounded memory.
+//!
+//! Beyond the pair matcher, the crate holds the whole §4 stage:
+//! - [`rectify`]: rectification of calibrated pairs: polar around the oriented epipoles with the minimal-size angle step
+//!   (`polar.rs`; any motion, the epipole inside the image included), planar homographies as the fast path
+//!   (`planar.rs`), both on ideal (undistorted) coordinates (`ideal.rs`) with exact `R(·)`/`R⁻¹(·)` and one-step
+//!   resampling that removes distortion;
+//! - `stereo` also keeps the left and right disparities of the left–right check, and bounds memory by bands;
+//! - [`pair`]: one pair end to end, with the disparity range from the sparse points;
+//! - [`link`]: multi-view linking, eq. 28 chains with Kalman fusion, gate and visibility; `LinkedDepth::confidence`;
+//! - [`stage`]: the sequence stage with a sliding pair window and the fused cloud, handing out each view as a
+//!   `PosedView` with its depth, variance, confidence and visibility.
+//!
+//! Options and summaries are serialisable; the pipeline's dense stage and `handheld dense` only call [`stage`].
 
 mod cost;
 pub mod disparity;

@@ -8,6 +8,27 @@
 //! selection, guided matching, refinement; the keypoint grid of its epipolar-band queries is in
 //! `epipolar_grid`), [`video`] (KLT tracks over a whole video, key-frames and
 //! key-frame pairs).
+//!
+//! Where each piece lives:
+//! - `sift.rs`, `sift/descriptor.rs`: RootSIFT (own implementation); `extract.rs` upsamples the first octave for small
+//!   images and lowers the contrast threshold adaptively while an image gives too few features;
+//! - `harris.rs`, `zncc.rs`: Harris corners and ZNCC patches;
+//! - `klt.rs` (the tracker) and `klt_align.rs` (the pyramid, the Lucas–Kanade and affine kernels): pyramidal KLT with
+//!   the affine consistency check;
+//! - `matching.rs`: GEMM descriptor matching, ratio and mutual tests; `quantized.rs`: descriptors quantised to bytes, an
+//!   AVX-512 VNNI kernel where the CPU has one, else the f32 GEMM on the same integers, with the same matches;
+//! - `verify.rs`: pair verification (Table 1), seeded matching (brute force over the strongest keypoints, then guided
+//!   matching over all), pairs verified in the order of their images' content keys;
+//! - `guided.rs`: guided matching: the ratio test sees every keypoint that may lie on the true line, the band widened
+//!   by 3σ of the seeds' line there, and no match is made where the line is too uncertain; `epipolar_grid.rs`: the
+//!   epipolar-band keypoint grid;
+//! - `video.rs`: video tracks, GRIC key-frames and key-frame pairs, and the verdict on whether KLT held over a video
+//!   (track survival from frame to frame, key-frames to the end; the features stage falls back to SIFT when it did not);
+//! - `refine.rs`: multi-view keypoint refinement by affine registration to each track's reference keypoint (opt-in);
+//! - `retrieval.rs`: VLAD image retrieval for pair selection, with a vocabulary trained in content order, and the
+//!   spectral seriation that recovers a capture order from the images (`--pairs retrieval`, and the default pairs of
+//!   photo sets over 40 images);
+//! - `close_views.rs`: extra pairs for cameras that return (§3.2).
 
 pub mod close_views;
 pub mod detector;

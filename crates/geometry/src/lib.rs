@@ -8,12 +8,16 @@
 //! - [`fundamental`]: the 7- and 8-point F, Sampson and symmetric epipolar distances, epipoles,
 //!   F from two cameras (§2.2, eqs. 11–13);
 //! - [`homography`]: the normalised DLT for H and its transfer errors (§3.1, eq. 15);
-//! - [`triangulation`]: linear n-view DLT and the Hartley–Sturm optimal two-view method (eqs. 17–18);
+//! - [`triangulation`]: linear n-view DLT, eq. 20 iterated, and the Hartley–Sturm optimal two-view method (eqs. 17–18);
 //! - [`skew`](mod@skew): the cross-product matrix `[e]×` and the canonical camera pair of eq. 16;
 //! - [`refine_f`]: LM on eq. 12 over the orthonormal representation of F;
 //! - [`gold_standard`]: the sparse ML estimate of eq. 13 (points eliminated by Schur complement);
-//! - [`view_distance`]: the image-based view distance of eqs. 14–15;
+//! - [`view_distance`](mod@view_distance): the image-based view distance of eqs. 14–15;
 //! - [`pnp`]: calibrated resection: Grunert's P3P, absolute orientation, pose refinement;
+//! - [`resection`]: 6-point projective resection (DLT) for the projective stage of §3.2;
+//! - [`epipolar_uncertainty`]: how well an estimated F fixes each epipolar line: F's covariance from its inliers'
+//!   Sampson residuals on the 7-dimensional tangent space, propagated to a line's position at any point of image 2
+//!   (H&Z §5.2); guided matching uses it to size its bands;
 //! - [`poly`]: small real polynomial root finders (the cubic of the 7-point method, the sextic of
 //!   Hartley–Sturm).
 //!

@@ -1,6 +1,21 @@
-//! The pipeline as a library (COLMAP's `controllers` layer): the workspace and every file in it
-//! ([`files`]), the stage graph and its resumption ([`stage`], [`manifest`]), the standard stages
-//! ([`stages`]) with their typed options and summaries, and the policies between them ([`policy`]).
+//! The pipeline as a library (COLMAP's `controllers` layer). It only orchestrates; the work of every stage lives in
+//! that stage's crate (features, sfm, dense, mesh, render, report) and every format in `handheld-io`.
+//!
+//! - [`files`]: the workspace's files, each named once with a typed reader or writer;
+//! - [`stage`]: the stage graph: the `Stage` trait with typed options and summary, `Pipeline` registration, `plan`,
+//!   run-or-skip;
+//! - [`manifest`]: resumption: manifests, fingerprints of the serialised options, the skip rule, the workspace format;
+//! - [`stages`]: the standard stages (ingest, features + KLT tracks, matches, sparse, dense, mesh, render, and augment
+//!   when an object is given), each a thin call into its crate, and [`PipelineOptions`];
+//! - [`policy`]: the policies between stages: pair policy, image ids, intrinsics groups, descriptor quantisation,
+//!   focal-length warnings; [`preview`]: depth previews;
+//! - [`report`]: gathering the report of whatever stages exist (manifests' warnings, summaries, the sparse model, pairs,
+//!   dense previews, the mesh decimated for the viewer) into the report crate's input; `reconstruct` writes it at the
+//!   end, also after a failure;
+//! - rendering and augmenting a workspace: loading what the render crate needs from the workspace's files and writing
+//!   what it returns (one view or a pose file to PNG, a path streamed to H.264, the augmented video with the input's
+//!   audio, the camera-track exports); the rendering, placement and compositing themselves live in `handheld-render`;
+//! - [`error`]: the typed `PipelineError`.
 //!
 //! ```no_run
 //! use handheld_pipeline::{Pipeline, PipelineOptions, Workspace};

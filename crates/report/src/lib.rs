@@ -6,6 +6,11 @@
 //! elsewhere, so the workspace folder can be zipped and mailed.
 //!
 //! This crate only formats: the pipeline gathers what the stages left into a [`ReportInput`].
+//!
+//! Where each piece lives: `lib.rs` writes `report.html` (the verdict, the image grid and the renders) and
+//! `report/scene.js` (base64 points, cameras, mesh, JPEG atlas as a data URI); [`svg`] draws the inline SVG plots
+//! (histogram, bar chart, matrix, camera path); `viewer.js` is the hand-written WebGL2 viewer, inlined into the page.
+//! No file is read here.
 
 pub mod svg;
 

@@ -9,13 +9,17 @@
 //!   (truncated quadratic, Torr & Zisserman 2000);
 //! - [`options`]: [`RansacOptions`] with documented defaults and `validate()`;
 //! - [`ransac`]: the loop itself with adaptive stopping (paper: `Γ = 1 − (1 − γᵖ)ᵐ`), LO-RANSAC
-//!   (Chum, Matas & Kittler 2003) and the preemptive T(d,d) test (Chum & Matas 2002), returning a
+//!   (Chum, Matas & Kittler 2003) with an inner RANSAC, and the preemptive T(d,d) test (Chum & Matas 2002), returning a
 //!   [`RansacReport`]: finding no model is a normal outcome, not an error;
 //! - [`two_view`]: [`Match2d2d`], [`FundamentalEstimator`] (7-point minimal, 8-point refit, Sampson
 //!   residual) and [`HomographyEstimator`] (4-point DLT, symmetric transfer residual);
+//! - [`resection`]: the projective resection (6-point) and calibrated P3P estimators of §3.2;
 //! - [`gric`]: Torr's GRIC for choosing between F and H;
 //! - [`verify`]: the Table 1 facade [`estimate_two_view_geometry`] (RANSAC, eq. 12/13 refinement,
 //!   GRIC, configuration: general, planar, pure rotation, too few inliers).
+//!
+//! Other crates reuse [`run`] for their own models: the sfm crate's plane estimator for plane-segmented depths, and the
+//! render crate's dominant-plane search for the augmented video's object.
 
 pub mod consensus;
 pub mod estimator;

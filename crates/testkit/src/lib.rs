@@ -13,6 +13,9 @@
 //! `examples/render_demo.rs` renders the default 20-frame 640×480 sequence and prints its timing.
 //!
 //! Everything is deterministic in its seed (`ChaCha8Rng`, integer hashing); nothing touches a file.
+//!
+//! Glossy materials: a Blinn–Phong highlight that moves with the viewpoint, with its per-pixel map (the specular
+//! benchmark); `ring.rs`: the large sparse ring scene for bundle-adjustment scaling.
 
 pub mod correspondences;
 pub mod default_scene;
