@@ -328,11 +328,6 @@ impl Pipeline {
         self.stages.iter().map(|s| s.name()).collect()
     }
 
-    /// `(name, about)` of every stage, in run order (the report's list of stages).
-    pub fn describe(&self) -> Vec<(&'static str, &'static str)> {
-        self.stages.iter().map(|s| (s.name(), s.about())).collect()
-    }
-
     /// The stages `target` needs, itself included, in run order: what it reads, transitively,
     /// and what it reads when present (which is run first, but may fail).
     pub fn plan(&self, target: &str) -> Result<Vec<&'static str>> {
