@@ -285,9 +285,12 @@ fn a_camera_that_only_translates_is_flagged() {
         .expect("flagged")
         .contains("translates"));
     // Turned by 30°: the motion determines the focal length.
-    if let Some(v) = rec.views.values_mut().nth(1) {
-        v.cam_from_world = Rigid3::new(Vector3::new(-1.0, 0.0, 0.0), Vector3::new(0.0, 0.52, 0.0));
-    }
+    let v = rec
+        .views
+        .values_mut()
+        .nth(1)
+        .expect("the test model has two views");
+    v.cam_from_world = Rigid3::new(Vector3::new(-1.0, 0.0, 0.0), Vector3::new(0.0, 0.52, 0.0));
     assert_eq!(translation_only(&rec), None);
 }
 
