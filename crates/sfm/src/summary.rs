@@ -63,7 +63,7 @@ pub struct SfmModel {
     pub summary: ModelSummary,
 }
 
-/// The result of [`reconstruct`]: models, largest first, and the images left out with the reason.
+/// The result of [`crate::reconstruct`]: models, largest first, and the images left out with the reason.
 #[derive(Clone, Debug)]
 pub struct SfmResult {
     pub models: Vec<SfmModel>,

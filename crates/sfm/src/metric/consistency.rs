@@ -16,6 +16,12 @@
 //! medians, so views are judged one at a time: the one with the largest share of disagreeing
 //! inliers first (a misplaced view has all of its pairs against it, a partner only the one pair
 //! with it); its pairs are then set aside and the others judged again.
+//!
+//! What is done with a flagged view is the pipeline's (`pipeline/model.rs`): the model is built
+//! again without it, the view registered into the sound model by calibrated resection and judged
+//! once more, and one that still disagrees is taken out ([`take_out`]). A merge is also checked
+//! across its two pieces ([`across`]): each piece agrees with its own pairs even when the two are
+//! put together at the wrong angle.
 
 use std::collections::{BTreeMap, BTreeSet};
 

@@ -52,7 +52,7 @@ fn orientation_spread_deg(rec: &MetricReconstruction) -> f64 {
 /// Whether the images determine the principal point ([`principal_point_spread`]), asked
 /// of the finished model (every registered view). The free principal point errs by about its
 /// jackknife spread σ; holding it at the image centre errs by its true offset `o`, whose square
-/// `o_est² − σ²` estimates without bias (E[o_est²] = o² + σ²). So it is held, and the model
+/// `o_est² − σ²` estimates without bias (`E[o_est²] = o² + σ²`). So it is held, and the model
 /// adjusted again with it held (for this model's every later adjustment), when that is expected
 /// to err less: `Σ (o_est² − σ²) < Σ σ²` over the two coordinates, i.e. `Σ o_est² < 2 Σ σ²`
 /// ([`crate::metric::profile::PrincipalPointSpread::held_is_closer`]). A significance test (χ²₂ at 95 %, used

@@ -51,7 +51,7 @@ fn abandoned(rejected: &[RejectedStart], last: StepError) -> StepError {
 pub const MAX_STARTS: usize = 3;
 
 /// How many times one model is built again without the views the consistency check flagged
-/// (`consistency.rs`): a misplaced view bends the model around it (templeSparseRing without one
+/// (`metric/consistency.rs`): a misplaced view bends the model around it (templeSparseRing without one
 /// view: focal length 4 % off, rotations 2° off even after the view is taken out), while the same
 /// views built without it from the start are sound.
 pub const MAX_REBUILDS: usize = 1;

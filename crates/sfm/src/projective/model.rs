@@ -1,6 +1,6 @@
 //! The growing projective model of §3.1–3.3 (Table 2): cameras, oriented projective points and the
 //! keypoint → point index, with the bookkeeping that the initial pair (`init.rs`), resection
-//! (`projective.rs`), projective BA (`projective_ba.rs`) and track completion (`tracks.rs`) share.
+//! (`resection.rs`), projective BA (`ba.rs`) and track completion (`tracks.rs`) share.
 
 use std::collections::BTreeMap;
 

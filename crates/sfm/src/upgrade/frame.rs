@@ -28,7 +28,7 @@ struct Candidate {
     is_prior: bool,
 }
 
-/// The frames from the priors alone and from the focal hypotheses (see `hypotheses`), which
+/// The frames from the priors alone and from the focal hypotheses (see `hypotheses.rs`), which
 /// critical motion (eq. 26 leaves the focal length free) or a rejected self-calibration calls for.
 fn fallback_candidates(
     ctx: &Context,

@@ -7,6 +7,11 @@
 //! ([`crate::upgrade::selfcal::upgrade_for_focal`]), and how well the cameras fit that hypothesis is a 1-D
 //! function of the focal. Its local minima over a wide range (0.2–5 × (w + h), wide-angle to
 //! telephoto) are the hypotheses; the metric bundle adjustment decides between them.
+//!
+//! An independent source that does not depend on the projective frame: the median of the two-view
+//! focal lengths of the verified pairs with the most inliers ([`two_view_focal`], Bougnoux 1998's
+//! formula from `F` alone). And with a known calibration, eq. 26 with `K` given
+//! ([`known_focal_upgrade`]) is the upgrade itself, whatever the motion.
 
 use nalgebra::{Matrix3, Matrix3x4, Vector3};
 

@@ -1,8 +1,12 @@
-//! From the projective model to the metric one (§3.4): the upgrade of eq. 27 with the dual absolute
-//! quadric, decomposition of the cameras into `K [R | t]`, intrinsics groups, and metric bundle
-//! adjustment with radial distortion and the paper's constraints (photos: one shared camera, constant
-//! f, principal point and k1, aspect 1, skew 0; video: also a constant aspect ratio), robust loss,
-//! outlier removal and re-adjustment. The adjustment schedule itself is in [`crate::metric_ba`].
+//! From the projective model to the metric one (§3.4): the linear self-calibration (`selfcal/`)
+//! gives the upgrade `T`, and eq. 27 (`P_M = P T⁻¹`, `M_M = T M`) is applied to the model: every
+//! camera decomposed into `K [R | t]` (with `K_N` of eq. 24 put back), the mirror frame turned so
+//! that the points lie in front of the cameras, one camera per intrinsics group (the median focal
+//! length and aspect ratio of its views, the principal point at the image centre, no distortion
+//! yet). A linear estimate that is unusable, or whose focal length is implausible (outside the
+//! 0.2–5 × (w + h) the focal hypotheses search), is reported degenerate and the priors' frame (the
+//! quasi-Euclidean frame of the initial pair, `K = K_N`) takes over; [`SelfCalibrationReport`]
+//! records all of it. The metric adjustment of the result is in `metric/ba.rs`.
 
 use std::collections::BTreeMap;
 
@@ -37,21 +41,21 @@ pub struct SelfCalibrationReport {
     pub focal_before_ba_px: BTreeMap<u32, f64>,
     /// Same for the aspect ratio.
     pub aspect_before_ba: BTreeMap<u32, f64>,
-    /// Every metric frame that was adjusted and judged (see [`crate::guard`]), in the order tried;
+    /// Every metric frame that was adjusted and judged (see [`crate::upgrade::guard`]), in the order tried;
     /// the last one was kept.
     pub candidates: Vec<CandidateRecord>,
     /// Projective models started from a better-ranked initial pair whose metric frame no candidate
-    /// survived, before the one reported (see `pipeline::build_model`).
+    /// survived, before the one reported (see `pipeline/model.rs`).
     pub rejected_starts: Vec<RejectedStart>,
     /// Set when two sound candidates with different focal lengths explain the images about as
     /// well (see [`crate::upgrade::guard::focal_ambiguity`]).
     pub focal_ambiguity: Option<String>,
     /// The robust cost of the kept model adjusted with its focal length held 20 % below and above
-    /// its value, relative to the cost with it free (`metric_ba::focal_profile`); near 1 when the
+    /// its value, relative to the cost with it free (`metric::profile::focal_profile`); near 1 when the
     /// images do not determine the focal length.
     pub focal_profile: Option<[f64; 2]>,
     /// Per intrinsics group, the principal point's offset from the image centre against its
-    /// jackknife spread over the views (`metric_ba::principal_point_spread`).
+    /// jackknife spread over the views (`metric::profile::principal_point_spread`).
     pub principal_point_spread: Vec<PrincipalPointSpread>,
     /// True when no group's principal point was significantly away from the image centre, or
     /// when the views hardly rotate (see `orientation_spread_deg`), so the model was adjusted

@@ -13,6 +13,16 @@
 //! - the fraction of observations in front of their camera before adjustment (the oriented
 //!   projective reconstruction puts every point in front of every camera that sees it; an upgrade
 //!   that puts most of them behind is the wrong one of the two mirror frames, or no frame at all).
+//!
+//! The same judge runs the candidate loop of `upgrade/frame.rs` ([`first_sound`], [`best_sound`]:
+//! every candidate adjusted, the sound one with the best score kept; [`challenge`] for one more
+//! frame that contests the kept one), and undoes a later step whose adjustment removed too many
+//! observations ([`collapsed`]: the predicted matches, the consistency check, the principal
+//! point's test, a merge). It also says when the images do not determine the focal length: another
+//! sound frame (or one rejected only for its removals) with a different focal length fits about as
+//! well ([`focal_ambiguity`]), the camera only translates ([`translation_only`], Sturm 1997; the
+//! aspect ratio too, [`aspect_undetermined`]), or the kept frame's focal profile is flat
+//! ([`flat_profile`]).
 
 use handheld_core::MetricReconstruction;
 use serde::Serialize;
