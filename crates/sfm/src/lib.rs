@@ -17,9 +17,10 @@
 //!
 //! Shared leaves that import no phase: `error.rs` ([`SfmError`], [`StepError`]), `options.rs`
 //! ([`SfmOptions`]), `common.rs` (the median, the image centre), `summary.rs` (what a model
-//! reports, [`ModelSummary`]). The phases import downwards only: `projective/` knows nothing of
-//! the upgrade; `upgrade/` adjusts its candidates with `metric/ba.rs`; the pipeline and the merge
-//! sit on top.
+//! reports, [`ModelSummary`]). No file imports one that imports it back: `projective/` knows
+//! nothing of the later phases; `upgrade/` and `metric/` share the adjustment machinery
+//! (`metric/ba.rs`, `noise.rs`, `profile.rs`) and the judge of adjustments (`upgrade/guard/`); the
+//! pipeline, the merge and the summary sit on top.
 //!
 //! Deterministic for a given input and seed, and for photos independent of their order.
 
