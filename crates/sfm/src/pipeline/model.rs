@@ -68,7 +68,7 @@ struct Core {
     metric_frame_s: f64,
 }
 
-/// Builds the next model from the free views of `search`: the steps of the module docs in order.
+/// Builds the next model from the free views of `search`: the steps of `pipeline/mod.rs` in order.
 /// `Ok(None)` when the projective model holds fewer than 2 views (nothing more can be built); an
 /// error names the step that failed. The views of the projective model are taken from `search`
 /// whatever happens after.
