@@ -70,7 +70,7 @@ impl<'a> Context<'a> {
         let kn: Vec<Matrix3<f64>> = input
             .images
             .iter()
-            .map(|im| crate::selfcal::normalization_matrix(im.width, im.height))
+            .map(|im| crate::upgrade::selfcal::normalization_matrix(im.width, im.height))
             .collect();
         let kps = input
             .images

@@ -2,8 +2,8 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::selfcal::{SelfCalibrationError, SelfCalibrationOptions};
-use crate::SfmError;
+use crate::error::SfmError;
+use crate::upgrade::selfcal::{SelfCalibrationError, SelfCalibrationOptions};
 
 /// Which radial distortion coefficients metric BA estimates (eq. 3).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]

@@ -1,5 +1,5 @@
 //! A seeded scene with exact two-view geometry as the SfM input, for the unit tests of the steps
-//! that read the verified pairs (`consistency.rs`, `merge.rs`).
+//! that read the verified pairs (`metric/consistency.rs`, `merge/`).
 
 use handheld_core::{ImageId, MetricReconstruction, PointId};
 use handheld_geometry::skew;

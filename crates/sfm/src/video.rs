@@ -8,7 +8,7 @@ use std::collections::{BTreeMap, HashMap};
 use handheld_core::{MetricReconstruction, PointId};
 
 use crate::context::Context;
-use crate::register::register_one;
+use crate::metric::resect::register_one;
 
 /// `track id → 3D point` over every registered view.
 fn points_by_track(ctx: &Context, rec: &MetricReconstruction) -> HashMap<u64, PointId> {

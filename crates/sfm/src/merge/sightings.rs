@@ -3,7 +3,7 @@
 //! A piece that hangs on the rest by weak pairs (templeSparseRing without view 8: four views
 //! joined to the other eleven by pairs of 15–39 inliers) has triangulated few of the points the
 //! two pieces see in common, and those few are poorly placed along their rays: the 3D–3D
-//! correspondences of [`super::correspondences`] are too few, or too noisy, for a similarity.
+//! correspondences of [`super::correspondences::correspondences`] are too few, or too noisy, for a similarity.
 //! Every keypoint of one piece's views that is matched, in a verified pair, to a point of the
 //! other piece is still a *sighting* of that point: a 2D–3D correspondence, whose image position
 //! is as precise as any keypoint and whose point is triangulated by the other piece's views.
@@ -34,7 +34,7 @@ use nalgebra::{SMatrix, SVector, UnitQuaternion, Vector2, Vector3};
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 
-use super::{matches_between, point_of};
+use super::correspondences::{matches_between, point_of};
 use crate::context::Context;
 
 /// Fewest sightings the similarity must explain (a similarity has 7 degrees of freedom; each

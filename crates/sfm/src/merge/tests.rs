@@ -1,11 +1,19 @@
 //! Merging on pieces of a seeded synthetic scene with exact ground truth.
 
+use std::collections::BTreeSet;
+
+use handheld_core::{ImageId, MetricReconstruction, PointId, Sim3};
+use nalgebra::{UnitQuaternion, Vector3};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
 use super::*;
 use crate::graph::CorrespondenceGraph;
-use crate::metric_ba;
+use crate::input::SfmInput;
+use crate::metric::ba as metric_ba;
+use crate::options::SfmOptions;
+use crate::summary::ModelSummary;
 use crate::test_scene::scene;
-use crate::{SfmInput, SfmOptions};
-use nalgebra::{UnitQuaternion, Vector3};
 
 fn relative_rotation_error_deg(est: &MetricReconstruction, gt: &MetricReconstruction) -> f64 {
     let ids: Vec<ImageId> = gt.views.keys().copied().collect();
@@ -194,7 +202,7 @@ fn pieces_that_share_no_point_stay_apart() {
 }
 
 fn model(rec: MetricReconstruction) -> SfmModel {
-    let mut summary = crate::ModelSummary {
+    let mut summary = ModelSummary {
         registered: 0,
         total_images: 8,
         points: 0,

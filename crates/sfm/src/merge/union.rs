@@ -5,10 +5,11 @@ use std::collections::{BTreeMap, BTreeSet};
 
 use handheld_core::{CameraId, ImageId, MetricReconstruction, PointId, Sim3, TrackElement};
 
-use super::Correspondence;
+use super::correspondences::Correspondence;
 use crate::context::Context;
-use crate::metric_ba::{self, MetricBaRecord};
-use crate::{consistency, guard};
+use crate::metric::ba::{self as metric_ba, MetricBaRecord};
+use crate::metric::consistency;
+use crate::upgrade::guard;
 
 /// Free keypoints that join a point of the other model in the union: `(view, keypoint, point)`,
 /// with B's views' keypoints joining A's points (`to_a`) and A's views' keypoints joining B's

@@ -1,0 +1,370 @@
+//! Whether every registered view agrees with its own verified image pairs.
+//!
+//! A view can be registered to the wrong place and still fit: resection against a repeated
+//! structure, or a partner's points seen from the far side of an object, gives a pose whose few
+//! observations reproject well, and every check on the adjustment (removed observations,
+//! reprojection error, focal length) passes. The view's verified pairs still carry the truth: the
+//! fundamental matrix of each pair, with the model's calibration, is an essential matrix
+//! `E = K_bᵀ F K_a` (H&Z eq. 9.12), whose rotation (H&Z §9.6.2, the one of four that puts the
+//! inliers in front of both cameras) is the pair's relative rotation, found without the model.
+//! A sound view agrees with its partners to a degree or two (the model's calibration is not exact
+//! and a two-view rotation is noisy); a misplaced view disagrees with nearly all of them by much
+//! more.
+//!
+//! A view is flagged when the median of its disagreements over its partners, weighted by their
+//! inlier counts, exceeds [`MAX_DISAGREEMENT_DEG`]. A misplaced view also raises its partners'
+//! medians, so views are judged one at a time: the one with the largest share of disagreeing
+//! inliers first (a misplaced view has all of its pairs against it, a partner only the one pair
+//! with it); its pairs are then set aside and the others judged again.
+//!
+//! What is done with a flagged view is the pipeline's (`pipeline/model.rs`): the model is built
+//! again without it, the view registered into the sound model by calibrated resection and judged
+//! once more, and one that still disagrees is taken out ([`take_out`]). A merge is also checked
+//! across its two pieces ([`across`]): each piece agrees with its own pairs even when the two are
+//! put together at the wrong angle.
+
+use std::collections::{BTreeMap, BTreeSet};
+
+use handheld_core::{ImageId, MetricReconstruction};
+use handheld_robust::TwoViewConfiguration;
+use nalgebra::Vector2;
+use serde::Serialize;
+
+use crate::context::Context;
+use crate::metric::ba::{self as metric_ba, MetricBaRecord};
+use crate::upgrade::guard;
+
+/// Largest weighted-median disagreement (degrees) between a view's relative rotations in the model
+/// and those of its verified pairs. Sound views on the project's data sets stay within 1.8°
+/// (templeSparseRing, whose ring turns 23° between neighbours) and within 0.3° on the Strecha and
+/// KITTI sets; a view registered to the wrong side of templeSparseRing disagreed by 13–24° with
+/// every partner.
+pub const MAX_DISAGREEMENT_DEG: f64 = 5.0;
+/// Fewest inlier matches of a pair whose rotation is trusted.
+pub const MIN_PAIR_INLIERS: usize = 30;
+
+/// One view's agreement with its verified pairs.
+#[derive(Clone, Debug, Serialize)]
+pub struct ViewDisagreement {
+    pub image: String,
+    /// Weighted median over its partners, degrees.
+    pub median_deg: f64,
+    /// Partners compared (registered, general configuration, enough inliers).
+    pub partners: usize,
+}
+
+/// The check's result for the summary.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct ConsistencyReport {
+    /// The largest weighted-median disagreement among the views kept, degrees.
+    pub max_kept_deg: Option<f64>,
+    /// Views taken out of the model because their pose disagreed with their pairs.
+    pub removed: Vec<ViewDisagreement>,
+    /// Views whose first registration disagreed with their pairs: the model was built again
+    /// without them, then they were registered into it by calibrated resection where possible
+    /// (and judged again).
+    pub rebuilt_without: Vec<ViewDisagreement>,
+}
+
+/// The angle (degrees) between the relative rotation of views `a` → `b` in `rec` and the one of
+/// their verified pair; `None` when the pair is not usable.
+fn pair_disagreement(
+    ctx: &Context,
+    rec: &MetricReconstruction,
+    pair: &crate::input::SfmPair,
+) -> Option<f64> {
+    if pair.configuration != TwoViewConfiguration::General || pair.matches.len() < MIN_PAIR_INLIERS
+    {
+        return None;
+    }
+    let f = pair.f?;
+    let (ia, ib) = (&ctx.input.images[pair.a], &ctx.input.images[pair.b]);
+    let (va, vb) = (rec.views.get(&ia.id)?, rec.views.get(&ib.id)?);
+    let ka = &rec.cameras.get(&va.camera_id)?.intrinsics;
+    let kb = &rec.cameras.get(&vb.camera_id)?.intrinsics;
+    // x_bᵀ F x_a = 0 in pixels; in normalised coordinates x_bᵀ (K_bᵀ F K_a) x_a = 0.
+    let e = kb.k_matrix().transpose() * f * ka.k_matrix();
+    // The cheirality test needs a sample, not every inlier.
+    let step = pair.matches.len().div_ceil(200).max(1);
+    let (xa, xb): (Vec<Vector2<f64>>, Vec<Vector2<f64>>) = pair
+        .matches
+        .iter()
+        .step_by(step)
+        .map(|&(i, j)| {
+            (
+                ka.pixel_to_normalized(ia.keypoints[i as usize]),
+                kb.pixel_to_normalized(ib.keypoints[j as usize]),
+            )
+        })
+        .unzip();
+    let (_, r, _) = crate::projective::init::essential_pose(&e, &xa, &xb)?;
+    let model =
+        (vb.cam_from_world.rotation * va.cam_from_world.rotation.inverse()).to_rotation_matrix();
+    let cos = (((r * model.matrix().transpose()).trace() - 1.0) / 2.0).clamp(-1.0, 1.0);
+    let deg = cos.acos().to_degrees();
+    deg.is_finite().then_some(deg)
+}
+
+/// The weighted median (by inliers) of the disagreements of the verified pairs between the views
+/// `a` and the views `b` of `rec`, and how many pairs were usable; `None` when none was. A merged
+/// model whose two pieces sit at the wrong angle to each other agrees with the pairs inside each
+/// piece, so every view's own median ([`inconsistent_views`]) passes; only the pairs across show it.
+pub(crate) fn across(
+    ctx: &Context,
+    rec: &MetricReconstruction,
+    a: &BTreeSet<ImageId>,
+    b: &BTreeSet<ImageId>,
+) -> Option<(f64, usize)> {
+    let side = |i: usize| {
+        let id = ctx.input.images[i].id;
+        (a.contains(&id), b.contains(&id))
+    };
+    let v: Vec<(f64, f64)> = ctx
+        .input
+        .pairs
+        .iter()
+        .filter(|p| {
+            let (x, y) = (side(p.a), side(p.b));
+            (x.0 && y.1) || (x.1 && y.0)
+        })
+        .filter_map(|p| pair_disagreement(ctx, rec, p).map(|d| (d, p.matches.len() as f64)))
+        .collect();
+    let n = v.len();
+    (n > 0).then(|| (weighted_median(v), n))
+}
+
+/// The weighted median of `(value, weight)`.
+fn weighted_median(mut v: Vec<(f64, f64)>) -> f64 {
+    v.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let half = v.iter().map(|x| x.1).sum::<f64>() / 2.0;
+    let mut acc = 0.0;
+    for (x, w) in &v {
+        acc += w;
+        if acc >= half {
+            return *x;
+        }
+    }
+    v.last().map_or(0.0, |x| x.0)
+}
+
+/// The views flagged (input index and disagreement, worst first) and the largest disagreement
+/// among the others.
+pub(crate) type Judged = (Vec<(usize, ViewDisagreement)>, Option<f64>);
+
+/// The registered views (input indices) whose pose disagrees with their verified pairs, worst
+/// first, and the largest disagreement among the others.
+pub(crate) fn inconsistent_views(ctx: &Context, rec: &MetricReconstruction) -> Judged {
+    // (a, b, disagreement, inliers) of every usable pair.
+    let pairs: Vec<(usize, usize, f64, f64)> = ctx
+        .input
+        .pairs
+        .iter()
+        .filter_map(|p| {
+            pair_disagreement(ctx, rec, p).map(|d| (p.a, p.b, d, p.matches.len() as f64))
+        })
+        .collect();
+    let mut flagged: Vec<(usize, ViewDisagreement)> = Vec::new();
+    loop {
+        let out = |i: usize| flagged.iter().any(|(j, _)| *j == i);
+        let mut per_view: BTreeMap<usize, Vec<(f64, f64)>> = BTreeMap::new();
+        for &(a, b, d, w) in &pairs {
+            if out(a) || out(b) {
+                continue;
+            }
+            per_view.entry(a).or_default().push((d, w));
+            per_view.entry(b).or_default().push((d, w));
+        }
+        // The view with the largest share of its inliers in pairs that disagree goes first (a
+        // misplaced view disagrees with all its partners, each of them only with it), then the
+        // one with the larger median.
+        let worst = per_view
+            .into_iter()
+            .map(|(i, v)| {
+                let total: f64 = v.iter().map(|x| x.1).sum();
+                let bad: f64 = v
+                    .iter()
+                    .filter(|x| x.0 > MAX_DISAGREEMENT_DEG)
+                    .map(|x| x.1)
+                    .sum();
+                (i, v.len(), bad / total.max(1.0), weighted_median(v))
+            })
+            .max_by(|x, y| x.2.total_cmp(&y.2).then(x.3.total_cmp(&y.3)))
+            .map(|(i, n, _, m)| (i, n, m));
+        let Some((i, partners, median_deg)) = worst else {
+            return (flagged, None);
+        };
+        if median_deg <= MAX_DISAGREEMENT_DEG || rec.views.len() - flagged.len() <= 2 {
+            return (flagged, Some(median_deg));
+        }
+        flagged.push((
+            i,
+            ViewDisagreement {
+                image: ctx.input.images[i].name.clone(),
+                median_deg,
+                partners,
+            },
+        ));
+    }
+}
+
+/// Views whose pose disagrees with their verified pairs (`judged` by [`inconsistent_views`] on
+/// `rec`) are taken out of the
+/// model, recorded in `failures`, and the model is adjusted again without them (intrinsics
+/// included: the misplaced view pulled them too). When that adjustment fails or collapses, the
+/// model is kept as it was and a warning says which views it does not trust.
+pub(crate) fn take_out(
+    ctx: &Context,
+    rec: &mut MetricReconstruction,
+    failures: &mut BTreeMap<usize, String>,
+    estimate_aspect: bool,
+    (flagged, max_kept_deg): Judged,
+) -> (ConsistencyReport, Vec<MetricBaRecord>) {
+    let mut report = ConsistencyReport {
+        max_kept_deg,
+        ..Default::default()
+    };
+    if flagged.is_empty() {
+        return (report, Vec::new());
+    }
+    let before = rec.clone();
+    let out: BTreeSet<ImageId> = flagged
+        .iter()
+        .map(|(i, _)| ctx.input.images[*i].id)
+        .collect();
+    *rec = metric_ba::without_views(rec, &out);
+    let list = flagged
+        .iter()
+        .map(|(_, d)| format!("{} ({:.1}°)", d.image, d.median_deg))
+        .collect::<Vec<_>>()
+        .join(", ");
+    let adjusted = metric_ba::refine_metric(ctx, rec, estimate_aspect).and_then(|records| {
+        match guard::collapsed(rec, &records) {
+            Some(why) => Err(why),
+            None => Ok(records),
+        }
+    });
+    match adjusted {
+        Ok(records) => {
+            tracing::warn!(
+                "taken out of the model because their poses disagree with their verified image pairs (median over their partners): {list}"
+            );
+            for (i, d) in flagged {
+                failures.insert(
+                    i,
+                    format!(
+                        "registered with a pose that disagreed with its verified image pairs by {:.1}° (median over {} partners), so it was taken out of the model",
+                        d.median_deg, d.partners
+                    ),
+                );
+                report.removed.push(d);
+            }
+            (report, records)
+        }
+        Err(why) => {
+            *rec = before;
+            tracing::warn!(
+                "these views disagree with their verified image pairs, so their poses are not trustworthy, but the model without them could not be adjusted ({why}): {list}"
+            );
+            report.max_kept_deg = flagged.first().map(|(_, d)| d.median_deg);
+            (report, Vec::new())
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::graph::CorrespondenceGraph;
+    use crate::test_scene::scene;
+    use crate::SfmOptions;
+    use handheld_core::ImageId;
+    use nalgebra::{UnitQuaternion, Vector3};
+
+    #[test]
+    fn a_view_turned_away_from_its_pairs_is_flagged_and_no_other() {
+        let (input, mut rec) = scene();
+        let graph = CorrespondenceGraph::build(&input, 8);
+        let opts = SfmOptions::default();
+        let ctx = Context::new(&input, &graph, &opts);
+        let (flagged, max_kept) = inconsistent_views(&ctx, &rec);
+        assert!(flagged.is_empty(), "{flagged:?}");
+        let max_kept = max_kept.expect("pairs were compared");
+        assert!(max_kept < 0.2, "the true poses disagree by {max_kept}°");
+        // Turn view 3 by 12° about its own centre, as a registration to the wrong place would.
+        let id = input.images[3].id;
+        let turn = UnitQuaternion::from_axis_angle(&Vector3::y_axis(), 12f64.to_radians());
+        let v = rec.views.get_mut(&id).expect("view 3");
+        v.cam_from_world = nalgebra::Isometry3::from_parts(
+            (turn * v.cam_from_world.translation.vector).into(),
+            turn * v.cam_from_world.rotation,
+        );
+        let (flagged, max_kept) = inconsistent_views(&ctx, &rec);
+        assert_eq!(flagged.len(), 1, "{flagged:?}");
+        assert_eq!(flagged[0].0, 3);
+        assert!((flagged[0].1.median_deg - 12.0).abs() < 0.5, "{flagged:?}");
+        assert_eq!(flagged[0].1.partners, 7);
+        assert!(max_kept.expect("others") < 0.2);
+    }
+
+    #[test]
+    fn two_pieces_put_together_at_a_wrong_angle_show_only_across() {
+        let (input, mut rec) = scene();
+        let graph = CorrespondenceGraph::build(&input, 8);
+        let opts = SfmOptions::default();
+        let ctx = Context::new(&input, &graph, &opts);
+        let ids: Vec<ImageId> = rec.views.keys().copied().collect();
+        let (a, b): (BTreeSet<ImageId>, BTreeSet<ImageId>) = (
+            ids[..4].iter().copied().collect(),
+            ids[4..].iter().copied().collect(),
+        );
+        let (d, n) = across(&ctx, &rec, &a, &b).expect("pairs across");
+        assert!(d < 0.2, "the true poses disagree by {d}°");
+        assert_eq!(n, 16);
+        // The second piece, turned by 11° about the scene's origin as a whole: its own pairs agree.
+        let turn = UnitQuaternion::from_axis_angle(&Vector3::y_axis(), 11f64.to_radians());
+        for id in &b {
+            let v = rec.views.get_mut(id).expect("view");
+            v.cam_from_world.rotation *= turn.inverse();
+        }
+        let (d, _) = across(&ctx, &rec, &a, &b).expect("pairs across");
+        assert!((d - 11.0).abs() < 0.5, "across {d}°");
+        let inside = across(&ctx, &rec, &b, &b).expect("pairs inside");
+        assert!(inside.0 < 0.2, "inside {inside:?}");
+    }
+
+    #[test]
+    fn pairs_that_do_not_fix_a_rotation_are_not_compared() {
+        let (mut input, rec) = scene();
+        for (k, p) in input.pairs.iter_mut().enumerate() {
+            match k % 3 {
+                0 => p.configuration = TwoViewConfiguration::Planar,
+                1 => p.matches.truncate(MIN_PAIR_INLIERS - 1),
+                _ => p.f = None,
+            }
+        }
+        let graph = CorrespondenceGraph::build(&input, 8);
+        let opts = SfmOptions::default();
+        let ctx = Context::new(&input, &graph, &opts);
+        assert!(input
+            .pairs
+            .iter()
+            .all(|p| pair_disagreement(&ctx, &rec, p).is_none()));
+        assert_eq!(inconsistent_views(&ctx, &rec).1, None);
+    }
+
+    #[test]
+    fn weighted_median_follows_the_weights() {
+        assert_eq!(
+            weighted_median(vec![(1.0, 1.0), (2.0, 1.0), (30.0, 1.0)]),
+            2.0
+        );
+        assert_eq!(
+            weighted_median(vec![(1.0, 10.0), (20.0, 1.0), (30.0, 1.0)]),
+            1.0
+        );
+        assert_eq!(
+            weighted_median(vec![(1.0, 1.0), (20.0, 5.0), (30.0, 5.0)]),
+            20.0
+        );
+    }
+}

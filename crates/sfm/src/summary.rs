@@ -1,0 +1,143 @@
+//! What [`crate::reconstruct`] returns: one [`SfmModel`] per piece of the sequence, each with the
+//! [`ModelSummary`] of everything measured about it (the self-calibration's report, every projective
+//! and metric adjustment, the view-consistency check, the merges, the uncertainty, the timings).
+//! Only the summary's types are imported here; the phases never import this module, only the
+//! pipeline and the merge, which fill it in.
+
+use std::collections::BTreeMap;
+
+use handheld_core::MetricReconstruction;
+use serde::Serialize;
+
+use crate::context::Context;
+use crate::merge::MergeRecord;
+use crate::metric::ba::MetricBaRecord;
+use crate::metric::consistency::ConsistencyReport;
+use crate::metric::uncertainty::UncertaintyReport;
+use crate::projective::model::{ProjectiveBaRecord, ProjectiveModel};
+use crate::upgrade::transform::SelfCalibrationReport;
+
+/// Per-group intrinsics of a model, in pixels.
+#[derive(Clone, Debug, Serialize)]
+pub struct GroupSummary {
+    pub camera_id: u32,
+    pub views: usize,
+    pub width: u32,
+    pub height: u32,
+    pub f: f64,
+    pub aspect: f64,
+    pub skew: f64,
+    pub pp: [f64; 2],
+    pub k1: f64,
+    pub k2: f64,
+}
+
+/// Everything measured about one model.
+#[derive(Clone, Debug, Serialize)]
+pub struct ModelSummary {
+    pub registered: usize,
+    pub total_images: usize,
+    pub points: usize,
+    pub observations: usize,
+    pub mean_track_length: f64,
+    pub mean_reprojection_error_px: f64,
+    pub initial_pair: [String; 2],
+    pub groups: Vec<GroupSummary>,
+    pub self_calibration: SelfCalibrationReport,
+    pub projective_ba: Vec<ProjectiveBaRecord>,
+    pub metric_ba: Vec<MetricBaRecord>,
+    pub uncertainty: Option<UncertaintyReport>,
+    /// Why uncertainty statistics are missing, when they are.
+    pub uncertainty_note: Option<String>,
+    /// Whether the views agree with their verified pairs, and those taken out (`metric/consistency.rs`).
+    pub view_consistency: ConsistencyReport,
+    /// Models merged into this one (`merge/`), in order.
+    pub merged: Vec<MergeRecord>,
+    pub timings_s: BTreeMap<String, f64>,
+}
+
+/// One metric model and its summary.
+#[derive(Clone, Debug)]
+pub struct SfmModel {
+    pub reconstruction: MetricReconstruction,
+    pub summary: ModelSummary,
+}
+
+/// The result of [`crate::reconstruct`]: models, largest first, and the images left out with the reason.
+#[derive(Clone, Debug)]
+pub struct SfmResult {
+    pub models: Vec<SfmModel>,
+    pub unregistered: Vec<(String, String)>,
+}
+
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn summarize(
+    ctx: &Context,
+    model: &ProjectiveModel,
+    rec: &MetricReconstruction,
+    self_calibration: SelfCalibrationReport,
+    metric_ba: Vec<MetricBaRecord>,
+    uncertainty: Option<UncertaintyReport>,
+    uncertainty_note: Option<String>,
+    timings_s: BTreeMap<String, f64>,
+) -> ModelSummary {
+    let observations: usize = rec.points.values().map(|p| p.track.len()).sum();
+    let groups = group_summaries(rec);
+    let names = &ctx.input.images;
+    ModelSummary {
+        registered: rec.views.len(),
+        total_images: names.len(),
+        points: rec.points.len(),
+        observations,
+        mean_track_length: observations as f64 / rec.points.len().max(1) as f64,
+        mean_reprojection_error_px: rec.mean_reprojection_error(),
+        initial_pair: [
+            names[model.init_pair.0].name.clone(),
+            names[model.init_pair.1].name.clone(),
+        ],
+        groups,
+        self_calibration,
+        projective_ba: model.ba.clone(),
+        metric_ba,
+        uncertainty,
+        uncertainty_note,
+        view_consistency: Default::default(),
+        merged: Vec::new(),
+        timings_s,
+    }
+}
+
+impl ModelSummary {
+    /// Recounts what depends on the model's contents (after a merge).
+    pub(crate) fn recount(&mut self, rec: &MetricReconstruction) {
+        let observations: usize = rec.points.values().map(|p| p.track.len()).sum();
+        self.registered = rec.views.len();
+        self.points = rec.points.len();
+        self.observations = observations;
+        self.mean_track_length = observations as f64 / rec.points.len().max(1) as f64;
+        self.mean_reprojection_error_px = rec.mean_reprojection_error();
+        self.groups = group_summaries(rec);
+    }
+}
+
+/// Per-group intrinsics of `rec`.
+fn group_summaries(rec: &MetricReconstruction) -> Vec<GroupSummary> {
+    rec.cameras
+        .values()
+        .map(|c| {
+            let k = &c.intrinsics;
+            GroupSummary {
+                camera_id: c.id.0,
+                views: rec.views.values().filter(|v| v.camera_id == c.id).count(),
+                width: c.width,
+                height: c.height,
+                f: k.f,
+                aspect: k.aspect,
+                skew: k.skew,
+                pp: [k.pp.x, k.pp.y],
+                k1: k.k1,
+                k2: k.k2,
+            }
+        })
+        .collect()
+}
