@@ -3,18 +3,8 @@
 use std::path::PathBuf;
 
 use clap::{Args, Parser, Subcommand};
-use handheld_dense::StereoMethod;
-use handheld_mesh::VoxelSize;
-use handheld_pipeline::policy::PairMode;
-use handheld_pipeline::stages::dense::DenseStageOptions;
-use handheld_pipeline::stages::features::TrackingMode;
-use handheld_pipeline::stages::mesh::{MeshMode, MeshStageOptions};
-use handheld_pipeline::PipelineOptions;
-use handheld_sfm::{Distortion, KnownIntrinsics};
 
-pub use crate::common::{
-    choice, choice_name, AspectArg, DenseArgs, GlobalArgs, InputArgs, MeshArgs,
-};
+pub use crate::common::{choice, choice_name, DenseArgs, GlobalArgs, InputArgs, MeshArgs};
 
 /// Handheld: 3D models from an uncalibrated hand-held camera (photos or video).
 #[derive(Debug, Parser)]

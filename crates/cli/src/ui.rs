@@ -114,5 +114,5 @@ pub fn report_stages(g: &GlobalArgs, workspace: &std::path::Path, reports: &[Sta
             r.stage, r.status, r.seconds, r.summary
         ));
     }
-    ui::print_result(g, &value, &human);
+    print_result(g, &value, &human);
 }
