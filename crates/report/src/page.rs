@@ -7,7 +7,8 @@
 use std::fmt::Write as _;
 
 use crate::html::{content_security_policy, esc, url_path};
-use crate::{svg, ReportInput, REPORT_DIR};
+use crate::input::{ReportInput, REPORT_DIR};
+use crate::svg;
 
 /// The viewer's script, inline in the page (allowed by its hash).
 pub(crate) const VIEWER_JS: &str = include_str!("viewer.js");

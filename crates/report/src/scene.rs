@@ -5,8 +5,9 @@
 
 use std::path::Path;
 
+use crate::encode::{b64, jpeg};
 use crate::html::js_json;
-use crate::{b64, jpeg, ReportInput, Result};
+use crate::input::{ReportInput, Result};
 
 pub(crate) fn scene_js(
     input: &ReportInput,

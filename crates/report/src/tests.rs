@@ -1,5 +1,6 @@
 //! The report's own tests: what it shows, and that no data can become markup or script.
 use super::*;
+use image::RgbImage;
 
 /// A failed image shows with its reason, a warning and a missing stage show in the verdict,
 /// and every file is inside `report/` or the page itself.
