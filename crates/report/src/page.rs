@@ -22,7 +22,7 @@ main{padding:8px 28px 40px;max-width:1400px}section{margin:22px 0}h2{font-size:1
 .ok{background:#e8f6ea;border-left:4px solid #2e9d49;padding:8px 12px}.missing{color:#777}
 .grid{display:grid;grid-template-columns:repeat(auto-fill,minmax(170px,1fr));gap:10px}
 .img{background:#fff;border:1px solid #dde;border-radius:6px;padding:6px;font-size:12px}.img img{width:100%;display:block}
-.img.bad{border-color:#d33;background:#fff0f0}.tag{display:inline-block;padding:0 6px;border-radius:3px;color:#fff;background:#2e9d49}
+.img>div,#hh-photo div{overflow-wrap:anywhere}.img.bad{border-color:#d33;background:#fff0f0}.tag{display:inline-block;padding:0 6px;border-radius:3px;color:#fff;background:#2e9d49}
 .img.bad .tag{background:#c22}.plots{display:flex;flex-wrap:wrap;gap:12px}.plot{background:#fff;border:1px solid #dde;border-radius:6px}
 .plot .t{font-size:13px;font-weight:600}.plot .l,.plot .k{font-size:10px;fill:#555}.plot .a{stroke:#888}.plot .b{fill:#4a78c2}
 .plot .bg{fill:#f7f8fa}.plot .p{fill:none;stroke:#4a78c2;stroke-width:1.2}.plot .c{fill:#e8741a}.plot .c0{fill:#2e9d49}.plot .pt{fill:#999}
