@@ -3,19 +3,14 @@
 
 use std::fmt::Write;
 
+use crate::html::esc;
+
 const W: f64 = 420.0;
 const H: f64 = 240.0;
 const ML: f64 = 48.0;
 const MR: f64 = 12.0;
 const MT: f64 = 26.0;
 const MB: f64 = 40.0;
-
-fn esc(s: &str) -> String {
-    s.replace('&', "&amp;")
-        .replace('<', "&lt;")
-        .replace('>', "&gt;")
-        .replace('"', "&quot;")
-}
 
 fn frame(title: &str, xlabel: &str, body: &str) -> String {
     format!(
@@ -31,8 +26,6 @@ fn frame(title: &str, xlabel: &str, body: &str) -> String {
 fn num(v: f64) -> String {
     if v == 0.0 {
         "0".into()
-    } else if v.abs() >= 1000.0 {
-        format!("{:.0}", v)
     } else if v.abs() >= 10.0 {
         format!("{:.0}", v)
     } else if v.abs() >= 1.0 {

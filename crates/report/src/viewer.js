@@ -1,15 +1,25 @@
 // Handheld's report viewer: WebGL2, hand-written. Data: window.HANDHELD (report/scene.js).
 // Orbit (drag), pan (shift/right drag), zoom (wheel), reset, layer toggles; a click on a camera
 // shows its photo and views the scene through it. window.handheldStats says what was drawn.
+// Text from data (camera names, thumbnail paths) goes into the page only through textContent and
+// DOM properties, never through HTML strings; the page's Content-Security-Policy allows no
+// inline handler, so the viewer's own handlers are attached here.
+// The hash sets the view: #viewer (the viewer alone), camera=N (through camera N, as a click
+// on it does), layers=mesh,points,cameras (the layers shown, through their toggles).
 (function () {
   "use strict";
   const status = document.getElementById("hh-status");
-  const stats = { errors: [], points: 0, triangles: 0, cameras: 0, frames: 0, ms_per_frame: null };
+  const stats = { errors: [], points: 0, triangles: 0, cameras: 0, frames: 0, ms_per_frame: null, context_lost: false };
   window.handheldStats = stats;
   function report() { if (status) status.textContent = JSON.stringify(stats); }
   window.addEventListener("error", (e) => { stats.errors.push(String(e.message)); report(); });
   const origError = console.error;
   console.error = function () { stats.errors.push(Array.from(arguments).join(" ")); report(); origError.apply(console, arguments); };
+  document.addEventListener("securitypolicyviolation", (e) => {
+    stats.errors.push("Content-Security-Policy blocked " + (e.blockedURI || "inline code") + " (" + e.violatedDirective + ")"); report();
+  });
+  const viewerOnly = document.getElementById("hh-viewer-only");
+  if (viewerOnly) viewerOnly.addEventListener("click", () => setTimeout(() => location.reload()));
 
   if (location.hash.startsWith("#viewer")) document.body.classList.add("viewer-only");
   const S = window.HANDHELD;
@@ -17,6 +27,10 @@
   if (!S || !canvas) { stats.errors.push("no scene data"); report(); return; }
   const gl = canvas.getContext("webgl2", { antialias: false, preserveDrawingBuffer: false, powerPreference: "high-performance" });
   if (!gl) { stats.errors.push("WebGL2 is not available"); report(); return; }
+  canvas.addEventListener("webglcontextlost", (e) => {
+    e.preventDefault(); stats.context_lost = true; stats.errors.push("WebGL context lost"); report();
+  });
+  canvas.addEventListener("webglcontextrestored", () => location.reload());
 
   function b64(s, T) {
     const bin = atob(s); const u8 = new Uint8Array(bin.length);
@@ -191,6 +205,10 @@
       gl.bindVertexArray(layers.cameras.vao); gl.drawArrays(gl.LINES, 0, layers.cameras.count); cams = S.cameras.length;
     }
     gl.bindVertexArray(null);
+    // A draw that failed says so: the GL error after the frame, and a lost context.
+    const err = gl.getError();
+    if (err !== gl.NO_ERROR && err !== gl.CONTEXT_LOST_WEBGL) stats.errors.push("WebGL error 0x" + err.toString(16) + " in frame " + stats.frames);
+    if (gl.isContextLost()) { stats.context_lost = true; points = tris = cams = 0; }
     stats.points = points; stats.triangles = tris; stats.cameras = cams; stats.frames++; stats.through = view.through;
     report();
   }
@@ -234,7 +252,12 @@
     const c = S.cameras[i];
     view.through = i;
     const panel = document.getElementById("hh-photo");
-    if (panel) panel.innerHTML = '<img src="' + c.thumb + '" alt=""><div>' + c.name + "</div>";
+    if (panel) {
+      const parts = [];
+      if (c.thumb) { const img = document.createElement("img"); img.src = c.thumb; img.alt = ""; parts.push(img); }
+      const name = document.createElement("div"); name.className = "hh-name"; name.textContent = c.name; parts.push(name);
+      panel.replaceChildren(...parts);
+    }
     draw();
   }
   window.handheldShowCamera = showCamera;
@@ -243,6 +266,16 @@
     if (!box) continue;
     if (!layers[name]) { box.disabled = true; box.checked = false; continue; }
     box.addEventListener("change", () => { layers[name].on = box.checked; draw(); });
+  }
+  // #layers=mesh,points: the layers named on, the others off, through their toggles.
+  const shown = /layers=([a-z,]*)/.exec(location.hash);
+  if (shown) {
+    const names = shown[1].split(",");
+    for (const name of ["points", "cameras", "mesh"]) {
+      const box = document.getElementById("hh-layer-" + name);
+      if (!box || box.disabled) continue;
+      box.checked = names.includes(name); box.dispatchEvent(new Event("change"));
+    }
   }
   const resetButton = document.getElementById("hh-reset");
   if (resetButton) resetButton.addEventListener("click", reset);
