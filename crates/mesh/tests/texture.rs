@@ -50,7 +50,7 @@ fn textured_mesh_reproduces_a_held_out_view() {
     assert!(summary.untextured_faces * 20 < summary.faces, "{summary:?}");
     assert!(summary.atlas_width <= 8192 && summary.atlas_height <= 8192);
     // Colour check against the held-out view, at face centroids it sees (GT depth agrees).
-    let (cam, pose) = (&held.camera, &held.cam_from_world);
+    let (cam, pose) = (&held.posed.camera, &held.posed.cam_from_world);
     let gt_depth = held.depth.as_ref().unwrap();
     let (aw, ah) = (tm.texture.width() as f64, tm.texture.height() as f64);
     let (mut sum, mut floor, mut n) = (0.0, 0.0, 0usize);

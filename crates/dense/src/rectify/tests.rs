@@ -1,4 +1,4 @@
-use handheld_core::{pose::cam_from_world_from_center, CameraId, Intrinsics};
+use handheld_core::{pose::cam_from_world_from_center, Camera, CameraId, Intrinsics, Rigid3};
 use nalgebra::{Rotation3, Vector3};
 
 use super::*;
@@ -69,7 +69,12 @@ fn polar_rectification_aligns_rows_under_forward_motion() {
         pose([0.0, 0.0, 0.0], 0.0, 0.0),
         pose([0.05, -0.02, 0.6], 0.03, 0.01),
     );
-    let rect = rectify_pair(&cam, &p1, &cam, &p2, &RectifyOptions::default()).unwrap();
+    let rect = rectify_pair(
+        &PosedCamera::new(cam.clone(), p1),
+        &PosedCamera::new(cam.clone(), p2),
+        &RectifyOptions::default(),
+    )
+    .unwrap();
     assert!(rect.is_polar());
     let worst = check_rows(&rect, &points(&p1, &cam), 500);
     assert!(worst < 0.1, "row error {worst} px");
@@ -84,7 +89,12 @@ fn planar_rectification_aligns_rows_for_sideways_motion() {
         pose([0.0, 0.0, 0.0], 0.0, 0.0),
         pose([0.4, 0.03, 0.05], -0.05, 0.02),
     );
-    let rect = rectify_pair(&cam, &p1, &cam, &p2, &RectifyOptions::default()).unwrap();
+    let rect = rectify_pair(
+        &PosedCamera::new(cam.clone(), p1),
+        &PosedCamera::new(cam.clone(), p2),
+        &RectifyOptions::default(),
+    )
+    .unwrap();
     assert!(!rect.is_polar());
     let worst = check_rows(&rect, &points(&p1, &cam), 500);
     assert!(worst < 0.1, "row error {worst} px");
@@ -92,7 +102,12 @@ fn planar_rectification_aligns_rows_for_sideways_motion() {
         method: RectifyMethod::Polar,
         ..Default::default()
     };
-    let polar = rectify_pair(&cam, &p1, &cam, &p2, &opts).unwrap();
+    let polar = rectify_pair(
+        &PosedCamera::new(cam.clone(), p1),
+        &PosedCamera::new(cam.clone(), p2),
+        &opts,
+    )
+    .unwrap();
     assert!(check_rows(&polar, &points(&p1, &cam), 500) < 0.1);
     let rect_of = |r: &Rectification, p: &Point3<f64>| {
         let a = r.to_rect(0, r.project(0, p).unwrap()).unwrap();
@@ -121,7 +136,12 @@ fn backward_motion_and_disparity_range() {
         pose([0.0, 0.0, 0.0], 0.0, 0.0),
         pose([0.0, 0.1, -0.5], 0.0, 0.05),
     );
-    let rect = rectify_pair(&cam, &p1, &cam, &p2, &RectifyOptions::default()).unwrap();
+    let rect = rectify_pair(
+        &PosedCamera::new(cam.clone(), p1),
+        &PosedCamera::new(cam.clone(), p2),
+        &RectifyOptions::default(),
+    )
+    .unwrap();
     let pts = points(&p1, &cam);
     assert!(check_rows(&rect, &pts, 300) < 0.1);
     let (lo, hi) = rect.disparity_range(&pts, 0.1).unwrap();
@@ -133,5 +153,10 @@ fn coincident_centres_are_an_error() {
     let cam = camera(0.0);
     let p = pose([0.0, 0.0, 0.0], 0.0, 0.0);
     let q = pose([0.0, 0.0, 0.0], 0.1, 0.0);
-    assert!(rectify_pair(&cam, &p, &cam, &q, &RectifyOptions::default()).is_err());
+    assert!(rectify_pair(
+        &PosedCamera::new(cam.clone(), p),
+        &PosedCamera::new(cam.clone(), q),
+        &RectifyOptions::default()
+    )
+    .is_err());
 }
