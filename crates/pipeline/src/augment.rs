@@ -7,7 +7,9 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use handheld_core::{Camera, FloatMap, MetricReconstruction, Progress, Rigid3, TriMesh};
+use handheld_core::{
+    Camera, FloatMap, MetricReconstruction, PosedCamera, Progress, Rigid3, TriMesh,
+};
 use handheld_io::track::{write_chan, write_track_glb, TrackFrame};
 use handheld_io::video::encode::VideoWriter;
 use handheld_render::augment::{
@@ -299,7 +301,8 @@ pub fn scene_depth(
         return;
     }
     let data = &mut out.data;
-    rasterise(mesh, camera, pose, 1, (x0, y0, x1, y1), buf, |f| {
+    let view = PosedCamera::new(camera.clone(), *pose);
+    rasterise(mesh, &view, 1, (x0, y0, x1, y1), buf, |f| {
         data[f.sy * w + f.sx] = f.z as f32;
     });
 }
@@ -432,8 +435,7 @@ pub fn augment(
                 &mut frame,
                 &placed,
                 texture.as_ref(),
-                cam,
-                &v.cam_from_world,
+                &PosedCamera::new(cam.clone(), v.cam_from_world),
                 occ,
             );
             anchor_px = cam.project(&v.cam_from_world, &anchor);

@@ -48,9 +48,7 @@ fn held_out_frame_improves_with_the_geometry_level() {
     }
     let mut psnr = Vec::new();
     for m in IbrMethod::ALL {
-        let (r, s) = renderer
-            .render(&scene, &held.camera, &held.cam_from_world, m, &ibr)
-            .unwrap();
+        let (r, s) = renderer.render(&scene, &held.posed, m, &ibr).unwrap();
         let q = quality(&r.image, &held.image, &r.covered);
         println!(
             "{:>10}: PSNR {:.2} dB, SSIM {:.3}, coverage {:.3}, {} cameras, {} triangles, {} leaves",

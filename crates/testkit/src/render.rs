@@ -24,7 +24,7 @@ use std::collections::BTreeMap;
 use handheld_core::pose::center_of;
 use handheld_core::{
     Camera, CameraId, FloatMap, ImageId, Intrinsics, MetricReconstruction, Observation, Point3D,
-    PointId, Rigid3, TrackElement, TriMesh, View,
+    PointId, PosedCamera, Rigid3, TrackElement, TriMesh, View,
 };
 use image::RgbImage;
 use nalgebra::{Point3, Vector2, Vector3};
@@ -102,7 +102,8 @@ pub fn highlight(scene: &Scene, hit: &Hit, dir: &Vector3<f64>, light: &Vector3<f
 
 /// The specular term through each pixel centre of a view (0 where there is none): the mask of
 /// the highlights.
-pub fn highlight_map(scene: &Scene, camera: &Camera, cam_from_world: &Rigid3) -> FloatMap {
+pub fn highlight_map(scene: &Scene, view: &PosedCamera) -> FloatMap {
+    let (camera, cam_from_world) = (&view.camera, &view.cam_from_world);
     let (w, h) = (camera.width as usize, camera.height as usize);
     let light = light_dir();
     let data = (0..w * h)

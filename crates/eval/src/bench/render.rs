@@ -347,8 +347,7 @@ fn held_out_photo(
         let w = (f64::from(img.width()) * s).round() as u32;
         let h = (f64::from(img.height()) * s).round() as u32;
         let small = image::imageops::resize(&img, w, h, image::imageops::FilterType::Triangle);
-        let c = handheld_dense::scale_camera(
-            cam,
+        let c = cam.scaled(
             f64::from(w) / f64::from(img.width()),
             f64::from(h) / f64::from(img.height()),
         );

@@ -7,8 +7,7 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use handheld_core::{Camera, PosedView, Rigid3, TriMesh};
-use handheld_dense::scale_camera;
+use handheld_core::{Camera, PosedCamera, PosedView, Rigid3, TriMesh};
 use handheld_io::dense_folder::{read_views, MapKind};
 use handheld_render::{IbrMethod, IbrOptions, IbrScene, Rendered, Renderer};
 use image::RgbImage;
@@ -150,7 +149,13 @@ impl RenderScene {
             .map_err(|e| PipelineError::workspace(dense, e.to_string()))?;
         let mut all: Vec<(String, Camera, Rigid3)> = views
             .iter()
-            .map(|v| (v.name.clone(), v.camera.clone(), v.cam_from_world))
+            .map(|v| {
+                (
+                    v.name.clone(),
+                    v.posed.camera.clone(),
+                    v.posed.cam_from_world,
+                )
+            })
             .collect();
         all.sort_by(|a, b| a.0.cmp(&b.0));
         let mesh = match mesh_glb {
@@ -187,16 +192,17 @@ impl RenderScene {
         out: &mut Rendered,
     ) -> Result<Option<handheld_render::FrameStats>> {
         let method = self.effective(method);
+        let view = PosedCamera::new(camera.clone(), *pose);
         match method.ibr() {
             Some(m) => {
                 let proxy = match (&self.mesh, method) {
                     (Some((mesh, _)), RenderMethod::UlrMesh) => {
-                        Some(handheld_render::render_mesh(mesh, None, camera, pose).depth)
+                        Some(handheld_render::render_mesh(mesh, None, &view).depth)
                     }
                     _ => None,
                 };
                 let stats = renderer
-                    .render_with_proxy(&self.scene, camera, pose, m, opts, proxy.as_ref(), out)
+                    .render_with_proxy(&self.scene, &view, m, opts, proxy.as_ref(), out)
                     .map_err(|e| PipelineError::option("--method", e.to_string()))?;
                 Ok(Some(stats))
             }
@@ -207,7 +213,7 @@ impl RenderScene {
                         "mesh: the workspace has no textured mesh (run the mesh stage first)",
                     )
                 })?;
-                *out = handheld_render::render_mesh(mesh, tex.as_ref(), camera, pose);
+                *out = handheld_render::render_mesh(mesh, tex.as_ref(), &view);
                 Ok(None)
             }
         }
@@ -248,7 +254,7 @@ fn load_sparse_views(
                     image::imageops::resize(&img, w, h, image::imageops::FilterType::Triangle);
                 let sx = f64::from(w) / f64::from(img.width());
                 let sy = f64::from(h) / f64::from(img.height());
-                (small, scale_camera(cam, sx, sy))
+                (small, cam.scaled(sx, sy))
             } else {
                 (img, cam.clone())
             };
@@ -269,8 +275,7 @@ pub fn virtual_camera(camera: &Camera, width: u32) -> Camera {
     let s = f64::from(width) / f64::from(c.width);
     let w = width & !1;
     let h = ((f64::from(c.height) * s).round() as u32).max(2) & !1;
-    scale_camera(
-        &c,
+    c.scaled(
         f64::from(w) / f64::from(c.width),
         f64::from(h) / f64::from(c.height),
     )

@@ -3,7 +3,6 @@
 use std::path::{Path, PathBuf};
 
 use handheld_core::{Camera, Rigid3};
-use handheld_dense::scale_camera;
 use handheld_render::{IbrOptions, Rendered, Renderer};
 use image::RgbImage;
 use nalgebra::{Quaternion, Translation3, UnitQuaternion, Vector3};
@@ -167,7 +166,7 @@ pub fn render_view(
     };
     let camera = if width > 0 && width != camera.width {
         let s = f64::from(width) / f64::from(camera.width);
-        scale_camera(&camera, s, s)
+        camera.scaled(s, s)
     } else {
         camera
     };
