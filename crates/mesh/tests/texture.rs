@@ -77,12 +77,12 @@ fn textured_mesh_reproduces_a_held_out_view() {
         let a = bilinear(&tm.texture, u * aw - 0.5, v * ah - 0.5);
         let b = bilinear(&held.image, px.x, px.y);
         // Floor: the same comparison between two real neighbouring images.
-        let (cam4, pose4) = seq.frame(held_out - 1).unwrap();
-        let Some(q) = cam4.project(pose4, &c).filter(|q| cam4.contains(q)) else {
+        let frame4 = seq.frame(held_out - 1).unwrap();
+        let Some(q) = frame4.project(&c).filter(|q| frame4.camera.contains(q)) else {
             continue;
         };
         let d4 = seq.depths[held_out - 1].get(q.x.round() as usize, q.y.round() as usize, 0) as f64;
-        if (pose4.transform_point(&c).z - d4).abs() > 0.01 * d4 {
+        if (frame4.to_cam(&c).z - d4).abs() > 0.01 * d4 {
             continue;
         }
         let r = bilinear(&seq.images[held_out - 1], q.x, q.y);

@@ -11,8 +11,8 @@ use handheld_testkit::sequence::SequenceOptions;
 fn views(seq: &handheld_testkit::render::SyntheticSequence) -> Vec<PosedView> {
     (0..seq.images.len())
         .map(|i| {
-            let (cam, pose) = seq.frame(i).unwrap();
-            let mut v = PosedView::new(format!("{i}"), cam.clone(), *pose, seq.images[i].clone());
+            let frame = seq.frame(i).unwrap();
+            let mut v = PosedView::from_posed(format!("{i}"), frame, seq.images[i].clone());
             v.depth = Some(seq.depths[i].clone());
             v
         })

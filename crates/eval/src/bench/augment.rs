@@ -5,7 +5,7 @@
 
 use std::time::Instant;
 
-use handheld_core::{FloatMap, PosedCamera, Rigid3};
+use handheld_core::{FloatMap, Rigid3};
 use handheld_io::video::encode::VideoWriter;
 use handheld_render::augment::{auto_place, object_box, Compositor, PlaceOptions};
 use handheld_testkit::path::PathOptions;
@@ -71,7 +71,7 @@ pub fn bench_augment(o: &AugmentBenchOptions) -> Result<AugmentBenchReport> {
     let seq = render_sequence(&seq_opts).map_err(|e| EvalError::option("--width", e))?;
     let mut frames = Vec::new();
     for (i, img) in seq.images.iter().enumerate() {
-        let Some((cam, pose)) = seq.frame(i) else {
+        let Some(frame) = seq.frame(i) else {
             continue;
         };
         let big = image::imageops::resize(
@@ -80,7 +80,7 @@ pub fn bench_augment(o: &AugmentBenchOptions) -> Result<AugmentBenchReport> {
             o.height,
             image::imageops::FilterType::Triangle,
         );
-        frames.push((big, PosedCamera::new(cam.scaled(2.0, 2.0), *pose)));
+        frames.push((big, frame.scaled(2.0, 2.0)));
     }
     let points: Vec<(Point3<f64>, usize)> = seq
         .gt

@@ -12,7 +12,7 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use handheld_core::{Camera, FloatMap, PosedCamera, PosedView, Rigid3};
+use handheld_core::{FloatMap, PosedCamera, PosedView};
 use handheld_dense::{
     link_depth, match_sequence_pairs, rectify_pair, LinkOptions, PairOptions, RectifyMethod,
     RectifyOptions, StereoMatcher, StereoOptions,
@@ -135,7 +135,7 @@ fn linking(width: u32) -> Result<LinkingReport> {
     };
     opts.path.sweep = 28.0;
     let seq = render_sequence(&opts).context("rendering the linking orbit")?;
-    let frames: Vec<(&Camera, &Rigid3)> = (0..15)
+    let frames: Vec<PosedCamera> = (0..15)
         .map(|i| {
             seq.frame(i)
                 .ok_or_else(|| EvalError::Data(format!("no frame {i}")))
@@ -146,8 +146,8 @@ fn linking(width: u32) -> Result<LinkingReport> {
         .iter()
         .zip(&seq.images)
         .enumerate()
-        .map(|(i, ((c, p), image))| {
-            PosedView::new(format!("frame{i}"), (*c).clone(), **p, image.clone())
+        .map(|(i, (frame, image))| {
+            PosedView::from_posed(format!("frame{i}"), frame.clone(), image.clone())
         })
         .collect();
     let t = Instant::now();
@@ -206,24 +206,22 @@ fn forward_pair(width: u32, runs: u32) -> Result<(PolarReport, PairTiming)> {
     };
     let seq = render_sequence(&opts).context("rendering the forward pair")?;
     let no_frame = || EvalError::Data("the forward pair has no two frames".into());
-    let (c0, p0) = seq.frame(0).ok_or_else(no_frame)?;
-    let (c1, p1) = seq.frame(1).ok_or_else(no_frame)?;
-    let (v0, v1) = (
-        PosedCamera::new(c0.clone(), *p0),
-        PosedCamera::new(c1.clone(), *p1),
-    );
+    let v0 = seq.frame(0).ok_or_else(no_frame)?;
+    let v1 = seq.frame(1).ok_or_else(no_frame)?;
     let rect = rectify_pair(&v0, &v1, &RectifyOptions::default())?;
     let mut worst = 0.0f64;
     let mut n = 0;
     let truth = seq.depths.first().ok_or_else(no_frame)?;
-    let inv = p0.inverse();
+    let inv = v0.cam_from_world.inverse();
     for y in (0..truth.height).step_by(4) {
         for x in (0..truth.width).step_by(4) {
             let z = f64::from(truth.get(x, y, 0));
             if z <= 0.0 {
                 continue;
             }
-            let ray = c0.ray_in_cam(nalgebra::Vector2::new(x as f64, y as f64));
+            let ray = v0
+                .camera
+                .ray_in_cam(nalgebra::Vector2::new(x as f64, y as f64));
             let pw = inv.transform_point(&Point3::from(ray / ray.z * z));
             let (Some(m0), Some(m1)) = (rect.project(0, &pw), rect.project(1, &pw)) else {
                 continue;

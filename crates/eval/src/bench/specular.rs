@@ -87,10 +87,10 @@ pub fn bench_specular(o: &SpecularBenchOptions) -> Result<SpecularReport> {
     let mut train = Vec::new();
     let mut held = Vec::new();
     for i in 0..seq.images.len() {
-        let Some((cam, pose)) = seq.frame(i) else {
+        let Some(frame) = seq.frame(i) else {
             continue;
         };
-        let mut v = PosedView::new(format!("{i}"), cam.clone(), *pose, seq.images[i].clone());
+        let mut v = PosedView::from_posed(format!("{i}"), frame, seq.images[i].clone());
         v.depth = Some(seq.depths[i].clone());
         if i % o.every == 0 {
             held.push((i, v));
