@@ -17,7 +17,8 @@ use crate::pose::Rigid3;
 use crate::posed_camera::PosedCamera;
 
 /// A posed view: camera and pose ([`PosedCamera`], `p_in_cam = cam_from_world · p_in_world`),
-/// image, and the optional maps of the dense stage. All images and maps have the camera's size ([`PosedView::validate`]).
+/// image, and the optional maps of the dense stage. All images and maps have the camera's size
+/// ([`PosedView::validate`]).
 ///
 /// Stages read only what they need: dense matching and linking the image, camera and pose; fusion
 /// and evaluation the depth (and confidence); texturing the image (and depth for occlusions). A
