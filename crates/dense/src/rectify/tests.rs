@@ -25,8 +25,8 @@ fn pose(center: [f64; 3], yaw: f64, pitch: f64) -> Rigid3 {
 }
 
 /// World points spread over both views' fields of view, 2–8 units in front of camera 1.
-fn points(pose1: &Rigid3, cam: &Camera) -> Vec<Point3<f64>> {
-    let inv = pose1.inverse();
+fn points(view1: &PosedCamera) -> Vec<Point3<f64>> {
+    let (cam, inv) = (&view1.camera, view1.cam_from_world.inverse());
     let mut out = Vec::new();
     for i in 0..40 {
         for j in 0..30 {
@@ -76,7 +76,7 @@ fn polar_rectification_aligns_rows_under_forward_motion() {
     )
     .unwrap();
     assert!(rect.is_polar());
-    let worst = check_rows(&rect, &points(&p1, &cam), 500);
+    let worst = check_rows(&rect, &points(&PosedCamera::new(cam.clone(), p1)), 500);
     assert!(worst < 0.1, "row error {worst} px");
     let (w, h) = rect.size();
     assert!(w < 1000 && h < 5000, "rectified size {w}x{h}");
@@ -96,7 +96,7 @@ fn planar_rectification_aligns_rows_for_sideways_motion() {
     )
     .unwrap();
     assert!(!rect.is_polar());
-    let worst = check_rows(&rect, &points(&p1, &cam), 500);
+    let worst = check_rows(&rect, &points(&PosedCamera::new(cam.clone(), p1)), 500);
     assert!(worst < 0.1, "row error {worst} px");
     let opts = RectifyOptions {
         method: RectifyMethod::Polar,
@@ -108,7 +108,7 @@ fn planar_rectification_aligns_rows_for_sideways_motion() {
         &opts,
     )
     .unwrap();
-    assert!(check_rows(&polar, &points(&p1, &cam), 500) < 0.1);
+    assert!(check_rows(&polar, &points(&PosedCamera::new(cam.clone(), p1)), 500) < 0.1);
     let rect_of = |r: &Rectification, p: &Point3<f64>| {
         let a = r.to_rect(0, r.project(0, p).unwrap()).unwrap();
         let b = r.to_rect(1, r.project(1, p).unwrap()).unwrap();
@@ -142,7 +142,7 @@ fn backward_motion_and_disparity_range() {
         &RectifyOptions::default(),
     )
     .unwrap();
-    let pts = points(&p1, &cam);
+    let pts = points(&PosedCamera::new(cam.clone(), p1));
     assert!(check_rows(&rect, &pts, 300) < 0.1);
     let (lo, hi) = rect.disparity_range(&pts, 0.1).unwrap();
     assert!(lo < hi);
