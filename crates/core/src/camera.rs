@@ -193,6 +193,37 @@ impl Camera {
             && px.x < self.width as f64 - 0.5
             && px.y < self.height as f64 - 0.5
     }
+
+    /// The camera of the image resized by `(sx, sy)`: pixel centres stay at integer positions,
+    /// so a pixel `x` becomes `(x + ½)·sx − ½`; the size is rounded to whole pixels.
+    pub fn scaled(&self, sx: f64, sy: f64) -> Camera {
+        let mut c = self.clone();
+        let i = &mut c.intrinsics;
+        i.f *= sx;
+        i.aspect *= sy / sx;
+        i.skew *= sx;
+        i.pp = Vector2::new((i.pp.x + 0.5) * sx - 0.5, (i.pp.y + 0.5) * sy - 0.5);
+        c.width = (self.width as f64 * sx).round() as u32;
+        c.height = (self.height as f64 * sy).round() as u32;
+        c
+    }
+
+    /// The camera of the image shrunk so its longer side is at most `max_size` pixels (an
+    /// unchanged copy when it already fits or `max_size` is 0): the scale `max_size / longer`
+    /// gives the rounded new size, and each axis is scaled by `new / old` so the size is whole.
+    pub fn scaled_to(&self, max_size: u32) -> Camera {
+        let longer = self.width.max(self.height);
+        if max_size == 0 || longer <= max_size {
+            return self.clone();
+        }
+        let s = f64::from(max_size) / f64::from(longer);
+        let w = (f64::from(self.width) * s).round() as u32;
+        let h = (f64::from(self.height) * s).round() as u32;
+        self.scaled(
+            f64::from(w) / f64::from(self.width),
+            f64::from(h) / f64::from(self.height),
+        )
+    }
 }
 
 #[cfg(test)]

@@ -5,8 +5,10 @@
 //! `P = K Rᵀ [I | −t]` (eq. 2) and radial distortion is applied to normalised coordinates (eq. 3).
 //!
 //! The crate is split by concept: [`ids`] (newtype identifiers), [`camera`] (intrinsics, distortion and
-//! the metric camera), [`pose`] (rigid and similarity transforms named by their frames), [`projective`]
-//! (the projective world of §3.1–3.3), [`reconstruction`] (tracks and the metric reconstruction),
+//! the metric camera), [`pose`] (rigid and similarity transforms named by their frames),
+//! [`posed_camera`] (a camera in a pose, what every stage passes to project, render or rectify),
+//! [`projective`] (the projective world of §3.1–3.3), [`reconstruction`] (tracks and the metric
+//! reconstruction),
 //! [`maps`] (dense float maps such as depth), [`posed_view`] (a posed view with its image and
 //! optional depth maps, the vocabulary of the dense, surface and rendering stages), [`geometry3d`] (point clouds and triangle meshes).
 //! Nothing here touches a file: input and output live in `handheld-io`.
@@ -32,6 +34,7 @@ pub mod geometry3d;
 pub mod ids;
 pub mod maps;
 pub mod pose;
+pub mod posed_camera;
 pub mod posed_view;
 pub mod progress;
 pub mod projective;
@@ -42,6 +45,7 @@ pub use geometry3d::{PointCloud, TriMesh};
 pub use ids::{CameraId, ImageId, PointId};
 pub use maps::FloatMap;
 pub use pose::{Rigid3, Sim3};
+pub use posed_camera::PosedCamera;
 pub use posed_view::{PosedView, ViewError};
 pub use progress::{NoProgress, Progress};
 pub use projective::{ProjectiveCamera, ProjectivePoint, ProjectiveReconstruction};

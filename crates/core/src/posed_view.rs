@@ -13,10 +13,12 @@ use thiserror::Error;
 
 use crate::camera::Camera;
 use crate::maps::FloatMap;
-use crate::pose::{center_of, Rigid3};
+use crate::pose::Rigid3;
+use crate::posed_camera::PosedCamera;
 
-/// A posed view: camera, pose (`p_in_cam = cam_from_world · p_in_world`), image, and the optional
-/// maps of the dense stage. All images and maps have the camera's size ([`PosedView::validate`]).
+/// A posed view: camera and pose ([`PosedCamera`], `p_in_cam = cam_from_world · p_in_world`),
+/// image, and the optional maps of the dense stage. All images and maps have the camera's size
+/// ([`PosedView::validate`]).
 ///
 /// Stages read only what they need: dense matching and linking the image, camera and pose; fusion
 /// and evaluation the depth (and confidence); texturing the image (and depth for occlusions). A
@@ -25,10 +27,9 @@ use crate::pose::{center_of, Rigid3};
 pub struct PosedView {
     /// The image's name (file name relative to the image folder), used in messages and file names.
     pub name: String,
-    /// The camera that took the image (its size is the image's size).
-    pub camera: Camera,
-    /// World → camera.
-    pub cam_from_world: Rigid3,
+    /// The camera that took the image (its size is the image's size) and its pose, world →
+    /// camera; [`PosedView::camera`] and [`PosedView::cam_from_world`] read its parts.
+    pub posed: PosedCamera,
     /// The original (distorted) image, 0..=255, at the camera's size.
     pub image: RgbImage,
     /// Camera-frame `z` of the surface through each pixel centre; `NaN` or ≤ 0 where missing.
@@ -71,10 +72,14 @@ impl PosedView {
         cam_from_world: Rigid3,
         image: RgbImage,
     ) -> Self {
+        Self::from_posed(name, PosedCamera::new(camera, cam_from_world), image)
+    }
+
+    /// A view of `posed` with its image and no maps.
+    pub fn from_posed(name: impl Into<String>, posed: PosedCamera, image: RgbImage) -> Self {
         Self {
             name: name.into(),
-            camera,
-            cam_from_world,
+            posed,
             image,
             depth: None,
             variance: None,
@@ -83,14 +88,24 @@ impl PosedView {
         }
     }
 
+    /// The camera that took the image.
+    pub fn camera(&self) -> &Camera {
+        &self.posed.camera
+    }
+
+    /// World → camera.
+    pub fn cam_from_world(&self) -> &Rigid3 {
+        &self.posed.cam_from_world
+    }
+
     /// The camera centre in world coordinates.
     pub fn center(&self) -> Point3<f64> {
-        center_of(&self.cam_from_world)
+        self.posed.center()
     }
 
     /// `(width, height)` of the camera, in pixels.
     pub fn size(&self) -> (usize, usize) {
-        (self.camera.width as usize, self.camera.height as usize)
+        self.posed.size()
     }
 
     /// The image as a 3-channel float map, 0..=255 (a copy).

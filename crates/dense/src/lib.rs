@@ -80,6 +80,6 @@ pub use pair::{
 };
 pub use rectify::{rectify_pair, Rectification, RectifyMethod, RectifyOptions};
 pub use stage::{
-    dense_reconstruct, scale_camera, DenseOptions, DenseSummary, DenseViewResult, FailedPair,
+    dense_reconstruct, DenseOptions, DenseSummary, DenseViewResult, FailedPair,
 };
 pub use stereo::{match_rectified, StereoMatcher, SGM_BAND_OVERLAP};

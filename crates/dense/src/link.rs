@@ -127,9 +127,14 @@ struct Geo {
 impl Geo {
     fn new(v: &PosedView) -> Self {
         Self {
-            camera: v.camera.clone(),
-            rot: *v.cam_from_world.rotation.to_rotation_matrix().matrix(),
-            trans: v.cam_from_world.translation.vector,
+            camera: v.posed.camera.clone(),
+            rot: *v
+                .posed
+                .cam_from_world
+                .rotation
+                .to_rotation_matrix()
+                .matrix(),
+            trans: v.posed.cam_from_world.translation.vector,
         }
     }
 }

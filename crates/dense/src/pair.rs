@@ -90,7 +90,7 @@ pub fn match_pair_with(
     opts: &PairOptions,
 ) -> Result<PairDisparity> {
     for (v, which) in [(left, "left"), (right, "right")] {
-        if (v.image.width(), v.image.height()) != (v.camera.width, v.camera.height) {
+        if (v.image.width(), v.image.height()) != (v.posed.camera.width, v.posed.camera.height) {
             return Err(DenseError::InvalidImage {
                 which,
                 reason: format!(
@@ -98,19 +98,13 @@ pub fn match_pair_with(
                     v.name,
                     v.image.width(),
                     v.image.height(),
-                    v.camera.width,
-                    v.camera.height
+                    v.posed.camera.width,
+                    v.posed.camera.height
                 ),
             });
         }
     }
-    let rect = rectify_pair(
-        &left.camera,
-        &left.cam_from_world,
-        &right.camera,
-        &right.cam_from_world,
-        &opts.rectify,
-    )?;
+    let rect = rectify_pair(&left.posed, &right.posed, &opts.rectify)?;
     let range = rect
         .disparity_range(points, opts.range_margin)
         .ok_or_else(|| DenseError::Rectification {

@@ -7,7 +7,7 @@
 
 use std::time::Instant;
 
-use handheld_core::{Camera, PointCloud, PosedView, Progress};
+use handheld_core::{PointCloud, PosedView, Progress};
 use nalgebra::{Point3, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
@@ -184,8 +184,7 @@ pub fn dense_reconstruct(
             index: k,
             view: PosedView {
                 name: v.name.clone(),
-                camera: v.camera.clone(),
-                cam_from_world: v.cam_from_world,
+                posed: v.posed.clone(),
                 image: v.image.clone(),
                 depth: Some(depth),
                 variance: Some(variance),
@@ -211,7 +210,7 @@ fn append_fused(
     views: &[PosedView],
     opts: &DenseOptions,
 ) {
-    let world_from_cam = view.cam_from_world.inverse();
+    let world_from_cam = view.posed.cam_from_world.inverse();
     let (w, h) = (linked.depth.width, linked.depth.height);
     let s = opts.fused_stride;
     for y in (0..h).step_by(s) {
@@ -221,6 +220,7 @@ fn append_fused(
                 continue;
             }
             let n = view
+                .posed
                 .camera
                 .intrinsics
                 .pixel_to_normalized(Vector2::new(x as f64, y as f64));
@@ -228,7 +228,7 @@ fn append_fused(
             let pw = world_from_cam.transform_point(&Point3::from(pc));
             let seen_before = recent.iter().any(|(i, d)| {
                 let o = &views[*i];
-                o.camera.project(&o.cam_from_world, &pw).is_some_and(|m| {
+                o.posed.project(&pw).is_some_and(|m| {
                     let (xi, yi) = (m.x.round(), m.y.round());
                     if xi < 0.0
                         || yi < 0.0
@@ -238,7 +238,7 @@ fn append_fused(
                         return false;
                     }
                     let zo = d.depth.get(xi as usize, yi as usize, 0);
-                    let zp = o.cam_from_world.transform_point(&pw).z;
+                    let zp = o.posed.cam_from_world.transform_point(&pw).z;
                     zo.is_finite()
                         && ((f64::from(zo) - zp) / zp).abs() < opts.fused_duplicate_tolerance
                 })
@@ -252,17 +252,4 @@ fn append_fused(
             cloud.colors.push(view.rgb(x as u32, y as u32));
         }
     }
-}
-
-/// Scales a camera for an image resized by `(sx, sy)` (pixel centres at integer positions).
-pub fn scale_camera(camera: &Camera, sx: f64, sy: f64) -> Camera {
-    let mut c = camera.clone();
-    let i = &mut c.intrinsics;
-    i.f *= sx;
-    i.aspect *= sy / sx;
-    i.skew *= sx;
-    i.pp = Vector2::new((i.pp.x + 0.5) * sx - 0.5, (i.pp.y + 0.5) * sy - 0.5);
-    c.width = (camera.width as f64 * sx).round() as u32;
-    c.height = (camera.height as f64 * sy).round() as u32;
-    c
 }

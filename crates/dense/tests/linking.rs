@@ -40,8 +40,8 @@ fn linking_fills_the_reference_view_and_gets_better_with_more_views() {
     let points: Vec<Point3<f64>> = seq.gt.points.values().map(|p| p.xyz).collect();
     let link_views: Vec<PosedView> = (0..15)
         .map(|i| {
-            let (c, p) = seq.frame(i).expect("frame");
-            PosedView::new(format!("{i}"), c.clone(), *p, seq.images[i].clone())
+            let frame = seq.frame(i).expect("frame");
+            PosedView::from_posed(format!("{i}"), frame, seq.images[i].clone())
         })
         .collect();
     let pairs = match_sequence_pairs(&link_views, &points, &PairOptions::default()).expect("pairs");

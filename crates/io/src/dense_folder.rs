@@ -11,7 +11,7 @@
 
 use std::path::{Path, PathBuf};
 
-use handheld_core::{Camera, FloatMap, PosedView, Rigid3};
+use handheld_core::{Camera, FloatMap, PosedCamera, PosedView, Rigid3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -24,6 +24,11 @@ use crate::pfm::{read_pfm, write_pfm};
 pub const CAMERAS_FILE: &str = "cameras.json";
 
 /// One entry of `cameras.json`: a view's image name, camera and pose.
+///
+/// A type of its own (rather than a name and a [`PosedCamera`]) because it *is* the file format:
+/// its three flat keys `image`, `camera`, `cam_from_world` are what `cameras.json` has always
+/// held, and renaming or nesting a field here would break every workspace already written.
+/// Convert with [`CameraEntry::from`] (a [`PosedView`]) and [`CameraEntry::to_posed`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct CameraEntry {
     /// The image's name (the maps are `<kind>/<image>.pfm`).
@@ -32,6 +37,23 @@ pub struct CameraEntry {
     pub camera: Camera,
     /// World → camera.
     pub cam_from_world: Rigid3,
+}
+
+impl CameraEntry {
+    /// The entry's camera in its pose.
+    pub fn to_posed(&self) -> PosedCamera {
+        PosedCamera::new(self.camera.clone(), self.cam_from_world)
+    }
+}
+
+impl From<&PosedView> for CameraEntry {
+    fn from(v: &PosedView) -> Self {
+        Self {
+            image: v.name.clone(),
+            camera: v.posed.camera.clone(),
+            cam_from_world: v.posed.cam_from_world,
+        }
+    }
 }
 
 /// The per-view maps of a dense folder, each in its own sub-folder.
@@ -105,14 +127,7 @@ pub fn write_view(dir: &Path, view: &PosedView) -> Result<Vec<String>> {
 /// Writes `dir/cameras.json` (atomically): the views' names, cameras and poses, in order.
 pub fn write_cameras(dir: &Path, views: &[PosedView]) -> Result<()> {
     let path = dir.join(CAMERAS_FILE);
-    let entries: Vec<CameraEntry> = views
-        .iter()
-        .map(|v| CameraEntry {
-            image: v.name.clone(),
-            camera: v.camera.clone(),
-            cam_from_world: v.cam_from_world,
-        })
-        .collect();
+    let entries: Vec<CameraEntry> = views.iter().map(CameraEntry::from).collect();
     // Through a JSON value, so the key order is serde_json's map order (as the file always had).
     let bytes = serde_json::to_value(&entries)
         .and_then(|v| serde_json::to_vec_pretty(&v))
@@ -253,7 +268,7 @@ mod tests {
         let back = read_views(&dense, |n| Some(images.join(n)), &MapKind::ALL).unwrap();
         assert_eq!(back.len(), 2);
         assert_eq!(back[0].name, "a.png");
-        assert_eq!(back[0].camera, views[0].camera);
+        assert_eq!(back[0].posed.camera, views[0].posed.camera);
         assert_eq!(back[0].depth, views[0].depth);
         assert_eq!(back[0].confidence, views[0].confidence);
         assert_eq!(back[0].variance, None);

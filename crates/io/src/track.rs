@@ -16,7 +16,7 @@
 
 use std::path::Path;
 
-use handheld_core::Rigid3;
+use handheld_core::{Camera, PosedCamera, Rigid3};
 use nalgebra::{Matrix3, Rotation3, UnitQuaternion, Vector3};
 use serde_json::json;
 
@@ -28,6 +28,11 @@ const UNSIGNED_BYTE: u32 = 5121;
 const ARRAY_BUFFER: u32 = 34962;
 
 /// One frame of a track.
+///
+/// Not a [`PosedCamera`]: the track files (glTF animation, Nuke `.chan`) key one shared camera's
+/// pose by frame number and time, so a frame carries those two and the pose, and the camera is
+/// given once for the whole track ([`write_chan`]'s field of view). [`TrackFrame::to_posed`]
+/// attaches a camera.
 #[derive(Clone, Copy, Debug)]
 pub struct TrackFrame {
     /// The frame's number in the video (Nuke's frame column).
@@ -35,6 +40,13 @@ pub struct TrackFrame {
     /// Seconds from the start (glTF's key time).
     pub time_s: f64,
     pub cam_from_world: Rigid3,
+}
+
+impl TrackFrame {
+    /// The frame's pose with `camera`.
+    pub fn to_posed(&self, camera: Camera) -> PosedCamera {
+        PosedCamera::new(camera, self.cam_from_world)
+    }
 }
 
 /// The flip between Handheld's camera axes and glTF's / Nuke's (+Y up, looking down −Z).

@@ -189,10 +189,7 @@ pub(crate) fn build_atlas(
     opts: &TextureOptions,
 ) -> Result<(TexturedMesh, AtlasStats)> {
     let mut charts = make_charts(labels, neighbours);
-    let projectors: Vec<Projector> = views
-        .iter()
-        .map(|v| Projector::new(&v.camera, &v.cam_from_world))
-        .collect();
+    let projectors: Vec<Projector> = views.iter().map(|v| Projector::new(&v.posed)).collect();
     // Chart vertices and their pixels; `slot[v]` marks vertices already listed by the current chart.
     let mut slot = vec![u32::MAX; pos.len()];
     for (ci, c) in charts.iter_mut().enumerate() {

@@ -87,10 +87,10 @@ pub fn enhance_texture(
         check_image_view(i + 1, v)?;
     }
     let (w, h) = (image.width() as usize, image.height() as usize);
-    let rp = Projector::new(reference.camera, reference.cam_from_world);
+    let rp = Projector::new(reference.posed);
     let others: Vec<(Projector, &PosedView)> = linked
         .iter()
-        .map(|v| (Projector::new(&v.camera, &v.cam_from_world), v))
+        .map(|v| (Projector::new(&v.posed), v))
         .collect();
     progress.start("texture enhancement", h as u64);
     let src = image.as_raw();
@@ -115,7 +115,7 @@ pub fn enhance_texture(
                     let Some(px) = proj.cam_to_pixel(&pc) else {
                         continue;
                     };
-                    if !proj.camera.contains(&px) {
+                    if !proj.posed.camera.contains(&px) {
                         continue;
                     }
                     if let Some(dm) = &v.depth {

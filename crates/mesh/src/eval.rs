@@ -110,7 +110,7 @@ pub fn visible_surface_samples(views: &[PosedView], stride: usize) -> Result<Vec
     let mut out = Vec::new();
     for (i, v) in views.iter().enumerate() {
         let v = Depth::of(v, i)?;
-        let proj = Projector::new(v.camera, v.cam_from_world);
+        let proj = Projector::new(v.posed);
         let (w, h) = (v.depth.width, v.depth.height);
         for y in (0..h).step_by(stride) {
             for x in (0..w).step_by(stride) {

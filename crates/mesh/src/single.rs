@@ -140,7 +140,7 @@ pub fn mesh_from_depth_map(
     let (w, h) = (view.depth.width, view.depth.height);
     let step = opts.step;
     let (nx, ny) = ((w - 1) / step + 1, (h - 1) / step + 1);
-    let proj = Projector::new(view.camera, view.cam_from_world);
+    let proj = Projector::new(view.posed);
     progress.start("single-view mesh", ny as u64);
     // Grid vertices, row by row in parallel.
     let grid: Vec<Option<Point3<f64>>> = (0..ny)

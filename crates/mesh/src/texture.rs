@@ -217,20 +217,20 @@ fn view_scores(
     view: &PosedView,
     opts: &TextureOptions,
 ) -> Vec<f32> {
-    let proj = Projector::new(&view.camera, &view.cam_from_world);
+    let proj = Projector::new(&view.posed);
     let px: Vec<Option<(Vector2<f64>, f64)>> = pos
         .iter()
         .map(|p| {
             let pc = proj.to_cam(p);
             proj.cam_to_pixel(&pc)
-                .filter(|q| proj.camera.contains(q))
+                .filter(|q| proj.posed.camera.contains(q))
                 .map(|q| (q, pc.z))
         })
         .collect();
     let s = opts.zbuffer_scale;
     let (zw, zh) = (
-        ((view.camera.width as f64 * s).ceil() as usize).max(1),
-        ((view.camera.height as f64 * s).ceil() as usize).max(1),
+        ((view.posed.camera.width as f64 * s).ceil() as usize).max(1),
+        ((view.posed.camera.height as f64 * s).ceil() as usize).max(1),
     );
     let zb = zbuffer(&px, &mesh.faces, zw, zh, s);
     let tol = 1.0 + opts.depth_tolerance;

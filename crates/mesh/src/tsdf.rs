@@ -147,7 +147,7 @@ pub fn resolve_voxel_size(views: &[PosedView], opts: &TsdfOptions) -> Result<f64
             for (i, v) in views.iter().enumerate() {
                 let v = Depth::of(v, i)?;
                 let z = depth_quantile(&v, 0.5).ok_or(MeshError::EmptyDepth { view: i })?;
-                per_view.push(z / v.camera.intrinsics.f);
+                per_view.push(z / v.posed.camera.intrinsics.f);
             }
             per_view.sort_by(f64::total_cmp);
             let m = per_view
@@ -223,14 +223,14 @@ impl TsdfVolume {
     /// Creates the blocks within the truncation band around one view's depths.
     pub fn allocate(&mut self, view: &PosedView, view_index: usize) -> Result<()> {
         let view = Depth::of(view, view_index)?;
-        let proj = Projector::new(view.camera, view.cam_from_world);
+        let proj = Projector::new(view.posed);
         self.allocate_blocks(&view, &proj, view_index)
     }
 
     /// The update pass of one view over every allocated block (see the module documentation).
     pub fn update(&mut self, view: &PosedView, view_index: usize) -> Result<()> {
         let view = Depth::of(view, view_index)?;
-        let proj = Projector::new(view.camera, view.cam_from_world);
+        let proj = Projector::new(view.posed);
         let cos = incidence_map(&view);
         let ctx = UpdateContext {
             view: &view,
@@ -250,7 +250,7 @@ impl TsdfVolume {
     fn allocate_blocks(&mut self, view: &Depth, proj: &Projector, view_index: usize) -> Result<()> {
         let z95 = depth_quantile(view, 0.95).ok_or(MeshError::EmptyDepth { view: view_index })?;
         let block_side = self.voxel_size * BLOCK as f64;
-        let footprint = z95 / view.camera.intrinsics.f;
+        let footprint = z95 / view.posed.camera.intrinsics.f;
         let stride = ((0.25 * block_side / footprint).floor() as usize).clamp(1, 16);
         let (w, h) = (view.depth.width, view.depth.height);
         let trunc = self.truncation;
@@ -269,6 +269,7 @@ impl TsdfVolume {
                     }
                     let z = view.depth.data[y * w + x] as f64;
                     let n = view
+                        .posed
                         .camera
                         .intrinsics
                         .pixel_to_normalized(Vector2::new(x as f64, y as f64));

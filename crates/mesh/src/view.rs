@@ -7,100 +7,69 @@
 //! with the camera's undistortion ([`handheld_core::Intrinsics::pixel_to_normalized`]) and points are
 //! projected with its distortion, so no rectified or undistorted copy is ever made.
 
-use handheld_core::pose::center_of;
-use handheld_core::{Camera, FloatMap, PosedView, Rigid3};
+use handheld_core::{FloatMap, PosedCamera, PosedView, ViewError};
 use image::RgbImage;
 use nalgebra::{Matrix3, Point3, Vector2, Vector3};
 
 use crate::error::{MeshError, Result};
 
-/// Checks a camera and pose for finiteness and a usable focal length.
-pub(crate) fn check_camera(view: usize, camera: &Camera, pose: &Rigid3) -> Result<()> {
-    camera
-        .intrinsics
+/// Checks view number `view`'s camera and pose for finiteness and a usable focal length
+/// ([`PosedCamera::validate`]).
+pub(crate) fn check_camera(view: usize, posed: &PosedCamera) -> Result<()> {
+    posed
         .validate()
-        .map_err(|reason| MeshError::BadCamera { view, reason })?;
-    if camera.width == 0 || camera.height == 0 {
-        return Err(MeshError::BadCamera {
-            view,
-            reason: format!("image size {}x{}", camera.width, camera.height),
-        });
-    }
-    let finite = pose.translation.vector.iter().all(|v| v.is_finite())
-        && pose.rotation.coords.iter().all(|v| v.is_finite());
-    if !finite {
-        return Err(MeshError::BadCamera {
-            view,
-            reason: "the pose contains a non-finite value".into(),
-        });
-    }
-    Ok(())
+        .map_err(|reason| MeshError::BadCamera { view, reason })
 }
 
-/// Checks that a one-channel map has the camera's size and a consistent data length.
-pub(crate) fn check_map(
-    view: usize,
-    what: &'static str,
-    map: &FloatMap,
-    cam: &Camera,
-) -> Result<()> {
-    if map.channels != 1 {
-        return Err(MeshError::MalformedMap {
+/// The error of a [`PosedView`] check as the error of view number `view`.
+fn view_error(view: usize, e: ViewError) -> MeshError {
+    match e {
+        ViewError::SizeMismatch {
+            what,
+            got_w,
+            got_h,
+            cam_w,
+            cam_h,
+            ..
+        } => MeshError::SizeMismatch {
             view,
             what,
-            reason: format!("{} channels, expected 1", map.channels),
-        });
+            got_w,
+            got_h,
+            cam_w,
+            cam_h,
+        },
+        ViewError::MalformedMap { what, reason, .. } => {
+            MeshError::MalformedMap { view, what, reason }
+        }
     }
-    if map.data.len() != map.width * map.height {
-        return Err(MeshError::MalformedMap {
-            view,
-            what,
-            reason: format!(
-                "{} values for {}x{} pixels",
-                map.data.len(),
-                map.width,
-                map.height
-            ),
-        });
-    }
-    if map.width != cam.width as usize || map.height != cam.height as usize {
-        return Err(MeshError::SizeMismatch {
-            view,
-            what,
-            got_w: map.width,
-            got_h: map.height,
-            cam_w: cam.width as usize,
-            cam_h: cam.height as usize,
-        });
-    }
-    Ok(())
 }
 
 /// A view's depth map and optional confidence map (the fusion weight; `None` weighs every pixel
 /// 1), checked against its camera: what fusion, single-view meshes and evaluation read.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Depth<'a> {
-    pub camera: &'a Camera,
-    pub cam_from_world: &'a Rigid3,
+    pub posed: &'a PosedCamera,
     pub depth: &'a FloatMap,
     pub confidence: Option<&'a FloatMap>,
 }
 
 impl<'a> Depth<'a> {
-    /// Checks camera, pose, and the depth and confidence maps' sizes of view number `index`.
+    /// Checks camera, pose, and the depth and confidence maps' sizes of view number `index`
+    /// ([`PosedView::check_map`]; the image is not read, so it may be empty).
     pub fn of(view: &'a PosedView, index: usize) -> Result<Self> {
-        check_camera(index, &view.camera, &view.cam_from_world)?;
+        check_camera(index, &view.posed)?;
         let depth = view.depth.as_ref().ok_or(MeshError::MissingMap {
             view: index,
             what: "depth map",
         })?;
-        check_map(index, "depth map", depth, &view.camera)?;
+        let check = |what, map| view.check_map(what, map).map_err(|e| view_error(index, e));
+        check("depth map", depth)?;
         if let Some(c) = &view.confidence {
-            check_map(index, "confidence map", c, &view.camera)?;
+            check("confidence map", c)?;
         }
         Ok(Self {
-            camera: &view.camera,
-            cam_from_world: &view.cam_from_world,
+            posed: &view.posed,
             depth,
             confidence: view.confidence.as_ref(),
         })
@@ -128,22 +97,13 @@ impl<'a> Depth<'a> {
 }
 
 /// Checks camera, pose, and the image's and optional depth map's sizes of view number `index`
-/// (what texturing reads).
+/// (what texturing reads; [`PosedView::check_image`], [`PosedView::check_map`]).
 pub(crate) fn check_image_view(index: usize, v: &PosedView) -> Result<()> {
-    check_camera(index, &v.camera, &v.cam_from_world)?;
-    let (w, h) = v.image.dimensions();
-    if w != v.camera.width || h != v.camera.height {
-        return Err(MeshError::SizeMismatch {
-            view: index,
-            what: "image",
-            got_w: w as usize,
-            got_h: h as usize,
-            cam_w: v.camera.width as usize,
-            cam_h: v.camera.height as usize,
-        });
-    }
+    check_camera(index, &v.posed)?;
+    v.check_image().map_err(|e| view_error(index, e))?;
     if let Some(d) = &v.depth {
-        check_map(index, "depth map", d, &v.camera)?;
+        v.check_map("depth map", d)
+            .map_err(|e| view_error(index, e))?;
     }
     Ok(())
 }
@@ -153,7 +113,7 @@ pub(crate) fn check_image_view(index: usize, v: &PosedView) -> Result<()> {
 /// treated as outside).
 #[derive(Clone, Debug)]
 pub(crate) struct Projector {
-    pub camera: Camera,
+    pub posed: PosedCamera,
     pub rot: Matrix3<f64>,
     pub trans: Vector3<f64>,
     pub center: Point3<f64>,
@@ -164,7 +124,8 @@ pub(crate) struct Projector {
 }
 
 impl Projector {
-    pub fn new(camera: &Camera, cam_from_world: &Rigid3) -> Self {
+    pub fn new(posed: &PosedCamera) -> Self {
+        let (camera, cam_from_world) = (&posed.camera, &posed.cam_from_world);
         let k = &camera.intrinsics;
         let (w, h) = (camera.width as f64, camera.height as f64);
         let corners = [
@@ -202,10 +163,10 @@ impl Projector {
             0.02 * (bounds[3] - bounds[2]),
         );
         Self {
-            camera: camera.clone(),
+            posed: posed.clone(),
             rot: *cam_from_world.rotation.to_rotation_matrix().matrix(),
             trans: cam_from_world.translation.vector,
-            center: center_of(cam_from_world),
+            center: posed.center(),
             max_radius2: (1.05 * r).powi(2),
             bounds: [
                 bounds[0] - mx,
@@ -246,12 +207,13 @@ impl Projector {
         if n.norm_squared() > self.max_radius2 {
             return None;
         }
-        Some(self.camera.intrinsics.normalized_to_pixel(n))
+        Some(self.posed.camera.intrinsics.normalized_to_pixel(n))
     }
 
     /// Pixel `(x, y)` with depth `z` → world point.
     pub fn lift(&self, x: f64, y: f64, z: f64) -> Point3<f64> {
         let n = self
+            .posed
             .camera
             .intrinsics
             .pixel_to_normalized(Vector2::new(x, y));
@@ -268,7 +230,7 @@ impl Projector {
 pub(crate) fn incidence_map(view: &Depth) -> Vec<f32> {
     use rayon::prelude::*;
     let (w, h) = (view.depth.width, view.depth.height);
-    let k = &view.camera.intrinsics;
+    let k = &view.posed.camera.intrinsics;
     let ray_row = |y: usize| -> Vec<Vector3<f64>> {
         (0..w)
             .map(|x| {
@@ -388,7 +350,7 @@ pub(crate) fn sample_rgb(img: &RgbImage, px: &Vector2<f64>) -> [f64; 3] {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use handheld_core::{CameraId, Intrinsics};
+    use handheld_core::{Camera, CameraId, Intrinsics, Rigid3};
 
     #[test]
     fn lift_then_project_round_trips_with_distortion() {
@@ -402,7 +364,7 @@ mod tests {
             intrinsics: k,
         };
         let pose = Rigid3::new(Vector3::new(0.1, -0.2, 0.3), Vector3::new(0.05, 0.1, -0.02));
-        let p = Projector::new(&cam, &pose);
+        let p = Projector::new(&PosedCamera::new(cam, pose));
         let w = p.lift(12.0, 200.0, 3.5);
         let pc = p.to_cam(&w);
         assert!((pc.z - 3.5).abs() < 1e-9);

@@ -2,7 +2,7 @@
 
 mod common;
 
-use handheld_core::{FloatMap, NoProgress, Rigid3};
+use handheld_core::{FloatMap, NoProgress, PosedCamera, Rigid3};
 use handheld_mesh::{
     fuse_depth_maps, mesh_from_depth_map, texture_mesh, FusionOptions, MeshError, PosedView,
     SingleMeshOptions, TextureOptions, VoxelSize,
@@ -86,11 +86,11 @@ fn depth_maps_that_do_not_overlap_are_an_error() {
     let views = common::views(&seq);
     // The second camera moved 50 m back along its optical axis: its depths describe a surface far
     // from the first one's, so no voxel is seen near a surface by both.
-    let back = Rigid3::translation(0.0, 0.0, 50.0) * views[1].cam_from_world;
+    let back = Rigid3::translation(0.0, 0.0, 50.0) * views[1].posed.cam_from_world;
     let moved = vec![
         views[0].clone(),
         PosedView {
-            cam_from_world: back,
+            posed: PosedCamera::new(views[1].camera().clone(), back),
             ..views[1].clone()
         },
     ];
@@ -106,7 +106,7 @@ fn depth_maps_that_do_not_overlap_are_an_error() {
     // Non-finite poses and invalid options are named too.
     let nan = Rigid3::new(Vector3::new(f64::NAN, 0.0, 0.0), Vector3::zeros());
     let bad = vec![PosedView {
-        cam_from_world: nan,
+        posed: PosedCamera::new(views[0].camera().clone(), nan),
         ..views[0].clone()
     }];
     assert!(matches!(
@@ -153,10 +153,10 @@ fn texturing_rejects_mismatched_images_and_foreign_views() {
         "{err}"
     );
     // Cameras looking away from the mesh see none of it.
-    let turned =
-        Rigid3::rotation(Vector3::new(0.0, std::f64::consts::PI, 0.0)) * images[0].cam_from_world;
+    let turned = Rigid3::rotation(Vector3::new(0.0, std::f64::consts::PI, 0.0))
+        * images[0].posed.cam_from_world;
     let away = vec![PosedView {
-        cam_from_world: turned,
+        posed: PosedCamera::new(images[0].camera().clone(), turned),
         depth: None,
         ..images[0].clone()
     }];

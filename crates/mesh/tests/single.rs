@@ -19,8 +19,9 @@ fn single_view_mesh_is_accurate_oriented_and_textured_by_its_image() {
     let reference = 4;
     let size = seq.scene.extent();
     let gt = MeshIndex::new(&seq.mesh);
-    let (cam, pose) = seq.frame(reference).unwrap();
-    let centre = handheld_core::pose::center_of(pose);
+    let frame = seq.frame(reference).unwrap();
+    let (cam, pose) = (&frame.camera, &frame.cam_from_world);
+    let centre = frame.center();
     let mut far_faces = Vec::new();
     for max_angle in [85.0, 90.0] {
         let opts = SingleMeshOptions {

@@ -50,7 +50,7 @@ fn textured_mesh_reproduces_a_held_out_view() {
     assert!(summary.untextured_faces * 20 < summary.faces, "{summary:?}");
     assert!(summary.atlas_width <= 8192 && summary.atlas_height <= 8192);
     // Colour check against the held-out view, at face centroids it sees (GT depth agrees).
-    let (cam, pose) = (&held.camera, &held.cam_from_world);
+    let (cam, pose) = (&held.posed.camera, &held.posed.cam_from_world);
     let gt_depth = held.depth.as_ref().unwrap();
     let (aw, ah) = (tm.texture.width() as f64, tm.texture.height() as f64);
     let (mut sum, mut floor, mut n) = (0.0, 0.0, 0usize);
@@ -77,12 +77,12 @@ fn textured_mesh_reproduces_a_held_out_view() {
         let a = bilinear(&tm.texture, u * aw - 0.5, v * ah - 0.5);
         let b = bilinear(&held.image, px.x, px.y);
         // Floor: the same comparison between two real neighbouring images.
-        let (cam4, pose4) = seq.frame(held_out - 1).unwrap();
-        let Some(q) = cam4.project(pose4, &c).filter(|q| cam4.contains(q)) else {
+        let frame4 = seq.frame(held_out - 1).unwrap();
+        let Some(q) = frame4.project(&c).filter(|q| frame4.camera.contains(q)) else {
             continue;
         };
         let d4 = seq.depths[held_out - 1].get(q.x.round() as usize, q.y.round() as usize, 0) as f64;
-        if (pose4.transform_point(&c).z - d4).abs() > 0.01 * d4 {
+        if (frame4.to_cam(&c).z - d4).abs() > 0.01 * d4 {
             continue;
         }
         let r = bilinear(&seq.images[held_out - 1], q.x, q.y);

@@ -4,7 +4,7 @@
 //! which is exact up to the distortion's curvature over one triangle (sub-pixel for meshes of a
 //! few pixels per triangle).
 
-use handheld_core::{Camera, FloatMap, Rigid3, TriMesh};
+use handheld_core::{FloatMap, PosedCamera, TriMesh};
 use image::RgbImage;
 use nalgebra::{Point3, Vector2};
 
@@ -28,7 +28,7 @@ pub struct Fragment {
     pub weights: [f64; 3],
 }
 
-/// Rasterises `mesh` through `camera` at `cam_from_world` on a grid of `sub × sub` samples per
+/// Rasterises `mesh` seen by `view` on a grid of `sub × sub` samples per
 /// pixel (sample `(sx, sy)` sits at pixel position `((sx + ½)/sub − ½, (sy + ½)/sub − ½)`; with
 /// `sub = 1`, the pixel centres), inside the sample window `window` (x0, y0, x1, y1, exclusive
 /// ends; clipped to the image). Vertices are projected exactly, distortion included; a triangle's
@@ -37,13 +37,13 @@ pub struct Fragment {
 /// held, so the last call for a sample is its visible surface.
 pub fn rasterise(
     mesh: &TriMesh,
-    camera: &Camera,
-    cam_from_world: &Rigid3,
+    view: &PosedCamera,
     sub: usize,
     window: (usize, usize, usize, usize),
     zbuf: &mut Vec<f32>,
     mut frag: impl FnMut(&Fragment),
 ) {
+    let (camera, cam_from_world) = (&view.camera, &view.cam_from_world);
     let sub = sub.max(1);
     let (sw, sh) = (camera.width as usize * sub, camera.height as usize * sub);
     let (wx0, wy0) = (window.0.min(sw), window.1.min(sh));
@@ -154,31 +154,19 @@ pub fn fragment_colour(mesh: &TriMesh, texture: Option<&RgbImage>, f: &Fragment)
     }
 }
 
-/// Renders `mesh` seen by `camera` at `cam_from_world`. With `texture`, colours come from it at
+/// Renders `mesh` seen by `view`. With `texture`, colours come from it at
 /// the vertices' UVs (v = 0 at the top row); otherwise from the vertex colours (grey without).
-pub fn render_mesh(
-    mesh: &TriMesh,
-    texture: Option<&RgbImage>,
-    camera: &Camera,
-    cam_from_world: &Rigid3,
-) -> Rendered {
+pub fn render_mesh(mesh: &TriMesh, texture: Option<&RgbImage>, view: &PosedCamera) -> Rendered {
+    let camera = &view.camera;
     let (w, h) = (camera.width as usize, camera.height as usize);
     let mut image = RgbImage::new(camera.width, camera.height);
     let mut covered = vec![false; w * h];
     let mut zbuf = Vec::new();
-    rasterise(
-        mesh,
-        camera,
-        cam_from_world,
-        1,
-        (0, 0, w, h),
-        &mut zbuf,
-        |f| {
-            let rgb = fragment_colour(mesh, texture, f).map(|v| v.round().clamp(0.0, 255.0) as u8);
-            covered[f.sy * w + f.sx] = true;
-            image.put_pixel(f.sx as u32, f.sy as u32, image::Rgb(rgb));
-        },
-    );
+    rasterise(mesh, view, 1, (0, 0, w, h), &mut zbuf, |f| {
+        let rgb = fragment_colour(mesh, texture, f).map(|v| v.round().clamp(0.0, 255.0) as u8);
+        covered[f.sy * w + f.sx] = true;
+        image.put_pixel(f.sx as u32, f.sy as u32, image::Rgb(rgb));
+    });
     let depth = FloatMap {
         width: w,
         height: h,
@@ -240,7 +228,7 @@ pub fn mean_absolute_difference(rendered: &Rendered, photo: &RgbImage) -> (f64, 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use handheld_core::{CameraId, Intrinsics, PointCloud};
+    use handheld_core::{Camera, CameraId, Intrinsics, PointCloud};
 
     /// A quad facing the camera renders where its corners project, with its vertex colours.
     #[test]
@@ -266,7 +254,11 @@ mod tests {
             uvs: Vec::new(),
             faces: vec![[0, 1, 2], [0, 2, 3]],
         };
-        let r = render_mesh(&mesh, None, &camera, &Rigid3::identity());
+        let r = render_mesh(
+            &mesh,
+            None,
+            &PosedCamera::new(camera, handheld_core::Rigid3::identity()),
+        );
         // Corners at 31.5 ± 12.5, 23.5 ± 12.5: a 25×25 square (x 19..=44, y 11..=36).
         let n = r.covered.iter().filter(|c| **c).count();
         assert!((24 * 24..=26 * 26).contains(&n), "{n} pixels");

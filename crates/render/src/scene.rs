@@ -6,9 +6,9 @@
 //! Nothing here reads a file: the pipeline loads the views, points and mesh of a workspace (or of
 //! any dense folder) and hands them over.
 
-use handheld_core::{Camera, PosedView, Rigid3, TriMesh};
+use handheld_core::{Camera, PosedCamera, PosedView, Rigid3, TriMesh};
 use image::RgbImage;
-use nalgebra::{Point3, Vector2};
+use nalgebra::Point3;
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
@@ -173,8 +173,9 @@ impl FlightOptions {
 /// The recorded views of a reconstruction, ready for rendering.
 pub struct RenderScene {
     pub scene: IbrScene,
-    /// Every recorded view: name, camera (at the rendering resolution) and pose, in name order.
-    pub views: Vec<(String, Camera, Rigid3)>,
+    /// Every recorded view: name and camera (at the rendering resolution) in its pose, in name
+    /// order.
+    pub views: Vec<(String, PosedCamera)>,
     /// The sparse points (paths look at their median).
     pub points: Vec<Point3<f64>>,
     /// The textured mesh, when there is one.
@@ -197,9 +198,9 @@ impl RenderScene {
             ));
         }
         let scene = IbrScene::new(views, &points).map_err(|e| SceneError::Scene(e.to_string()))?;
-        let mut all: Vec<(String, Camera, Rigid3)> = views
+        let mut all: Vec<(String, PosedCamera)> = views
             .iter()
-            .map(|v| (v.name.clone(), v.camera.clone(), v.cam_from_world))
+            .map(|v| (v.name.clone(), v.posed.clone()))
             .collect();
         all.sort_by(|a, b| a.0.cmp(&b.0));
         Ok(Self {
@@ -221,12 +222,11 @@ impl RenderScene {
         }
     }
 
-    /// Renders one view with `method` into `out`.
+    /// Renders the view from `view` with `method` into `out`.
     pub fn render(
         &self,
         renderer: &mut Renderer,
-        camera: &Camera,
-        pose: &Rigid3,
+        view: &PosedCamera,
         method: RenderMethod,
         opts: &IbrOptions,
         out: &mut Rendered,
@@ -236,12 +236,12 @@ impl RenderScene {
             Some(m) => {
                 let proxy = match (&self.mesh, method) {
                     (Some((mesh, _)), RenderMethod::UlrMesh) => {
-                        Some(render_mesh(mesh, None, camera, pose).depth)
+                        Some(render_mesh(mesh, None, view).depth)
                     }
                     _ => None,
                 };
                 let stats = renderer
-                    .render_with_proxy(&self.scene, camera, pose, m, opts, proxy.as_ref(), out)
+                    .render_with_proxy(&self.scene, view, m, opts, proxy.as_ref(), out)
                     .map_err(|e| SceneError::option("--method", e.to_string()))?;
                 Ok(Some(stats))
             }
@@ -252,7 +252,7 @@ impl RenderScene {
                         "mesh: the workspace has no textured mesh (run the mesh stage first)",
                     )
                 })?;
-                *out = render_mesh(mesh, tex.as_ref(), camera, pose);
+                *out = render_mesh(mesh, tex.as_ref(), view);
                 Ok(None)
             }
         }
@@ -260,8 +260,8 @@ impl RenderScene {
 
     /// The virtual camera and the poses of a fly-through.
     pub fn flight_poses(&self, opts: &FlightOptions) -> (Camera, Vec<Rigid3>) {
-        let camera = virtual_camera(&self.views[0].1, opts.width);
-        let keys: Vec<Rigid3> = self.views.iter().map(|v| v.2).collect();
+        let camera = virtual_camera(&self.views[0].1.camera, opts.width);
+        let keys: Vec<Rigid3> = self.views.iter().map(|v| v.1.cam_from_world).collect();
         let poses = match opts.path {
             PathKind::Through => path::through(&keys, opts.frames),
             PathKind::Orbit => {
@@ -285,22 +285,8 @@ pub fn virtual_camera(camera: &Camera, width: u32) -> Camera {
     let s = f64::from(width) / f64::from(c.width);
     let w = width & !1;
     let h = ((f64::from(c.height) * s).round() as u32).max(2) & !1;
-    scaled(
-        &c,
+    c.scaled(
         f64::from(w) / f64::from(c.width),
         f64::from(h) / f64::from(c.height),
     )
-}
-
-/// `camera` for an image resampled by `sx`, `sy` (pixel centres kept).
-fn scaled(camera: &Camera, sx: f64, sy: f64) -> Camera {
-    let mut c = camera.clone();
-    let i = &mut c.intrinsics;
-    i.f *= sx;
-    i.aspect *= sy / sx;
-    i.skew *= sx;
-    i.pp = Vector2::new((i.pp.x + 0.5) * sx - 0.5, (i.pp.y + 0.5) * sy - 0.5);
-    c.width = (camera.width as f64 * sx).round() as u32;
-    c.height = (camera.height as f64 * sy).round() as u32;
-    c
 }

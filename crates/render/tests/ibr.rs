@@ -11,8 +11,8 @@ use handheld_testkit::sequence::SequenceOptions;
 fn views(seq: &handheld_testkit::render::SyntheticSequence) -> Vec<PosedView> {
     (0..seq.images.len())
         .map(|i| {
-            let (cam, pose) = seq.frame(i).unwrap();
-            let mut v = PosedView::new(format!("{i}"), cam.clone(), *pose, seq.images[i].clone());
+            let frame = seq.frame(i).unwrap();
+            let mut v = PosedView::from_posed(format!("{i}"), frame, seq.images[i].clone());
             v.depth = Some(seq.depths[i].clone());
             v
         })
@@ -48,9 +48,7 @@ fn held_out_frame_improves_with_the_geometry_level() {
     }
     let mut psnr = Vec::new();
     for m in IbrMethod::ALL {
-        let (r, s) = renderer
-            .render(&scene, &held.camera, &held.cam_from_world, m, &ibr)
-            .unwrap();
+        let (r, s) = renderer.render(&scene, &held.posed, m, &ibr).unwrap();
         let q = quality(&r.image, &held.image, &r.covered);
         println!(
             "{:>10}: PSNR {:.2} dB, SSIM {:.3}, coverage {:.3}, {} cameras, {} triangles, {} leaves",

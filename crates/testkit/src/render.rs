@@ -24,7 +24,7 @@ use std::collections::BTreeMap;
 use handheld_core::pose::center_of;
 use handheld_core::{
     Camera, CameraId, FloatMap, ImageId, Intrinsics, MetricReconstruction, Observation, Point3D,
-    PointId, Rigid3, TrackElement, TriMesh, View,
+    PointId, PosedCamera, TrackElement, TriMesh, View,
 };
 use image::RgbImage;
 use nalgebra::{Point3, Vector2, Vector3};
@@ -58,20 +58,18 @@ pub struct SyntheticSequence {
 }
 
 impl SyntheticSequence {
-    /// Camera and `cam_from_world` of frame `i`.
-    pub fn frame(&self, i: usize) -> Option<(&Camera, &Rigid3)> {
+    /// The camera of frame `i` in its pose (a copy of the ground truth's).
+    pub fn frame(&self, i: usize) -> Option<PosedCamera> {
         let view = self.gt.views.get(&ImageId(i as u32))?;
-        Some((self.gt.cameras.get(&view.camera_id)?, &view.cam_from_world))
+        let camera = self.gt.cameras.get(&view.camera_id)?;
+        Some(PosedCamera::new(camera.clone(), view.cam_from_world))
     }
 }
 
 /// World-space ray through pixel `px` (distorted pixel coordinates): origin at the camera centre and a
 /// direction whose camera-frame `z` is 1, so the hit parameter `t` is the depth.
-pub fn pixel_ray(
-    camera: &Camera,
-    cam_from_world: &Rigid3,
-    px: Vector2<f64>,
-) -> (Point3<f64>, Vector3<f64>) {
+pub fn pixel_ray(view: &PosedCamera, px: Vector2<f64>) -> (Point3<f64>, Vector3<f64>) {
+    let (camera, cam_from_world) = (&view.camera, &view.cam_from_world);
     let n = camera.intrinsics.pixel_to_normalized(px);
     (
         center_of(cam_from_world),
@@ -102,17 +100,14 @@ pub fn highlight(scene: &Scene, hit: &Hit, dir: &Vector3<f64>, light: &Vector3<f
 
 /// The specular term through each pixel centre of a view (0 where there is none): the mask of
 /// the highlights.
-pub fn highlight_map(scene: &Scene, camera: &Camera, cam_from_world: &Rigid3) -> FloatMap {
+pub fn highlight_map(scene: &Scene, view: &PosedCamera) -> FloatMap {
+    let camera = &view.camera;
     let (w, h) = (camera.width as usize, camera.height as usize);
     let light = light_dir();
     let data = (0..w * h)
         .into_par_iter()
         .map(|i| {
-            let (o, dir) = pixel_ray(
-                camera,
-                cam_from_world,
-                Vector2::new((i % w) as f64, (i / w) as f64),
-            );
+            let (o, dir) = pixel_ray(view, Vector2::new((i % w) as f64, (i / w) as f64));
             scene
                 .intersect(&o, &dir)
                 .map_or(0.0, |hit| highlight(scene, &hit, &dir, &light) as f32)
@@ -203,17 +198,15 @@ impl RayTable {
 /// Renders one frame: the anti-aliased noisy image and the pixel-centre depth map.
 pub fn render_frame(
     scene: &Scene,
-    camera: &Camera,
-    cam_from_world: &Rigid3,
+    view: &PosedCamera,
     samples_per_axis: u32,
     noise_sigma: f64,
     noise_seed: u64,
 ) -> (RgbImage, FloatMap) {
     render_frame_with_rays(
         scene,
-        camera,
-        cam_from_world,
-        &RayTable::new(camera, samples_per_axis),
+        view,
+        &RayTable::new(&view.camera, samples_per_axis),
         noise_sigma,
         noise_seed,
     )
@@ -222,18 +215,17 @@ pub fn render_frame(
 /// [`render_frame`] with a precomputed [`RayTable`] (recomputed here if it does not match `camera`).
 pub fn render_frame_with_rays(
     scene: &Scene,
-    camera: &Camera,
-    cam_from_world: &Rigid3,
+    view: &PosedCamera,
     rays: &RayTable,
     noise_sigma: f64,
     noise_seed: u64,
 ) -> (RgbImage, FloatMap) {
+    let (camera, cam_from_world) = (&view.camera, &view.cam_from_world);
     let (w, h) = (camera.width as usize, camera.height as usize);
     if rays.width != w || rays.height != h || rays.intrinsics != camera.intrinsics {
         return render_frame_with_rays(
             scene,
-            camera,
-            cam_from_world,
+            view,
             &RayTable::new(camera, rays.samples_per_axis as u32),
             noise_sigma,
             noise_seed,
@@ -290,11 +282,7 @@ pub fn render_frame_with_rays(
             }
             if inner_row && centre_idx.is_none() {
                 for (x, d) in depth.iter_mut().enumerate() {
-                    let (o, dir) = pixel_ray(
-                        camera,
-                        cam_from_world,
-                        Vector2::new(x as f64, (yy - 1) as f64),
-                    );
+                    let (o, dir) = pixel_ray(view, Vector2::new(x as f64, (yy - 1) as f64));
                     *d = scene.intersect(&o, &dir).map_or(0.0, |hit| hit.t as f32);
                 }
             }
@@ -353,10 +341,10 @@ pub fn render_frame_with_rays(
 /// inside the distortion model's valid radius, front-facing, and not occluded.
 pub fn landmark_projection(
     scene: &Scene,
-    camera: &Camera,
-    cam_from_world: &Rigid3,
+    view: &PosedCamera,
     lm: &Landmark,
 ) -> Option<Vector2<f64>> {
+    let (camera, cam_from_world) = (&view.camera, &view.cam_from_world);
     let c = center_of(cam_from_world);
     if lm.normal.dot(&(c - lm.position)) <= 0.0 {
         return None;
@@ -386,9 +374,10 @@ pub fn landmark_projection(
 }
 
 /// The ground-truth reconstruction of a scene seen by the given frames.
-pub fn ground_truth(scene: &Scene, frames: &[(Camera, Rigid3)]) -> MetricReconstruction {
+pub fn ground_truth(scene: &Scene, frames: &[PosedCamera]) -> MetricReconstruction {
     let mut rec = MetricReconstruction::default();
-    for (i, (cam, pose)) in frames.iter().enumerate() {
+    for (i, frame) in frames.iter().enumerate() {
+        let (cam, pose) = (&frame.camera, &frame.cam_from_world);
         let existing = rec
             .cameras
             .values()
@@ -420,8 +409,8 @@ pub fn ground_truth(scene: &Scene, frames: &[(Camera, Rigid3)]) -> MetricReconst
         let seen: Vec<(ImageId, Vector2<f64>)> = frames
             .iter()
             .enumerate()
-            .filter_map(|(i, (cam, pose))| {
-                landmark_projection(scene, cam, pose, lm).map(|px| (ImageId(i as u32), px))
+            .filter_map(|(i, view)| {
+                landmark_projection(scene, view, lm).map(|px| (ImageId(i as u32), px))
             })
             .collect();
         if seen.len() < min_track || seen.is_empty() {
@@ -467,27 +456,26 @@ pub fn render_sequence_with_scene(
 ) -> Result<SyntheticSequence, String> {
     opts.validate()?;
     let traj = opts.effective_path().generate()?;
-    let frames: Vec<(Camera, Rigid3)> = traj
+    let frames: Vec<PosedCamera> = traj
         .cam_from_world
         .iter()
         .zip(&traj.focal_factor)
         .map(|(pose, &factor)| {
-            (
-                Camera {
-                    id: CameraId(0),
-                    width: opts.width,
-                    height: opts.height,
-                    intrinsics: opts.intrinsics(factor),
-                },
-                *pose,
-            )
+            let camera = Camera {
+                id: CameraId(0),
+                width: opts.width,
+                height: opts.height,
+                intrinsics: opts.intrinsics(factor),
+            };
+            PosedCamera::new(camera, *pose)
         })
         .collect();
     let gt = ground_truth(&scene, &frames);
     let mut images = Vec::with_capacity(frames.len());
     let mut depths = Vec::with_capacity(frames.len());
     let mut table: Option<(Intrinsics, RayTable)> = None;
-    for (i, (cam, pose)) in frames.iter().enumerate() {
+    for (i, view) in frames.iter().enumerate() {
+        let cam = &view.camera;
         let stale = match &table {
             Some((k, _)) => *k != cam.intrinsics,
             None => true,
@@ -500,8 +488,7 @@ pub fn render_sequence_with_scene(
         };
         let (img, depth) = render_frame_with_rays(
             &scene,
-            cam,
-            pose,
+            view,
             rays,
             opts.image_noise_sigma,
             hash_words(&[opts.seed, 0x1A6E, i as u64]),

@@ -56,7 +56,8 @@ fn projected_disk_centroid(
     frame: usize,
     lm_idx: usize,
 ) -> Option<Vector2<f64>> {
-    let (cam, pose) = seq.frame(frame)?;
+    let view = seq.frame(frame)?;
+    let (cam, pose) = (&view.camera, &view.cam_from_world);
     let lm = seq.scene.landmark_info()[lm_idx];
     let rect = seq.scene.face_rect(lm.primitive, lm.face)?;
     let poly: Vec<Vector2<f64>> = (0..720)
@@ -87,7 +88,8 @@ fn measure_disk(
     lm_idx: usize,
     predicted: Vector2<f64>,
 ) -> Option<Vector2<f64>> {
-    let (cam, pose) = seq.frame(frame)?;
+    let view = seq.frame(frame)?;
+    let (cam, pose) = (&view.camera, &view.cam_from_world);
     let lm = seq.scene.landmark_info()[lm_idx];
     let c = center_of(pose);
     let view_dir = (lm.position - c).normalize();
@@ -116,7 +118,7 @@ fn measure_disk(
                 .iter()
                 .enumerate()
             {
-                let (o, d) = pixel_ray(cam, pose, Vector2::new(x as f64 + dx, y as f64 + dy));
+                let (o, d) = pixel_ray(&view, Vector2::new(x as f64 + dx, y as f64 + dy));
                 match seq.scene.intersect(&o, &d) {
                     Some(h) if h.primitive == lm.primitive && h.face == lm.face => {
                         corners[k] = h.uv;
@@ -211,7 +213,8 @@ fn depth_maps_match_independent_ray_casting() {
     let mut rng = ChaCha8Rng::seed_from_u64(1);
     let (mut checked, mut empty) = (0, 0);
     for (i, depth) in seq.depths.iter().enumerate() {
-        let (cam, pose) = seq.frame(i).expect("frame exists");
+        let view = seq.frame(i).expect("frame exists");
+        let (cam, pose) = (&view.camera, &view.cam_from_world);
         for _ in 0..2000 {
             let (x, y) = (
                 rng.random_range(0..cam.width as usize),
@@ -245,7 +248,8 @@ fn depth_maps_match_independent_ray_casting() {
     for point in seq.gt.points.values() {
         for el in &point.track.elements {
             let i = el.image_id.0 as usize;
-            let (cam, pose) = seq.frame(i).expect("frame exists");
+            let view = seq.frame(i).expect("frame exists");
+            let cam = &view.camera;
             let px = seq.gt.views[&el.image_id].observations[el.point2d_idx as usize].xy;
             let (x0, y0) = (px.x.floor(), px.y.floor());
             if x0 < 0.0 || y0 < 0.0 || x0 + 1.0 >= cam.width as f64 || y0 + 1.0 >= cam.height as f64
@@ -265,7 +269,7 @@ fn depth_maps_match_independent_ray_casting() {
             }
             let z = (1.0 - fy) * ((1.0 - fx) * ds[0] + fx * ds[1])
                 + fy * ((1.0 - fx) * ds[2] + fx * ds[3]);
-            let (o, d) = pixel_ray(cam, pose, px);
+            let (o, d) = pixel_ray(&view, px);
             let err = ((o + d * z) - point.xyz).norm();
             worst = worst.max(err);
             n += 1;
@@ -293,7 +297,8 @@ fn gt_mesh_contains_landmarks_and_depth_points() {
         let d = distance_to_mesh(&seq.mesh, &l);
         assert!(d < 1e-5, "landmark {l:?} is {d} m off the mesh");
     }
-    let (cam, pose) = seq.frame(1).expect("frame exists");
+    let view = seq.frame(1).expect("frame exists");
+    let cam = &view.camera;
     let mut rng = ChaCha8Rng::seed_from_u64(2);
     let mut worst: f64 = 0.0;
     let mut n = 0;
@@ -306,7 +311,7 @@ fn gt_mesh_contains_landmarks_and_depth_points() {
         if z == 0.0 {
             continue;
         }
-        let (o, d) = pixel_ray(cam, pose, Vector2::new(x as f64, y as f64));
+        let (o, d) = pixel_ray(&view, Vector2::new(x as f64, y as f64));
         worst = worst.max(distance_to_mesh(&seq.mesh, &(o + d * z)));
         n += 1;
     }

@@ -2,16 +2,14 @@
 //! Rectification is defined on ideal coordinates, so the single resampling step goes
 //! rectified → ideal → original (distorted) pixel, and radial distortion is removed on the way.
 
-use handheld_core::{Camera, Intrinsics, Rigid3};
+use handheld_core::PosedCamera;
 use nalgebra::{Matrix3, Point3, Vector2, Vector3};
 
-/// One calibrated view seen through its ideal (undistorted) pixel coordinates.
+/// One calibrated view seen through its ideal (undistorted) pixel coordinates: the camera in its
+/// pose plus what rectification reads over and over (`K`, its inverse, the image border).
 #[derive(Clone, Debug)]
 pub struct IdealView {
-    pub intrinsics: Intrinsics,
-    pub cam_from_world: Rigid3,
-    pub width: u32,
-    pub height: u32,
+    pub posed: PosedCamera,
     pub k: Matrix3<f64>,
     pub k_inv: Matrix3<f64>,
     /// The image border mapped to ideal coordinates, a closed polygon (last vertex ≠ first).
@@ -20,14 +18,12 @@ pub struct IdealView {
 
 impl IdealView {
     /// `None` when `K` is singular.
-    pub fn new(camera: &Camera, cam_from_world: &Rigid3) -> Option<Self> {
+    pub fn new(posed: &PosedCamera) -> Option<Self> {
+        let camera = &posed.camera;
         let k = camera.intrinsics.k_matrix();
         let k_inv = k.try_inverse()?;
         let mut view = Self {
-            intrinsics: camera.intrinsics,
-            cam_from_world: *cam_from_world,
-            width: camera.width,
-            height: camera.height,
+            posed: posed.clone(),
             k,
             k_inv,
             border: Vec::new(),
@@ -50,39 +46,48 @@ impl IdealView {
 
     /// Original (distorted) pixel → ideal pixel.
     pub fn to_ideal(&self, px: Vector2<f64>) -> Vector2<f64> {
-        let n = self.intrinsics.pixel_to_normalized(px);
+        let n = self.posed.camera.intrinsics.pixel_to_normalized(px);
         (self.k * Vector3::new(n.x, n.y, 1.0)).xy()
     }
 
     /// Ideal pixel → original (distorted) pixel.
     pub fn from_ideal(&self, p: Vector2<f64>) -> Vector2<f64> {
         let n = self.k_inv * Vector3::new(p.x, p.y, 1.0);
-        self.intrinsics
+        self.posed
+            .camera
+            .intrinsics
             .normalized_to_pixel(Vector2::new(n.x / n.z, n.y / n.z))
+    }
+
+    /// Image width in pixels.
+    pub fn width(&self) -> u32 {
+        self.posed.camera.width
+    }
+
+    /// Image height in pixels.
+    pub fn height(&self) -> u32 {
+        self.posed.camera.height
     }
 
     /// True when an original pixel position lies inside the image.
     pub fn contains(&self, px: &Vector2<f64>) -> bool {
-        px.x >= -0.5
-            && px.y >= -0.5
-            && px.x < self.width as f64 - 0.5
-            && px.y < self.height as f64 - 0.5
+        self.posed.camera.contains(px)
     }
 
     /// The camera centre in the world.
     pub fn center(&self) -> Point3<f64> {
-        handheld_core::pose::center_of(&self.cam_from_world)
+        self.posed.center()
     }
 
     /// `P = K [R | t]` in ideal pixels.
     pub fn projection(&self) -> nalgebra::Matrix3x4<f64> {
-        self.k * handheld_core::pose::to_matrix3x4(&self.cam_from_world)
+        self.k * handheld_core::pose::to_matrix3x4(&self.posed.cam_from_world)
     }
 
     /// The world direction of the ray through an ideal pixel.
     pub fn ray_world(&self, p: Vector2<f64>) -> Vector3<f64> {
         let d = self.k_inv * Vector3::new(p.x, p.y, 1.0);
-        self.cam_from_world.rotation.inverse() * d
+        self.posed.cam_from_world.rotation.inverse() * d
     }
 
     /// Whether an ideal point lies inside the border polygon (crossing number).

@@ -10,7 +10,7 @@ pub mod ideal;
 pub mod planar;
 pub mod polar;
 
-use handheld_core::{Camera, FloatMap, Rigid3};
+use handheld_core::{FloatMap, PosedCamera};
 use nalgebra::{Point3, Vector2};
 
 use crate::error::{DenseError, Result};
@@ -87,29 +87,27 @@ pub struct Rectification {
     kind: Kind,
 }
 
-/// Rectifies the pair `(cam1, pose1)`, `(cam2, pose2)` (poses `cam_from_world`).
+/// Rectifies the pair `left`, `right` (side 0 and side 1).
 pub fn rectify_pair(
-    cam1: &Camera,
-    pose1: &Rigid3,
-    cam2: &Camera,
-    pose2: &Rigid3,
+    left: &PosedCamera,
+    right: &PosedCamera,
     opts: &RectifyOptions,
 ) -> Result<Rectification> {
     opts.validate()?;
-    let view = |c: &Camera, p: &Rigid3| {
-        IdealView::new(c, p).ok_or_else(|| DenseError::Rectification {
-            reason: format!("camera {} has a singular calibration matrix", c.id.0),
+    let view = |c: &PosedCamera| {
+        IdealView::new(c).ok_or_else(|| DenseError::Rectification {
+            reason: format!("camera {} has a singular calibration matrix", c.camera.id.0),
         })
     };
-    let (v1, v2) = (view(cam1, pose1)?, view(cam2, pose2)?);
+    let (v1, v2) = (view(left)?, view(right)?);
     let use_planar = match opts.method {
         RectifyMethod::Planar => true,
         RectifyMethod::Polar => false,
         RectifyMethod::Auto => {
             let far = |v: &IdealView, other: &IdealView| {
                 let e = v.projection() * other.center().to_homogeneous();
-                let diag = (v.width as f64).hypot(v.height as f64);
-                let centre = nalgebra::Vector2::new(v.width as f64, v.height as f64) * 0.5;
+                let diag = (v.width() as f64).hypot(v.height() as f64);
+                let centre = nalgebra::Vector2::new(v.width() as f64, v.height() as f64) * 0.5;
                 e.z.abs() * opts.planar_epipole_distance * diag < (e.xy() - centre * e.z).norm()
             };
             far(&v1, &v2) && far(&v2, &v1)
@@ -243,14 +241,7 @@ impl Rectification {
     /// Projects a world point into view `side` (original pixel), `None` behind or outside it.
     pub fn project(&self, side: usize, p: &Point3<f64>) -> Option<Vector2<f64>> {
         let v = &self.views[side];
-        let q = v.cam_from_world.transform_point(p);
-        if q.z <= 0.0 {
-            return None;
-        }
-        let m = v
-            .intrinsics
-            .normalized_to_pixel(Vector2::new(q.x / q.z, q.y / q.z));
-        v.contains(&m).then_some(m)
+        v.posed.project(p).filter(|m| v.contains(m))
     }
 }
 

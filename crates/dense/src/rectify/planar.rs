@@ -32,7 +32,7 @@ impl PlanarRect {
         }
         let x = base.normalize();
         // Mean viewing direction of the two cameras, in the world.
-        let z_of = |v: &IdealView| v.cam_from_world.rotation.inverse() * Vector3::z();
+        let z_of = |v: &IdealView| v.posed.cam_from_world.rotation.inverse() * Vector3::z();
         let zm = (z_of(v1) + z_of(v2)).normalize();
         let y = zm.cross(&x);
         if y.norm() < 1e-6 {
@@ -57,7 +57,7 @@ impl PlanarRect {
             f64::NEG_INFINITY,
         ); 2];
         for (i, v) in [v1, v2].into_iter().enumerate() {
-            let r_cam = v.cam_from_world.rotation.to_rotation_matrix();
+            let r_cam = v.posed.cam_from_world.rotation.to_rotation_matrix();
             let hi = k_new * (rect_from_world * r_cam.inverse()).matrix() * v.k_inv;
             for p in &v.border {
                 let q = hi * Vector3::new(p.x, p.y, 1.0);
@@ -80,7 +80,7 @@ impl PlanarRect {
         let height = (y1 - y0) as usize + 1;
         let input = [v1, v2]
             .iter()
-            .map(|v| v.width as f64 * v.height as f64)
+            .map(|v| v.width() as f64 * v.height() as f64)
             .fold(0.0, f64::max);
         if width as f64 * height as f64 > max_pixels_ratio * input {
             return degenerate(format!(

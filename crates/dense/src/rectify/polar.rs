@@ -69,7 +69,7 @@ impl PolarRect {
         let degenerate = |reason: String| Err(DenseError::Rectification { reason });
         let e1h = oriented_epipole(v1, v2);
         let e2h = oriented_epipole(v2, v1);
-        let scale = |v: &IdealView| (v.width as f64).hypot(v.height as f64);
+        let scale = |v: &IdealView| (v.width() as f64).hypot(v.height() as f64);
         for (eh, v) in [(&e1h, v1), (&e2h, v2)] {
             if eh.z.abs() * 1e6 * scale(v) < eh.xy().norm() {
                 return degenerate("an epipole lies at infinity (use planar rectification)".into());

@@ -1,4 +1,4 @@
-use handheld_core::{pose::cam_from_world_from_center, CameraId, Intrinsics};
+use handheld_core::{pose::cam_from_world_from_center, Camera, CameraId, Intrinsics, Rigid3};
 use nalgebra::{Rotation3, Vector3};
 
 use super::*;
@@ -25,8 +25,8 @@ fn pose(center: [f64; 3], yaw: f64, pitch: f64) -> Rigid3 {
 }
 
 /// World points spread over both views' fields of view, 2–8 units in front of camera 1.
-fn points(pose1: &Rigid3, cam: &Camera) -> Vec<Point3<f64>> {
-    let inv = pose1.inverse();
+fn points(view1: &PosedCamera) -> Vec<Point3<f64>> {
+    let (cam, inv) = (&view1.camera, view1.cam_from_world.inverse());
     let mut out = Vec::new();
     for i in 0..40 {
         for j in 0..30 {
@@ -69,9 +69,14 @@ fn polar_rectification_aligns_rows_under_forward_motion() {
         pose([0.0, 0.0, 0.0], 0.0, 0.0),
         pose([0.05, -0.02, 0.6], 0.03, 0.01),
     );
-    let rect = rectify_pair(&cam, &p1, &cam, &p2, &RectifyOptions::default()).unwrap();
+    let rect = rectify_pair(
+        &PosedCamera::new(cam.clone(), p1),
+        &PosedCamera::new(cam.clone(), p2),
+        &RectifyOptions::default(),
+    )
+    .unwrap();
     assert!(rect.is_polar());
-    let worst = check_rows(&rect, &points(&p1, &cam), 500);
+    let worst = check_rows(&rect, &points(&PosedCamera::new(cam.clone(), p1)), 500);
     assert!(worst < 0.1, "row error {worst} px");
     let (w, h) = rect.size();
     assert!(w < 1000 && h < 5000, "rectified size {w}x{h}");
@@ -84,16 +89,26 @@ fn planar_rectification_aligns_rows_for_sideways_motion() {
         pose([0.0, 0.0, 0.0], 0.0, 0.0),
         pose([0.4, 0.03, 0.05], -0.05, 0.02),
     );
-    let rect = rectify_pair(&cam, &p1, &cam, &p2, &RectifyOptions::default()).unwrap();
+    let rect = rectify_pair(
+        &PosedCamera::new(cam.clone(), p1),
+        &PosedCamera::new(cam.clone(), p2),
+        &RectifyOptions::default(),
+    )
+    .unwrap();
     assert!(!rect.is_polar());
-    let worst = check_rows(&rect, &points(&p1, &cam), 500);
+    let worst = check_rows(&rect, &points(&PosedCamera::new(cam.clone(), p1)), 500);
     assert!(worst < 0.1, "row error {worst} px");
     let opts = RectifyOptions {
         method: RectifyMethod::Polar,
         ..Default::default()
     };
-    let polar = rectify_pair(&cam, &p1, &cam, &p2, &opts).unwrap();
-    assert!(check_rows(&polar, &points(&p1, &cam), 500) < 0.1);
+    let polar = rectify_pair(
+        &PosedCamera::new(cam.clone(), p1),
+        &PosedCamera::new(cam.clone(), p2),
+        &opts,
+    )
+    .unwrap();
+    assert!(check_rows(&polar, &points(&PosedCamera::new(cam.clone(), p1)), 500) < 0.1);
     let rect_of = |r: &Rectification, p: &Point3<f64>| {
         let a = r.to_rect(0, r.project(0, p).unwrap()).unwrap();
         let b = r.to_rect(1, r.project(1, p).unwrap()).unwrap();
@@ -121,8 +136,13 @@ fn backward_motion_and_disparity_range() {
         pose([0.0, 0.0, 0.0], 0.0, 0.0),
         pose([0.0, 0.1, -0.5], 0.0, 0.05),
     );
-    let rect = rectify_pair(&cam, &p1, &cam, &p2, &RectifyOptions::default()).unwrap();
-    let pts = points(&p1, &cam);
+    let rect = rectify_pair(
+        &PosedCamera::new(cam.clone(), p1),
+        &PosedCamera::new(cam.clone(), p2),
+        &RectifyOptions::default(),
+    )
+    .unwrap();
+    let pts = points(&PosedCamera::new(cam.clone(), p1));
     assert!(check_rows(&rect, &pts, 300) < 0.1);
     let (lo, hi) = rect.disparity_range(&pts, 0.1).unwrap();
     assert!(lo < hi);
@@ -133,5 +153,10 @@ fn coincident_centres_are_an_error() {
     let cam = camera(0.0);
     let p = pose([0.0, 0.0, 0.0], 0.0, 0.0);
     let q = pose([0.0, 0.0, 0.0], 0.1, 0.0);
-    assert!(rectify_pair(&cam, &p, &cam, &q, &RectifyOptions::default()).is_err());
+    assert!(rectify_pair(
+        &PosedCamera::new(cam.clone(), p),
+        &PosedCamera::new(cam.clone(), q),
+        &RectifyOptions::default()
+    )
+    .is_err());
 }

@@ -71,7 +71,7 @@ pub fn bench_augment(o: &AugmentBenchOptions) -> Result<AugmentBenchReport> {
     let seq = render_sequence(&seq_opts).map_err(|e| EvalError::option("--width", e))?;
     let mut frames = Vec::new();
     for (i, img) in seq.images.iter().enumerate() {
-        let Some((cam, pose)) = seq.frame(i) else {
+        let Some(frame) = seq.frame(i) else {
             continue;
         };
         let big = image::imageops::resize(
@@ -80,8 +80,7 @@ pub fn bench_augment(o: &AugmentBenchOptions) -> Result<AugmentBenchReport> {
             o.height,
             image::imageops::FilterType::Triangle,
         );
-        let cam = handheld_dense::scale_camera(cam, 2.0, 2.0);
-        frames.push((big, cam, *pose));
+        frames.push((big, frame.scaled(2.0, 2.0)));
     }
     let points: Vec<(Point3<f64>, usize)> = seq
         .gt
@@ -89,7 +88,7 @@ pub fn bench_augment(o: &AugmentBenchOptions) -> Result<AugmentBenchReport> {
         .values()
         .map(|p| (p.xyz, p.track.elements.len()))
         .collect();
-    let cams: Vec<Rigid3> = frames.iter().map(|f| f.2).collect();
+    let cams: Vec<Rigid3> = frames.iter().map(|f| f.1.cam_from_world).collect();
     let (object, texture) = object_box();
     let (placement, _) = auto_place(&object, &points, &cams, &PlaceOptions::default())
         .map_err(|e| EvalError::Data(e.to_string()))?;
@@ -103,17 +102,17 @@ pub fn bench_augment(o: &AugmentBenchOptions) -> Result<AugmentBenchReport> {
         let mut compositor = Compositor::new();
         let mut zbuf = Vec::new();
         let mut depth = FloatMap::filled(o.width as usize, o.height as usize, 1, f32::NAN);
-        for (img, cam, pose) in &frames {
+        for (img, view) in &frames {
             let mut frame = img.clone();
             let occ = if occlusion {
                 handheld_render::augment::scene_depth(
-                    &seq.mesh, cam, pose, &placed, &mut zbuf, &mut depth,
+                    &seq.mesh, view, &placed, &mut zbuf, &mut depth,
                 );
                 Some(&depth)
             } else {
                 None
             };
-            compositor.composite(&mut frame, &placed, Some(&texture), cam, pose, occ);
+            compositor.composite(&mut frame, &placed, Some(&texture), view, occ);
             writer.push(&frame)?;
         }
         writer.finish()?;

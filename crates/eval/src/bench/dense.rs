@@ -12,7 +12,7 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use handheld_core::{Camera, FloatMap, PosedView, Rigid3};
+use handheld_core::{FloatMap, PosedCamera, PosedView};
 use handheld_dense::{
     link_depth, match_sequence_pairs, rectify_pair, LinkOptions, PairOptions, RectifyMethod,
     RectifyOptions, StereoMatcher, StereoOptions,
@@ -135,7 +135,7 @@ fn linking(width: u32) -> Result<LinkingReport> {
     };
     opts.path.sweep = 28.0;
     let seq = render_sequence(&opts).context("rendering the linking orbit")?;
-    let frames: Vec<(&Camera, &Rigid3)> = (0..15)
+    let frames: Vec<PosedCamera> = (0..15)
         .map(|i| {
             seq.frame(i)
                 .ok_or_else(|| EvalError::Data(format!("no frame {i}")))
@@ -146,8 +146,8 @@ fn linking(width: u32) -> Result<LinkingReport> {
         .iter()
         .zip(&seq.images)
         .enumerate()
-        .map(|(i, ((c, p), image))| {
-            PosedView::new(format!("frame{i}"), (*c).clone(), **p, image.clone())
+        .map(|(i, (frame, image))| {
+            PosedView::from_posed(format!("frame{i}"), frame.clone(), image.clone())
         })
         .collect();
     let t = Instant::now();
@@ -206,20 +206,22 @@ fn forward_pair(width: u32, runs: u32) -> Result<(PolarReport, PairTiming)> {
     };
     let seq = render_sequence(&opts).context("rendering the forward pair")?;
     let no_frame = || EvalError::Data("the forward pair has no two frames".into());
-    let (c0, p0) = seq.frame(0).ok_or_else(no_frame)?;
-    let (c1, p1) = seq.frame(1).ok_or_else(no_frame)?;
-    let rect = rectify_pair(c0, p0, c1, p1, &RectifyOptions::default())?;
+    let v0 = seq.frame(0).ok_or_else(no_frame)?;
+    let v1 = seq.frame(1).ok_or_else(no_frame)?;
+    let rect = rectify_pair(&v0, &v1, &RectifyOptions::default())?;
     let mut worst = 0.0f64;
     let mut n = 0;
     let truth = seq.depths.first().ok_or_else(no_frame)?;
-    let inv = p0.inverse();
+    let inv = v0.cam_from_world.inverse();
     for y in (0..truth.height).step_by(4) {
         for x in (0..truth.width).step_by(4) {
             let z = f64::from(truth.get(x, y, 0));
             if z <= 0.0 {
                 continue;
             }
-            let ray = c0.ray_in_cam(nalgebra::Vector2::new(x as f64, y as f64));
+            let ray = v0
+                .camera
+                .ray_in_cam(nalgebra::Vector2::new(x as f64, y as f64));
             let pw = inv.transform_point(&Point3::from(ray / ray.z * z));
             let (Some(m0), Some(m1)) = (rect.project(0, &pw), rect.project(1, &pw)) else {
                 continue;
@@ -237,14 +239,14 @@ fn forward_pair(width: u32, runs: u32) -> Result<(PolarReport, PairTiming)> {
         max_row_error_px: worst,
     };
     let (l, r) = (to_map(&seq.images[0]), to_map(&seq.images[1]));
-    let speed = time_pair((c0, p0, &l), (c1, p1, &r), runs)?;
+    let speed = time_pair((&v0, &l), (&v1, &r), runs)?;
     Ok((polar, speed))
 }
 
 /// Median time of polar rectification (maps + resampling) plus SGM over 100 disparities.
 fn time_pair(
-    (c0, p0, l): (&Camera, &Rigid3, &FloatMap),
-    (c1, p1, r): (&Camera, &Rigid3, &FloatMap),
+    (v0, l): (&PosedCamera, &FloatMap),
+    (v1, r): (&PosedCamera, &FloatMap),
     runs: u32,
 ) -> Result<PairTiming> {
     let ropts = RectifyOptions {
@@ -266,7 +268,7 @@ fn time_pair(
     let (mut tr, mut tm, mut t8, mut size) = (Vec::new(), Vec::new(), Vec::new(), (0, 0));
     for _ in 0..runs.max(1) {
         let t = Instant::now();
-        let rect = rectify_pair(c0, p0, c1, p1, &ropts)?;
+        let rect = rectify_pair(v0, v1, &ropts)?;
         let (a, _) = rect.resample(0, &handheld_dense::pair::to_grey(l));
         let (b, _) = rect.resample(1, &handheld_dense::pair::to_grey(r));
         tr.push(t.elapsed().as_secs_f64());
@@ -306,16 +308,13 @@ fn speed_large(model: &std::path::Path, images: &std::path::Path) -> Result<Pair
         Ok(to_map(&img.to_rgb8()))
     };
     let (l, r) = (load(&v0.name)?, load(&v1.name)?);
-    let cam = |v: &handheld_core::View| {
-        rec.cameras.get(&v.camera_id).ok_or_else(|| {
+    let posed = |v: &handheld_core::View| {
+        let camera = rec.cameras.get(&v.camera_id).ok_or_else(|| {
             EvalError::Data(format!("{}: no camera for {}", model.display(), v.name))
-        })
+        })?;
+        Ok::<_, EvalError>(PosedCamera::new(camera.clone(), v.cam_from_world))
     };
-    time_pair(
-        (cam(v0)?, &v0.cam_from_world, &l),
-        (cam(v1)?, &v1.cam_from_world, &r),
-        1,
-    )
+    time_pair((&posed(v0)?, &l), (&posed(v1)?, &r), 1)
 }
 
 /// Runs every dense target.

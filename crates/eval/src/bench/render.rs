@@ -12,7 +12,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use handheld_core::{Camera, FloatMap, ImageId, NoProgress, Progress, Rigid3};
+use handheld_core::{Camera, FloatMap, ImageId, NoProgress, PosedCamera, Progress};
 use handheld_pipeline::render::{write_png, FlightOptions, PathKind, RenderMethod, RenderScene};
 use handheld_pipeline::stages::dense::{densify, DenseStageOptions};
 use handheld_pipeline::stages::mesh::{build, MeshStageOptions};
@@ -252,8 +252,7 @@ pub fn bench_render(o: &RenderBenchOptions, progress: &dyn Progress) -> Result<R
             &scene,
             &mut renderer,
             name,
-            &camera,
-            &view.cam_from_world,
+            &PosedCamera::new(camera, view.cam_from_world),
             &photo,
             &o.ibr,
             &images_dir,
@@ -280,8 +279,7 @@ pub fn bench_render(o: &RenderBenchOptions, progress: &dyn Progress) -> Result<R
             scene
                 .render(
                     &mut renderer,
-                    &camera,
-                    &view.cam_from_world,
+                    &PosedCamera::new(camera.clone(), view.cam_from_world),
                     method,
                     &o.ibr,
                     &mut out,
@@ -345,8 +343,7 @@ fn held_out_photo(
         let w = (f64::from(img.width()) * s).round() as u32;
         let h = (f64::from(img.height()) * s).round() as u32;
         let small = image::imageops::resize(&img, w, h, image::imageops::FilterType::Triangle);
-        let c = handheld_dense::scale_camera(
-            cam,
+        let c = cam.scaled(
             f64::from(w) / f64::from(img.width()),
             f64::from(h) / f64::from(img.height()),
         );
@@ -361,8 +358,7 @@ fn score_view(
     scene: &RenderScene,
     renderer: &mut Renderer,
     name: &str,
-    camera: &Camera,
-    pose: &Rigid3,
+    view: &PosedCamera,
     photo: &RgbImage,
     ibr: &IbrOptions,
     images_dir: &Path,
@@ -376,7 +372,7 @@ fn score_view(
         let mut out = empty();
         let t = Instant::now();
         scene
-            .render(renderer, camera, pose, method, ibr, &mut out)
+            .render(renderer, view, method, ibr, &mut out)
             .map_err(handheld_pipeline::PipelineError::from)?;
         let seconds = t.elapsed().as_secs_f64();
         methods.push(MethodScore {
@@ -489,7 +485,13 @@ fn speed_run(
     for pose in &poses {
         let t = Instant::now();
         let stats = scene
-            .render(renderer, &camera, pose, method, &o.ibr, &mut out)
+            .render(
+                renderer,
+                &PosedCamera::new(camera.clone(), *pose),
+                method,
+                &o.ibr,
+                &mut out,
+            )
             .map_err(handheld_pipeline::PipelineError::from)?;
         times.push(t.elapsed().as_secs_f64());
         if let Some(s) = stats {

@@ -87,10 +87,10 @@ pub fn bench_specular(o: &SpecularBenchOptions) -> Result<SpecularReport> {
     let mut train = Vec::new();
     let mut held = Vec::new();
     for i in 0..seq.images.len() {
-        let Some((cam, pose)) = seq.frame(i) else {
+        let Some(frame) = seq.frame(i) else {
             continue;
         };
-        let mut v = PosedView::new(format!("{i}"), cam.clone(), *pose, seq.images[i].clone());
+        let mut v = PosedView::from_posed(format!("{i}"), frame, seq.images[i].clone());
         v.depth = Some(seq.depths[i].clone());
         if i % o.every == 0 {
             held.push((i, v));
@@ -111,13 +111,8 @@ pub fn bench_specular(o: &SpecularBenchOptions) -> Result<SpecularReport> {
     let mut sums = vec![(0.0, 0.0, 0usize); names.len()];
     let mut counts = Vec::new();
     for (_, v) in &held {
-        let spec = highlight_map(&seq.scene, &v.camera, &v.cam_from_world);
-        let mesh_r = render_mesh(
-            &textured.mesh,
-            Some(&textured.texture),
-            &v.camera,
-            &v.cam_from_world,
-        );
+        let spec = highlight_map(&seq.scene, &v.posed);
+        let mesh_r = render_mesh(&textured.mesh, Some(&textured.texture), &v.posed);
         let mask: Vec<bool> = spec
             .data
             .iter()
@@ -147,15 +142,7 @@ pub fn bench_specular(o: &SpecularBenchOptions) -> Result<SpecularReport> {
                         depth: handheld_core::FloatMap::filled(0, 0, 1, 0.0),
                     };
                     renderer
-                        .render_with_proxy(
-                            &scene,
-                            &v.camera,
-                            &v.cam_from_world,
-                            method,
-                            &ibr,
-                            proxy.as_ref(),
-                            &mut out,
-                        )
+                        .render_with_proxy(&scene, &v.posed, method, &ibr, proxy.as_ref(), &mut out)
                         .map_err(|e| EvalError::option("ibr", e.to_string()))?;
                     out
                 }

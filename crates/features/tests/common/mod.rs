@@ -26,8 +26,8 @@ pub fn back_project(seq: &SyntheticSequence, frame: usize, x: f64, y: f64) -> Op
     if !(lo > 0.0 && hi < 1.05 * lo) {
         return None;
     }
-    let (cam, pose) = seq.frame(frame)?;
-    let (o, dir) = pixel_ray(cam, pose, Vector2::new(x, y));
+    let view = seq.frame(frame)?;
+    let (o, dir) = pixel_ray(&view, Vector2::new(x, y));
     Some(o + dir * seq.scene.intersect(&o, &dir)?.t)
 }
 
@@ -37,9 +37,9 @@ pub fn project_visible(
     frame: usize,
     p: &Point3<f64>,
 ) -> Option<Vector2<f64>> {
-    let (cam, pose) = seq.frame(frame)?;
-    let px = cam.project(pose, p)?;
-    let (o, dir) = pixel_ray(cam, pose, px);
+    let view = seq.frame(frame)?;
+    let px = view.project(p)?;
+    let (o, dir) = pixel_ray(&view, px);
     let hit = seq.scene.intersect(&o, &dir)?;
     ((o + dir * hit.t - p).norm() < 1e-3 * (p - o).norm()).then_some(px)
 }

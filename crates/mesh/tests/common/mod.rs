@@ -28,13 +28,8 @@ pub fn sequence(n: usize, width: u32) -> SyntheticSequence {
 pub fn views(seq: &SyntheticSequence) -> Vec<PosedView> {
     (0..seq.depths.len())
         .filter_map(|i| {
-            let (camera, pose) = seq.frame(i)?;
-            let mut v = PosedView::new(
-                format!("frame{i}"),
-                camera.clone(),
-                *pose,
-                seq.images[i].clone(),
-            );
+            let mut v =
+                PosedView::from_posed(format!("frame{i}"), seq.frame(i)?, seq.images[i].clone());
             v.depth = Some(seq.depths[i].clone());
             Some(v)
         })
@@ -50,8 +45,7 @@ pub fn take_views(seq: &mut SyntheticSequence) -> Vec<PosedView> {
         .zip(depths)
         .enumerate()
         .filter_map(|(i, (image, depth))| {
-            let (camera, pose) = seq.frame(i)?;
-            let mut v = PosedView::new(format!("frame{i}"), camera.clone(), *pose, image);
+            let mut v = PosedView::from_posed(format!("frame{i}"), seq.frame(i)?, image);
             v.depth = Some(depth);
             Some(v)
         })

@@ -3,7 +3,7 @@
 
 use std::path::{Path, PathBuf};
 
-use handheld_core::Progress;
+use handheld_core::{PosedCamera, Progress};
 use handheld_render::scene::{FlightOptions, PathKind, RenderMethod, RenderScene};
 use handheld_render::{Rendered, Renderer};
 use image::RgbImage;
@@ -72,8 +72,7 @@ pub fn render_flight(
         scene
             .render(
                 &mut renderer,
-                &camera,
-                pose,
+                &PosedCamera::new(camera.clone(), *pose),
                 opts.method,
                 &opts.ibr,
                 &mut out,

@@ -4,7 +4,6 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use handheld_core::PosedView;
-use handheld_dense::scale_camera;
 use handheld_io::dense_folder::{read_views, MapKind};
 use image::RgbImage;
 use nalgebra::Point3;
@@ -103,7 +102,7 @@ fn load_sparse_views(
                     image::imageops::resize(&img, w, h, image::imageops::FilterType::Triangle);
                 let sx = f64::from(w) / f64::from(img.width());
                 let sy = f64::from(h) / f64::from(img.height());
-                (small, scale_camera(cam, sx, sy))
+                (small, cam.scaled(sx, sy))
             } else {
                 (img, cam.clone())
             };

@@ -2,8 +2,7 @@
 
 use std::path::{Path, PathBuf};
 
-use handheld_core::{Camera, Rigid3};
-use handheld_dense::scale_camera;
+use handheld_core::{Camera, PosedCamera, Rigid3};
 use handheld_render::scene::{virtual_camera, RenderMethod};
 use handheld_render::{IbrOptions, Rendered, Renderer};
 use image::RgbImage;
@@ -156,7 +155,7 @@ pub fn render_view(
             let cam = p
                 .camera
                 .clone()
-                .unwrap_or_else(|| virtual_camera(&scene.views[0].1, 0));
+                .unwrap_or_else(|| virtual_camera(&scene.views[0].1.camera, 0));
             (cam, p.pose())
         }
         (ViewSpec::PoseFile(p), None) => {
@@ -168,7 +167,7 @@ pub fn render_view(
     };
     let camera = if width > 0 && width != camera.width {
         let s = f64::from(width) / f64::from(camera.width);
-        scale_camera(&camera, s, s)
+        camera.scaled(s, s)
     } else {
         camera
     };
@@ -180,7 +179,13 @@ pub fn render_view(
     };
     let t = std::time::Instant::now();
     scene
-        .render(&mut renderer, &camera, &pose, method, ibr, &mut out)
+        .render(
+            &mut renderer,
+            &PosedCamera::new(camera.clone(), pose),
+            method,
+            ibr,
+            &mut out,
+        )
         .map_err(scene_error)?;
     let seconds = t.elapsed().as_secs_f64();
     write_png(output, &out.image)?;

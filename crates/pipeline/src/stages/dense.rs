@@ -16,7 +16,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
 use handheld_core::{ImageId, MetricReconstruction, PosedView, Progress};
-use handheld_dense::{dense_reconstruct, scale_camera, DenseOptions, StereoMethod, StereoOptions};
+use handheld_dense::{dense_reconstruct, DenseOptions, StereoMethod, StereoOptions};
 use handheld_io::dense_folder::{write_cameras, write_view, MapKind, CAMERAS_FILE};
 use handheld_io::images::{load_image, ImageIngestOptions};
 use rayon::prelude::*;
@@ -224,8 +224,7 @@ fn load_views(
                 let h = (img.height() as f64 * s).round() as u32;
                 let small =
                     image::imageops::resize(&img, w, h, image::imageops::FilterType::Triangle);
-                let c = scale_camera(
-                    camera,
+                let c = camera.scaled(
                     w as f64 / img.width() as f64,
                     h as f64 / img.height() as f64,
                 );
@@ -288,8 +287,8 @@ pub fn densify(
         );
         per_view.push(ViewFill {
             image: name.clone(),
-            width: v.camera.width,
-            height: v.camera.height,
+            width: v.posed.camera.width,
+            height: v.posed.camera.height,
             fill: v.fill(),
             seconds: r.seconds,
         });

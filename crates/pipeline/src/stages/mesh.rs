@@ -291,12 +291,7 @@ pub fn build(
 /// Renders the textured model from a view left out of it and compares with the photo; writes
 /// `holdout.png` (rendering | photo | 4× absolute difference).
 fn hold_out_check(v: &PosedView, textured: &TexturedMesh, dir: &Path) -> Result<HoldOut> {
-    let r = handheld_render::render_mesh(
-        &textured.mesh,
-        Some(&textured.texture),
-        &v.camera,
-        &v.cam_from_world,
-    );
+    let r = handheld_render::render_mesh(&textured.mesh, Some(&textured.texture), &v.posed);
     let (mad, covered) = handheld_render::mean_absolute_difference(&r, &v.image);
     let (w, h) = (v.image.width(), v.image.height());
     let mut strip = RgbImage::new(3 * w, h);

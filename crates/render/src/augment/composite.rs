@@ -1,7 +1,7 @@
 //! The compositor: the object rendered with sub-samples (anti-aliased edges), Lambert-shaded with
 //! the frame's average colour, hidden where the real scene is nearer, blended over the frame.
 
-use handheld_core::{Camera, FloatMap, Rigid3, TriMesh};
+use handheld_core::{FloatMap, PosedCamera, TriMesh};
 use image::RgbImage;
 use nalgebra::{Point3, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
@@ -33,7 +33,7 @@ impl Compositor {
     }
 
     /// Composites `object` (already in the model frame, see [`Placement::transform`]) over
-    /// `frame`, seen by `camera` at `pose`. `scene_depth`: the real scene's camera-frame depth
+    /// `frame`, seen by `view`. `scene_depth`: the real scene's camera-frame depth
     /// per pixel (NaN where unknown) for occlusion. `undistorted`: draw as if the lens had no
     /// distortion (to show what ignoring it does).
     pub fn composite(
@@ -41,10 +41,10 @@ impl Compositor {
         frame: &mut RgbImage,
         object: &TriMesh,
         texture: Option<&RgbImage>,
-        camera: &Camera,
-        pose: &Rigid3,
+        view: &PosedCamera,
         scene_depth: Option<&FloatMap>,
     ) -> CompositeStats {
+        let pose = &view.cam_from_world;
         let (w, h) = (frame.width() as usize, frame.height() as usize);
         // The light: the frame's average colour, from above and in front of the camera.
         let mean = average_colour(frame);
@@ -53,7 +53,7 @@ impl Compositor {
             mean.map(|c| (c / grey.max(1.0)).clamp(0.5, 1.6) * (0.55 + grey / 255.0));
         let light_dir = pose.rotation.inverse() * Vector3::new(-0.3, -0.8, -0.5).normalize();
         // The window: the object's projected bounds on the sample grid.
-        let Some((x0, y0, x1, y1)) = projected_window(object, camera, pose, w, h) else {
+        let Some((x0, y0, x1, y1)) = projected_window(object, view, w, h) else {
             return CompositeStats::default();
         };
         let (sx0, sy0, sx1, sy1) = (x0 * SUB, y0 * SUB, x1 * SUB, y1 * SUB);
@@ -82,8 +82,7 @@ impl Compositor {
         let (colour, hit) = (&mut self.colour, &mut self.hit);
         rasterise(
             object,
-            camera,
-            pose,
+            view,
             SUB,
             (sx0, sy0, sx1, sy1),
             &mut self.zbuf,
@@ -171,11 +170,11 @@ fn average_colour(frame: &RgbImage) -> [f64; 3] {
 /// `None` when it is entirely behind the camera or outside the image.
 fn projected_window(
     object: &TriMesh,
-    camera: &Camera,
-    pose: &Rigid3,
+    view: &PosedCamera,
     w: usize,
     h: usize,
 ) -> Option<(usize, usize, usize, usize)> {
+    let (camera, pose) = (&view.camera, &view.cam_from_world);
     let mut lo = Vector2::repeat(f64::INFINITY);
     let mut hi = Vector2::repeat(f64::NEG_INFINITY);
     let mut any = false;

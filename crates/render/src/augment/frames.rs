@@ -5,7 +5,7 @@
 
 use std::collections::BTreeMap;
 
-use handheld_core::{Camera, FloatMap, MetricReconstruction, Rigid3, TriMesh, View};
+use handheld_core::{FloatMap, MetricReconstruction, PosedCamera, Rigid3, TriMesh, View};
 use image::RgbImage;
 use nalgebra::{Point3, Vector2};
 use serde::{Deserialize, Serialize};
@@ -109,15 +109,16 @@ pub fn visible_somewhere(rec: &MetricReconstruction, placed: &TriMesh) -> bool {
     })
 }
 
-/// The real scene's depth in a frame, inside the object's window (NaN elsewhere).
+/// The real scene's depth in the frame seen from `view`, inside the object's window (NaN
+/// elsewhere).
 pub fn scene_depth(
     mesh: &TriMesh,
-    camera: &Camera,
-    pose: &Rigid3,
+    view: &PosedCamera,
     placed: &TriMesh,
     buf: &mut Vec<f32>,
     out: &mut FloatMap,
 ) {
+    let (camera, pose) = (&view.camera, &view.cam_from_world);
     let (w, h) = (camera.width as usize, camera.height as usize);
     if out.width != w || out.height != h {
         *out = FloatMap::filled(w, h, 1, f32::NAN);
@@ -150,7 +151,7 @@ pub fn scene_depth(
         return;
     }
     let data = &mut out.data;
-    rasterise(mesh, camera, pose, 1, (x0, y0, x1, y1), buf, |f| {
+    rasterise(mesh, view, 1, (x0, y0, x1, y1), buf, |f| {
         data[f.sy * w + f.sx] = f.z as f32;
     });
 }
@@ -214,28 +215,16 @@ impl<'a> FrameLoop<'a> {
         let cam = view.and_then(|v| self.rec.cameras.get(&v.camera_id));
         let mut anchor_px = None;
         if let (Some(v), Some(cam)) = (view, cam) {
+            let posed = PosedCamera::new(cam.clone(), v.cam_from_world);
             let occ = match self.occluder {
                 Some(m) => {
-                    scene_depth(
-                        m,
-                        cam,
-                        &v.cam_from_world,
-                        self.placed,
-                        &mut self.zbuf,
-                        &mut self.depth,
-                    );
+                    scene_depth(m, &posed, self.placed, &mut self.zbuf, &mut self.depth);
                     Some(&self.depth)
                 }
                 None => None,
             };
-            self.compositor.composite(
-                image,
-                self.placed,
-                self.texture,
-                cam,
-                &v.cam_from_world,
-                occ,
-            );
+            self.compositor
+                .composite(image, self.placed, self.texture, &posed, occ);
             anchor_px = cam.project(&v.cam_from_world, &self.anchor);
             let rank = self.tracked.len();
             self.tracked.push(TrackedFrame {

@@ -19,7 +19,7 @@ mod place;
 #[cfg(test)]
 mod tests;
 
-use handheld_core::{Camera, Rigid3, TriMesh};
+use handheld_core::{PosedCamera, TriMesh};
 use nalgebra::{Matrix3, Point3, Rotation3, UnitQuaternion, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
@@ -132,10 +132,6 @@ pub fn bounds(object: &TriMesh) -> (Vector3<f64>, Vector3<f64>) {
 }
 
 /// The pixel positions of model-frame points in a frame (distortion applied); `None` behind it.
-pub fn project(
-    camera: &Camera,
-    pose: &Rigid3,
-    points: &[Point3<f64>],
-) -> Vec<Option<Vector2<f64>>> {
-    points.iter().map(|p| camera.project(pose, p)).collect()
+pub fn project(view: &PosedCamera, points: &[Point3<f64>]) -> Vec<Option<Vector2<f64>>> {
+    points.iter().map(|p| view.project(p)).collect()
 }

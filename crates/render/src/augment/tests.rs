@@ -2,7 +2,7 @@
 
 use super::*;
 use handheld_core::FloatMap;
-use handheld_core::{CameraId, Intrinsics};
+use handheld_core::{Camera, CameraId, Intrinsics, Rigid3};
 use image::RgbImage;
 
 /// A real box face (a plane at z = 3, for x < edge) passes in front of the virtual box (at
@@ -18,7 +18,7 @@ fn a_real_box_in_front_hides_the_object_up_to_its_edge() {
         height: 240,
         intrinsics: intr,
     };
-    let pose = Rigid3::identity();
+    let view = PosedCamera::new(camera, Rigid3::identity());
     let (obj, tex) = object_box();
     let placement = Placement::new(
         2.0,
@@ -42,15 +42,8 @@ fn a_real_box_in_front_hides_the_object_up_to_its_edge() {
         let mut frame = RgbImage::new(320, 240);
         let mut unoccluded = RgbImage::new(320, 240);
         let mut c = Compositor::new();
-        let s = c.composite(
-            &mut frame,
-            &placed,
-            Some(&tex),
-            &camera,
-            &pose,
-            Some(&depth),
-        );
-        c.composite(&mut unoccluded, &placed, Some(&tex), &camera, &pose, None);
+        let s = c.composite(&mut frame, &placed, Some(&tex), &view, Some(&depth));
+        c.composite(&mut unoccluded, &placed, Some(&tex), &view, None);
         assert!(
             s.hidden_samples > 0 || edge_x < -0.5,
             "{edge_x}: nothing hidden"

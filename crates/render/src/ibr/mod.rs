@@ -24,7 +24,7 @@ pub mod source;
 pub mod support;
 mod ulr;
 
-use handheld_core::{Camera, FloatMap, Rigid3};
+use handheld_core::{Camera, FloatMap, PosedCamera};
 use image::RgbImage;
 use nalgebra::{Vector2, Vector3};
 use rayon::prelude::*;
@@ -241,34 +241,32 @@ impl Renderer {
         Self::default()
     }
 
-    /// Renders `scene` through `camera` at `cam_from_world` into `out` (resized to the camera).
+    /// Renders `scene` seen by `view` into `out` (resized to the camera).
     pub fn render_into(
         &mut self,
         scene: &IbrScene,
-        camera: &Camera,
-        cam_from_world: &Rigid3,
+        view: &PosedCamera,
         method: IbrMethod,
         opts: &IbrOptions,
         out: &mut Rendered,
     ) -> Result<FrameStats, IbrError> {
-        self.render_with_proxy(scene, camera, cam_from_world, method, opts, None, out)
+        self.render_with_proxy(scene, view, method, opts, None, out)
     }
 
     /// [`Self::render_into`] with a geometric proxy: the camera-frame depth of every output
     /// pixel (e.g. the reconstructed mesh rendered from the virtual camera; `NaN` where it has
     /// none). Where the proxy has a depth, it replaces the support mesh's planes (Buehler et al.
     /// 2001 render with such a proxy); elsewhere the planes stay.
-    #[allow(clippy::too_many_arguments)]
     pub fn render_with_proxy(
         &mut self,
         scene: &IbrScene,
-        camera: &Camera,
-        cam_from_world: &Rigid3,
+        view: &PosedCamera,
         method: IbrMethod,
         opts: &IbrOptions,
         proxy: Option<&FloatMap>,
         out: &mut Rendered,
     ) -> Result<FrameStats, IbrError> {
+        let (camera, cam_from_world) = (&view.camera, &view.cam_from_world);
         if let Some(p) = proxy {
             if (p.width, p.height) != (camera.width as usize, camera.height as usize) {
                 return Err(IbrError::Camera(format!(
@@ -445,8 +443,7 @@ impl Renderer {
     pub fn render(
         &mut self,
         scene: &IbrScene,
-        camera: &Camera,
-        cam_from_world: &Rigid3,
+        view: &PosedCamera,
         method: IbrMethod,
         opts: &IbrOptions,
     ) -> Result<(Rendered, FrameStats), IbrError> {
@@ -455,7 +452,7 @@ impl Renderer {
             covered: Vec::new(),
             depth: FloatMap::filled(0, 0, 1, 0.0),
         };
-        let s = self.render_into(scene, camera, cam_from_world, method, opts, &mut out)?;
+        let s = self.render_into(scene, view, method, opts, &mut out)?;
         Ok((out, s))
     }
 }

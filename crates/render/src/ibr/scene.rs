@@ -122,12 +122,12 @@ fn depth_samples(views: &[PosedView]) -> Vec<Point3<f64>> {
     for v in views {
         let Some(d) = &v.depth else { continue };
         let step = (d.width.max(d.height) / 32).max(1);
-        let world_from_cam = v.cam_from_world.inverse();
+        let world_from_cam = v.posed.cam_from_world.inverse();
         for y in (0..d.height).step_by(step) {
             for x in (0..d.width).step_by(step) {
                 let z = f64::from(d.get(x, y, 0));
                 if z.is_finite() && z > 0.0 {
-                    let ray = v.camera.ray_in_cam(Vector2::new(x as f64, y as f64));
+                    let ray = v.posed.camera.ray_in_cam(Vector2::new(x as f64, y as f64));
                     let p = Point3::from(ray / ray.z * z);
                     out.push(world_from_cam.transform_point(&p));
                 }

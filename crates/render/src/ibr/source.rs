@@ -2,14 +2,15 @@
 //! as `f32` for bilinear look-ups, and its depth map with the holes filled by diffusion (§5.2:
 //! "to avoid a runtime penalty a diffusion algorithm is used to fill in undefined depth values").
 
-use handheld_core::{Camera, FloatMap, PosedView};
+use handheld_core::{FloatMap, PosedCamera, PosedView};
 use nalgebra::{Matrix3, Point3, Vector2, Vector3};
 
 /// One recorded view, ready for look-ups.
 #[derive(Clone, Debug)]
 pub struct Source {
     pub name: String,
-    pub camera: Camera,
+    /// The view's camera and pose; `r`, `t` and `center` below are the pose as matrices.
+    pub posed: PosedCamera,
     /// World → camera rotation and translation (`p_cam = r · p + t`).
     pub r: Matrix3<f64>,
     pub t: Vector3<f64>,
@@ -36,12 +37,17 @@ impl Source {
             .filter(|d| d.width == w && d.height == h)
             .map(fill_by_diffusion)
             .unwrap_or_default();
-        let r = *view.cam_from_world.rotation.to_rotation_matrix().matrix();
+        let r = *view
+            .posed
+            .cam_from_world
+            .rotation
+            .to_rotation_matrix()
+            .matrix();
         Self {
             name: view.name.clone(),
-            camera: view.camera.clone(),
+            posed: view.posed.clone(),
             r,
-            t: view.cam_from_world.translation.vector,
+            t: view.posed.cam_from_world.translation.vector,
             center: view.center(),
             width: w,
             height: h,
@@ -67,6 +73,7 @@ impl Source {
             return None;
         }
         let px = self
+            .posed
             .camera
             .intrinsics
             .normalized_to_pixel(Vector2::new(y.x / y.z, y.y / y.z));
