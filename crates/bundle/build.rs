@@ -9,7 +9,5 @@ mod needs;
 use needs::Need;
 
 fn main() {
-    needs::emit(&[
-        ("has_bal", Need::Dataset("bal")),
-    ]);
+    needs::emit(&[("has_bal", Need::Dataset("bal"))]);
 }

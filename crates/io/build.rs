@@ -9,7 +9,5 @@ mod needs;
 use needs::Need;
 
 fn main() {
-    needs::emit(&[
-        ("has_ffmpeg", Need::Ffmpeg),
-    ]);
+    needs::emit(&[("has_ffmpeg", Need::Ffmpeg)]);
 }

@@ -89,7 +89,12 @@ fn temple_subset_all_views_posed_and_principal_point_estimated() {
         .skip(1)
         .filter(|l| !l.trim().is_empty() && !l.starts_with(left_out))
         .collect();
-    assert_eq!(kept.len(), 15, "templeSR_par.txt: {} views kept", kept.len());
+    assert_eq!(
+        kept.len(),
+        15,
+        "templeSR_par.txt: {} views kept",
+        kept.len()
+    );
     std::fs::write(
         gt.join("templeSR_par.txt"),
         format!("{}\n{}\n", kept.len(), kept.join("\n")),
@@ -134,9 +139,15 @@ fn assert_scores(v: &serde_json::Value, aucs: &[(&str, f64)], rot_deg: f64, foca
         assert!(num(k) > bound, "{k} {} ≤ {bound}: {v}", num(k));
     }
     let rot = num("rot_err_deg_median");
-    assert!(rot < rot_deg, "rotation error median {rot}° ≥ {rot_deg}°: {v}");
+    assert!(
+        rot < rot_deg,
+        "rotation error median {rot}° ≥ {rot_deg}°: {v}"
+    );
     let focal = num("focal_err_pct_median");
-    assert!(focal < focal_pct, "focal error {focal} % ≥ {focal_pct} %: {v}");
+    assert!(
+        focal < focal_pct,
+        "focal error {focal} % ≥ {focal_pct} %: {v}"
+    );
 }
 
 /// The model in `ws` left its principal point free (the test's verdict), and the estimate is

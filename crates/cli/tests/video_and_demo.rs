@@ -130,7 +130,10 @@ fn demo_writes_sequence_ground_truth_and_workspace() {
     let m = &v["accuracy"]["mesh"];
     assert!(m["faces"].as_u64().expect("mesh scored") > 0, "{m}");
     assert!(m["accuracy_90_pct_of_scene"].as_f64().unwrap() < 1.0, "{m}");
-    assert!(m["completeness_within_1pct"].as_f64().unwrap() > 0.95, "{m}");
+    assert!(
+        m["completeness_within_1pct"].as_f64().unwrap() > 0.95,
+        "{m}"
+    );
     for f in [
         "images/frame_0000.png",
         "ground_truth/sparse/cameras.txt",

@@ -1,7 +1,7 @@
 //! SIFT + matching (issue #3): repeatability and matching precision under a known similarity on a
 //! rendered image, the GEMM matcher against a naive O(nm) reference, ratio/mutual semantics, and
-//! real-data epipolar consistency on fountain-P11 (skipped when `../shared/datasets` is absent).
-
+//! real-data epipolar consistency on fountain-P11 (ignored when `../shared/datasets/fountain-P11` is
+//! absent; with `CI` set it runs and fails naming it).
 
 use handheld_features::matching::{match_descriptors, match_pairs, Match, MatchOptions};
 use handheld_features::sift::{Sift, SiftOptions, SIFT_DIM};
@@ -446,7 +446,6 @@ fn ratio_and_mutual_semantics() {
     .is_empty());
     assert!(match_descriptors(&a, &Descriptors::default(), &MatchOptions::default()).is_empty());
 }
-
 
 /// `(K, R, C)` of a Strecha `.camera` file (P = K [Rᵀ | −Rᵀ C]).
 fn strecha_camera(path: &std::path::Path) -> (Matrix3<f64>, Matrix3<f64>, Vector3<f64>) {

@@ -285,9 +285,18 @@ fn ba_from_truth_reference() {
         let rms = rec.mean_reprojection_error();
         eprintln!("pp {pp}: median {median:.4} max rel {max_rel:.4} f {f:.2} vs {f_true:.2}, reprojection {rms:.3} px");
         assert!(median < 0.1, "pp {pp}: median rotation error {median}°");
-        assert!(max_rel < 0.3, "pp {pp}: max relative rotation error {max_rel}°");
-        assert!((f / f_true - 1.0).abs() < 0.01, "pp {pp}: f {f} vs {f_true}");
-        assert!(rms < 1.5, "pp {pp}: mean reprojection error {rms} px at 1 px noise");
+        assert!(
+            max_rel < 0.3,
+            "pp {pp}: max relative rotation error {max_rel}°"
+        );
+        assert!(
+            (f / f_true - 1.0).abs() < 0.01,
+            "pp {pp}: f {f} vs {f_true}"
+        );
+        assert!(
+            rms < 1.5,
+            "pp {pp}: mean reprojection error {rms} px at 1 px noise"
+        );
         assert!(summary.final_cost <= summary.initial_cost, "{summary:?}");
     }
 }

@@ -118,15 +118,15 @@ fn have_vnni() -> bool {
 
 /// For a build script: declares every `(cfg, need)` pair, sets the cfg of each need that is met
 /// (all of them, except [`Need::Vnni`], when `CI` is set), passes the data set folder to the tests
-/// as `HANDHELD_DATASETS_DIR`, and asks to be run again when `CI`, `HANDHELD_DATASETS` or `PATH`
-/// changes, or when a data set or tool appears or goes.
+/// as `HANDHELD_DATASETS_DIR`, and asks to be run again when `CI` or `HANDHELD_DATASETS` changes,
+/// or when a data set, script or program appears or goes. (Not on every change of `PATH`: each
+/// run of this script rebuilds the crate and everything above it.)
 pub fn emit(needs: &[(&str, Need)]) {
     let manifest = PathBuf::from(std::env::var_os("CARGO_MANIFEST_DIR").unwrap_or_default());
     let datasets = datasets_dir(&manifest);
     let ci = std::env::var_os("CI").is_some_and(|v| !v.is_empty());
     println!("cargo:rerun-if-env-changed=CI");
     println!("cargo:rerun-if-env-changed={DATASETS_ENV}");
-    println!("cargo:rerun-if-env-changed=PATH");
     println!("cargo:rustc-env={DATASETS_DIR_ENV}={}", datasets.display());
     let mut watched = Vec::new();
     for &(cfg, need) in needs {
@@ -145,10 +145,10 @@ pub fn emit(needs: &[(&str, Need)]) {
     }
 }
 
-/// What to watch so that the build script runs again when `need` changes: the data set or
-/// script itself, or, while it is missing, the folder that would hold it (its appearance changes
-/// that folder; cargo scans a watched folder's files, so nothing higher up is watched); for a
-/// missing program, the folders on `PATH`.
+/// What to watch so that the build script runs again when `need` changes: the data set, script
+/// or program itself, or, while it is missing, the folder that would hold it (its appearance
+/// changes that folder; cargo scans a watched folder's files, so nothing higher up is watched);
+/// for a missing program, the folders on `PATH`. numpy is watched through `python3`.
 fn watch_paths(need: Need, datasets: &Path, is_missing: bool) -> Vec<PathBuf> {
     let parent = |p: PathBuf| -> Vec<PathBuf> {
         p.parent()
@@ -156,19 +156,34 @@ fn watch_paths(need: Need, datasets: &Path, is_missing: bool) -> Vec<PathBuf> {
             .map(|q| vec![q.to_path_buf()])
             .unwrap_or_default()
     };
-    match need {
-        Need::Dataset(name) if !is_missing => vec![datasets.join(name)],
-        Need::Dataset(name) => parent(datasets.join(name)),
-        Need::Tool(name) if !is_missing => vec![tools_dir(datasets).join(name)],
-        Need::Tool(name) => parent(tools_dir(datasets).join(name)),
-        Need::Ffmpeg | Need::Numpy | Need::Chromium if is_missing => std::env::var_os("PATH")
+    let path_dirs = || -> Vec<PathBuf> {
+        std::env::var_os("PATH")
             .map(|p| {
                 std::env::split_paths(&p)
                     .filter(|d| d.is_absolute() && d.is_dir())
                     .collect()
             })
-            .unwrap_or_default(),
-        _ => Vec::new(),
+            .unwrap_or_default()
+    };
+    let program = |name: &str| -> Vec<PathBuf> {
+        match path_dirs()
+            .into_iter()
+            .map(|d| d.join(name))
+            .find(|p| p.is_file())
+        {
+            Some(p) if !is_missing => vec![p],
+            _ => path_dirs(),
+        }
+    };
+    match need {
+        Need::Dataset(name) if !is_missing => vec![datasets.join(name)],
+        Need::Dataset(name) => parent(datasets.join(name)),
+        Need::Tool(name) if !is_missing => vec![tools_dir(datasets).join(name)],
+        Need::Tool(name) => parent(tools_dir(datasets).join(name)),
+        Need::Ffmpeg => program("ffmpeg"),
+        Need::Chromium => program("chromium"),
+        Need::Numpy => program("python3"),
+        Need::Vnni => Vec::new(),
     }
 }
 
