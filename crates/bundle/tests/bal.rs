@@ -7,6 +7,7 @@ use std::path::PathBuf;
 use handheld_bundle::{bundle_adjust_metric, BundleOptions, IntrinsicsMask, MetricBundleConfig};
 
 /// `../shared/datasets/bal/<name>`; a panic naming it when it is missing.
+#[track_caller]
 fn dataset(name: &str) -> PathBuf {
     let p = handheld_testkit::needs::dataset(env!("HANDHELD_DATASETS_DIR"), "bal").join(name);
     assert!(p.is_file(), "needs {} (missing)", p.display());

@@ -189,6 +189,7 @@ fn watch_paths(need: Need, datasets: &Path, is_missing: bool) -> Vec<PathBuf> {
 
 /// For a test: `<datasets>/<name>`, or a panic naming the missing folder and what to do.
 /// `datasets` is `env!("HANDHELD_DATASETS_DIR")`.
+#[track_caller]
 pub fn dataset(datasets: &str, name: &'static str) -> PathBuf {
     let root = PathBuf::from(datasets);
     if let Some(why) = missing(Need::Dataset(name), &root) {
@@ -198,6 +199,7 @@ pub fn dataset(datasets: &str, name: &'static str) -> PathBuf {
 }
 
 /// For a test: the shared script `<datasets>/../tools/<name>`, or a panic naming it.
+#[track_caller]
 pub fn tool(datasets: &str, name: &'static str) -> PathBuf {
     let root = PathBuf::from(datasets);
     if let Some(why) = missing(Need::Tool(name), &root) {
@@ -207,6 +209,7 @@ pub fn tool(datasets: &str, name: &'static str) -> PathBuf {
 }
 
 /// For a test: panics, saying what to install, unless `ffmpeg` runs.
+#[track_caller]
 pub fn ffmpeg() {
     if let Some(why) = missing(Need::Ffmpeg, Path::new("")) {
         panic!("{why}");
@@ -214,6 +217,7 @@ pub fn ffmpeg() {
 }
 
 /// For a test: panics, saying what to install, unless `chromium` runs.
+#[track_caller]
 pub fn chromium() {
     if let Some(why) = missing(Need::Chromium, Path::new("")) {
         panic!("{why}");
@@ -221,6 +225,7 @@ pub fn chromium() {
 }
 
 /// For a test: panics, saying what to install, unless `python3` imports numpy.
+#[track_caller]
 pub fn numpy() {
     if let Some(why) = missing(Need::Numpy, Path::new("")) {
         panic!("{why}");

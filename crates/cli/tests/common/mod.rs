@@ -79,12 +79,14 @@ pub fn datasets() -> &'static str {
 
 /// `<datasets>/<name>`, or a panic naming the missing folder (the test itself is marked
 /// `cfg_attr(not(has_…), ignore)`, so this fails only on CI or when the data went after the build).
+#[track_caller]
 pub fn dataset(name: &'static str) -> std::path::PathBuf {
     handheld_testkit::needs::dataset(datasets(), name)
 }
 
 /// Panics, saying how to install it, unless ffmpeg runs (tests marked
 /// `cfg_attr(not(has_ffmpeg), ignore)`).
+#[track_caller]
 pub fn need_ffmpeg() {
     handheld_testkit::needs::ffmpeg();
 }
