@@ -19,9 +19,9 @@ use std::process::Command;
     ignore = "needs ../shared/datasets/iclnuim-5, ../shared/tools/eval_sfm.py and python3 + numpy (missing)"
 )]
 fn iclnuim_all_five_views_registered_and_scored() {
-    let data = dataset("iclnuim-5");
+    let (data, eval) = (dataset("iclnuim-5"), need_eval_sfm());
     let ws = reconstruct_sparse(&data.join("images"));
-    let v = eval_sfm(&ws.path().join("sparse"), &data);
+    let v = eval_sfm(&eval, &ws.path().join("sparse"), &data);
     assert_eq!(v["registered"], 5, "{v}");
     let auc5 = v["auc@5"].as_f64().unwrap();
     assert!(auc5 >= 50.0, "AUC@5 {auc5}");
@@ -48,9 +48,9 @@ fn iclnuim_all_five_views_registered_and_scored() {
     ignore = "needs ../shared/datasets/herzjesu-P8, ../shared/tools/eval_sfm.py and python3 + numpy (missing)"
 )]
 fn herzjesu_all_views_posed_and_principal_point_estimated() {
-    let data = dataset("herzjesu-P8");
+    let (data, eval) = (dataset("herzjesu-P8"), need_eval_sfm());
     let ws = reconstruct_sparse(&data.join("images"));
-    let v = eval_sfm(&ws.path().join("sparse"), &data);
+    let v = eval_sfm(&eval, &ws.path().join("sparse"), &data);
     assert_eq!(v["images"], 8, "{v}");
     assert_eq!(v["registered"], 8, "{v}");
     assert_scores(&v, &[("auc@1", 80.0), ("auc@5", 90.0)], 0.2, 1.0);
@@ -71,7 +71,7 @@ fn herzjesu_all_views_posed_and_principal_point_estimated() {
     ignore = "needs ../shared/datasets/templeSparseRing, ../shared/tools/eval_sfm.py and python3 + numpy (missing)"
 )]
 fn temple_subset_all_views_posed_and_principal_point_estimated() {
-    let data = dataset("templeSparseRing");
+    let (data, eval) = (dataset("templeSparseRing"), need_eval_sfm());
     // The subset, as a data set of its own: its images, and the ground truth of those only (so
     // that the pair scores do not count the view left out as a failure).
     let subset = tempfile::tempdir().unwrap();
@@ -102,20 +102,26 @@ fn temple_subset_all_views_posed_and_principal_point_estimated() {
     .unwrap();
 
     let ws = reconstruct_sparse(&images);
-    let v = eval_sfm(&ws.path().join("sparse"), subset.path());
+    let v = eval_sfm(&eval, &ws.path().join("sparse"), subset.path());
     assert_eq!(v["images"], 15, "{v}");
     assert_eq!(v["registered"], 15, "{v}");
     assert_scores(&v, &[("auc@5", 80.0)], 1.0, 2.0);
     assert_principal_point_estimated(ws.path(), (302.32, 246.87), (319.5, 239.5), 0.5);
 }
 
-/// `python3 ../shared/tools/eval_sfm.py MODEL DATA`: its JSON line (registered, AUC@k, rotation,
-/// centre and focal error against `DATA/gt`).
-fn eval_sfm(model: &Path, data: &Path) -> serde_json::Value {
+/// `../shared/tools/eval_sfm.py`, checked with python3 + numpy before any work is done; a panic
+/// naming what is missing.
+#[track_caller]
+fn need_eval_sfm() -> std::path::PathBuf {
     handheld_testkit::needs::numpy();
-    let eval = handheld_testkit::needs::tool(datasets(), "eval_sfm.py");
+    handheld_testkit::needs::tool(datasets(), "eval_sfm.py")
+}
+
+/// `python3 EVAL MODEL DATA` (`EVAL`: `eval_sfm.py`): its JSON line (registered, AUC@k,
+/// rotation, centre and focal error against `DATA/gt`).
+fn eval_sfm(eval: &Path, model: &Path, data: &Path) -> serde_json::Value {
     let e = Command::new("python3")
-        .arg(&eval)
+        .arg(eval)
         .arg(model)
         .arg(data)
         .output()
