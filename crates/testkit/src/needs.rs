@@ -119,8 +119,10 @@ fn have_vnni() -> bool {
 /// For a build script: declares every `(cfg, need)` pair, sets the cfg of each need that is met
 /// (all of them, except [`Need::Vnni`], when `CI` is set), passes the data set folder to the tests
 /// as `HANDHELD_DATASETS_DIR`, and asks to be run again when `CI` or `HANDHELD_DATASETS` changes,
-/// or when a data set, script or program appears or goes. (Not on every change of `PATH`: each
-/// run of this script rebuilds the crate and everything above it.)
+/// or when a data set, script or program appears or goes, and, while a program is missing, when
+/// `PATH` changes. (Not on every change of `PATH`: each run of this script rebuilds the crate and
+/// everything above it. A numpy installed later into the same python3 is seen after
+/// `touch crates/<crate>/build.rs`.)
 pub fn emit(needs: &[(&str, Need)]) {
     let manifest = PathBuf::from(std::env::var_os("CARGO_MANIFEST_DIR").unwrap_or_default());
     let datasets = datasets_dir(&manifest);
@@ -135,6 +137,10 @@ pub fn emit(needs: &[(&str, Need)]) {
         let forced = ci && !matches!(need, Need::Vnni);
         if why.is_none() || forced {
             println!("cargo:rustc-cfg={cfg}");
+        }
+        // While a program is missing, a change of `PATH` may bring it (or numpy's python3).
+        if why.is_some() && matches!(need, Need::Ffmpeg | Need::Numpy | Need::Chromium) {
+            println!("cargo:rerun-if-env-changed=PATH");
         }
         for p in watch_paths(need, &datasets, why.is_some()) {
             if !watched.contains(&p) {
