@@ -81,11 +81,21 @@ pub fn missing(need: Need, datasets: &Path) -> Option<String> {
              (.ci/run does)"
                 .to_string()
         }),
-        Need::Chromium => (!runs("chromium", &["--version"])).then(|| {
-            "needs chromium on PATH (missing): apt-get install chromium (.ci/run does)".to_string()
+        Need::Chromium => (!runs(&chromium_program(), &["--version"])).then(|| {
+            "needs chromium on PATH or $HANDHELD_CHROMIUM (missing): apt-get install chromium \
+             (.ci/run does)"
+                .to_string()
         }),
         Need::Vnni => (!have_vnni()).then(|| "needs a CPU with AVX-512 VNNI".to_string()),
     }
+}
+
+/// `$HANDHELD_CHROMIUM` if set (the report's browser test honours it), else `chromium`.
+pub fn chromium_program() -> String {
+    std::env::var("HANDHELD_CHROMIUM")
+        .ok()
+        .filter(|p| !p.is_empty())
+        .unwrap_or_else(|| "chromium".to_string())
 }
 
 /// `<datasets>/../tools`: where the shared evaluation scripts lie.
@@ -129,6 +139,7 @@ pub fn emit(needs: &[(&str, Need)]) {
     let ci = std::env::var_os("CI").is_some_and(|v| !v.is_empty());
     println!("cargo:rerun-if-env-changed=CI");
     println!("cargo:rerun-if-env-changed={DATASETS_ENV}");
+    println!("cargo:rerun-if-env-changed=HANDHELD_CHROMIUM");
     println!("cargo:rustc-env={DATASETS_DIR_ENV}={}", datasets.display());
     let mut watched = Vec::new();
     for &(cfg, need) in needs {
@@ -187,7 +198,7 @@ fn watch_paths(need: Need, datasets: &Path, is_missing: bool) -> Vec<PathBuf> {
         Need::Tool(name) if !is_missing => vec![tools_dir(datasets).join(name)],
         Need::Tool(name) => parent(tools_dir(datasets).join(name)),
         Need::Ffmpeg => program("ffmpeg"),
-        Need::Chromium => program("chromium"),
+        Need::Chromium => program(&chromium_program()),
         Need::Numpy => program("python3"),
         Need::Vnni => Vec::new(),
     }
