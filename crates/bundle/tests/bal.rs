@@ -1,27 +1,23 @@
-//! Real BAL data from `../shared/datasets/bal` (skipped when absent): the converted problem's initial
-//! cost must equal BAL's own formula (and Ceres' figure), and a few iterations must decrease it.
+//! Real BAL data from `../shared/datasets/bal` (ignored when absent, a failure when absent on CI):
+//! the converted problem's initial cost must equal BAL's own formula (and Ceres' figure), and a few
+//! iterations must decrease it.
 
 use std::path::PathBuf;
 
 use handheld_bundle::{bundle_adjust_metric, BundleOptions, IntrinsicsMask, MetricBundleConfig};
 
-fn dataset(name: &str) -> Option<PathBuf> {
-    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../../../shared/datasets/bal")
-        .join(name);
-    if p.exists() {
-        Some(p)
-    } else {
-        eprintln!("skipping: {} not found", p.display());
-        None
-    }
+/// `../shared/datasets/bal/<name>`; a panic naming it when it is missing.
+#[track_caller]
+fn dataset(name: &str) -> PathBuf {
+    let p = handheld_testkit::needs::dataset(env!("HANDHELD_DATASETS_DIR"), "bal").join(name);
+    assert!(p.is_file(), "needs {} (missing)", p.display());
+    p
 }
 
 #[test]
+#[cfg_attr(not(has_bal), ignore = "needs ../shared/datasets/bal (missing)")]
 fn ladybug_initial_cost_matches_bal_and_ceres() {
-    let Some(path) = dataset("problem-49-7776-pre.txt") else {
-        return;
-    };
+    let path = dataset("problem-49-7776-pre.txt");
     let bal = handheld_io::bal::read_bal(&path).expect("readable");
     let bal_cost = bal.cost();
     assert!(

@@ -134,10 +134,9 @@ fn one_pixel_image() {
 }
 
 #[test]
+#[cfg_attr(not(has_ffmpeg), ignore = "needs ffmpeg (missing)")]
 fn video_that_is_not_one() {
-    if !have_ffmpeg() {
-        return;
-    }
+    need_ffmpeg();
     let dir = tempfile::tempdir().unwrap();
     let input = dir.path().join("holiday.mp4");
     std::fs::write(&input, b"this is a text file pretending to be a movie").unwrap();
@@ -210,10 +209,9 @@ fn missing_ffmpeg_says_how_to_install_it() {
 /// Degenerate motion: a video of a still camera has no key-frame pair; the sparse stage says why
 /// and does not mark itself finished.
 #[test]
+#[cfg_attr(not(has_ffmpeg), ignore = "needs ffmpeg (missing)")]
 fn video_of_a_still_camera() {
-    if !have_ffmpeg() {
-        return;
-    }
+    need_ffmpeg();
     let dir = tempfile::tempdir().unwrap();
     let still = dir.path().join("still.png");
     let img = image::RgbImage::from_fn(160, 120, |x, y| {
@@ -250,10 +248,9 @@ fn video_of_a_still_camera() {
 /// `handheld augment`: an object that is not glTF is named before any work is done; a video of
 /// one frame is refused; a missing pose file for `render` is named.
 #[test]
+#[cfg_attr(not(has_ffmpeg), ignore = "needs ffmpeg (missing)")]
 fn augment_and_render_bad_inputs() {
-    if !have_ffmpeg() {
-        return;
-    }
+    need_ffmpeg();
     let dir = tempfile::tempdir().unwrap();
     let one = dir.path().join("one.mp4");
     let made = std::process::Command::new(handheld_io::video::ffmpeg_program())

@@ -26,12 +26,12 @@ fn bad1(est: &Path, gt: &Path) -> f64 {
 }
 
 #[test]
+#[cfg_attr(
+    not(has_teddy),
+    ignore = "needs ../shared/datasets/stereo-teddy (missing)"
+)]
 fn teddy_sgm_and_dp_meet_the_bad1_targets() {
-    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/datasets/stereo-teddy");
-    if !data.exists() {
-        eprintln!("{} missing: skipped", data.display());
-        return;
-    }
+    let data = dataset("stereo-teddy");
     let dir = tempfile::tempdir().unwrap();
     for (method, limit) in [("sgm", 15.0), ("dp", 25.0)] {
         let out = dir.path().join(format!("{method}.pfm"));

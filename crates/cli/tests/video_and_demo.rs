@@ -8,10 +8,9 @@ use std::io::Write;
 use std::process::{Command, Stdio};
 
 #[test]
+#[cfg_attr(not(has_ffmpeg), ignore = "needs ffmpeg (missing)")]
 fn video_ingest_of_a_real_mp4() {
-    if !have_ffmpeg() {
-        return;
-    }
+    need_ffmpeg();
     let opts = handheld_testkit::render::SequenceOptions {
         width: 160,
         height: 120,
@@ -107,7 +106,7 @@ fn demo_writes_sequence_ground_truth_and_workspace() {
     // The cameras, uncalibrated, against the exact ones.
     let s = &v["accuracy"]["sparse"];
     assert_eq!(s["registered"], 20, "{s}");
-    assert!(s["focal_error_pct"].as_f64().unwrap() < 3.0, "{s}");
+    assert!(s["focal_error_pct"].as_f64().unwrap() < 2.0, "{s}");
     assert!(
         s["relative_rotation_error_deg_median"].as_f64().unwrap() < 1.0,
         "{s}"
@@ -117,6 +116,26 @@ fn demo_writes_sequence_ground_truth_and_workspace() {
     assert!(m["verified_pairs"].as_u64().unwrap() >= 1, "{m}");
     assert!(
         m["inlier_epipolar_error_median_px"].as_f64().unwrap() < 0.5,
+        "{m}"
+    );
+    // The depth maps against the exact rendered depth (in metres, through the similarity that
+    // aligns the camera centres): most pixels with a true surface have a depth, and a correct
+    // depth is within 1 % of the truth at the median.
+    let d = &v["accuracy"]["dense"];
+    assert_eq!(d["depth_maps"], 20, "{d}");
+    assert!(d["fill"].as_f64().expect("dense scored") > 0.8, "{d}");
+    assert!(d["relative_error_median"].as_f64().unwrap() < 0.01, "{d}");
+    // The fused mesh against the exact scene mesh: 90 % of it within 2 % of the scene size of the
+    // true surface, and 95 % of the seen true surface within 1 % of the mesh. (At this half
+    // resolution a pixel covers twice the surface it does at the default 640×480, where the
+    // README's 0.37 % was measured, and the 90th percentile lies on the triangles that bridge depth
+    // edges: 1 % is the bound at 640×480, 2 % here; a wrong focal length or scale is far beyond.)
+    let m = &v["accuracy"]["mesh"];
+    println!("accuracy: {}", v["accuracy"]);
+    assert!(m["faces"].as_u64().expect("mesh scored") > 0, "{m}");
+    assert!(m["accuracy_90_pct_of_scene"].as_f64().unwrap() < 2.0, "{m}");
+    assert!(
+        m["completeness_within_1pct"].as_f64().unwrap() > 0.95,
         "{m}"
     );
     for f in [
@@ -224,29 +243,30 @@ fn a_short_demo_keeps_a_usable_scale() {
     );
 }
 
-/// Twelve frames of the same orbit: a model is built, and when its focal length is wrong the run
-/// says the focal length is undetermined (issue #18: no wrong model reported as a success). The
-/// 12-frame orbit used to keep a focal length 34 % off with no warning, its relative rotations 9°
-/// wrong, while another frame that explained the images better had been rejected for what its
-/// adjustment filtered on the way; the focal profile now also walks from that frame to the right
-/// one (1.1 % off).
+/// Twelve frames of the same orbit: the focal length and the cameras are right (issue #18: no
+/// wrong model reported as a success). The 12-frame orbit used to keep a focal length 34 % off
+/// with no warning, its relative rotations 9° wrong, while another frame that explained the
+/// images better had been rejected for what its adjustment filtered on the way; the focal profile
+/// now also walks from that frame to the right one. A warning does not excuse a wrong model.
 #[test]
-fn a_demo_whose_focal_length_is_wrong_says_so() {
-    demo_is_right_or_warns(&["--frames", "12", "--width", "320", "--height", "240"]);
+fn a_twelve_frame_demo_finds_the_focal_length() {
+    demo_is_right(&["--frames", "12", "--width", "320", "--height", "240"]);
 }
 
 /// The demo's sideways walk at 640×480 (optical axes within 8° of each other: nearly critical)
 /// used to keep a focal length 45 % off, its relative rotations 2.3° wrong, with no warning: its
 /// only candidate frame was sound and the camera turned just enough to skip the translation
-/// probes. Its focal profile fell away from it, and now leads to the right frame (1.1 % off).
+/// probes. Its focal profile fell away from it, and now leads to the right frame.
 #[test]
-fn the_sideways_walk_is_right_or_says_so() {
-    demo_is_right_or_warns(&["--path", "walk"]);
+fn the_sideways_walk_finds_the_focal_length() {
+    demo_is_right(&["--path", "walk"]);
 }
 
-/// Runs the demo with `extra` arguments and checks that its model either has the focal length
-/// within 5 % of the truth or carries the warning that the images do not determine it.
-fn demo_is_right_or_warns(extra: &[&str]) {
+/// Runs the demo with `extra` arguments and checks its model against the exact cameras: every
+/// frame registered, the focal length within 2 % of the truth and the relative rotations within
+/// 0.5° at the median (a wrong focal length tilts them by degrees), whether or not the run warned
+/// that the images do not determine the focal length.
+fn demo_is_right(extra: &[&str]) {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("demo");
     let mut args = vec!["demo", "-o", out.to_str().unwrap(), "--json"];
@@ -254,20 +274,18 @@ fn demo_is_right_or_warns(extra: &[&str]) {
     let o = handheld(&args);
     assert!(o.status.success(), "{}", stderr(&o));
     let v: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
-    let focal_error = v["accuracy"]["sparse"]["focal_error_pct"].as_f64().unwrap();
-    let warned = v["stages"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .filter(|s| s["stage"] == "sparse")
-        .flat_map(|s| s["warnings"].as_array().cloned().unwrap_or_default())
-        .any(|w| {
-            w.as_str()
-                .is_some_and(|w| w.contains("do not determine the focal length"))
-        });
+    let s = &v["accuracy"]["sparse"];
+    println!("{extra:?}: {s}");
+    assert_eq!(s["registered"], v["frames"], "{extra:?}: {s}");
+    let focal_error = s["focal_error_pct"].as_f64().expect("sparse scored");
     assert!(
-        focal_error < 5.0 || warned,
-        "{extra:?}: focal length {focal_error:.1} % off, reported as a success: {v}"
+        focal_error < 2.0,
+        "{extra:?}: focal length {focal_error:.2} % off: {s}"
+    );
+    let rot = s["relative_rotation_error_deg_median"].as_f64().unwrap();
+    assert!(
+        rot < 0.5,
+        "{extra:?}: relative rotations {rot:.2}° off at the median: {s}"
     );
 }
 
@@ -275,10 +293,9 @@ fn demo_is_right_or_warns(extra: &[&str]) {
 /// key-frames, and a metric pose for every frame and the camcorder's aspect ratio, scored against the
 /// exact cameras.
 #[test]
+#[cfg_attr(not(has_ffmpeg), ignore = "needs ffmpeg (missing)")]
 fn demo_video_gives_every_frame_a_pose() {
-    if !have_ffmpeg() {
-        return;
-    }
+    need_ffmpeg();
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("demo");
     let o = handheld(&[

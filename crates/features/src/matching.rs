@@ -355,11 +355,12 @@ mod tests {
     }
 
     #[test]
+    #[cfg_attr(
+        not(has_vnni),
+        ignore = "needs a CPU with AVX-512 VNNI (this one has none)"
+    )]
     fn the_vnni_kernel_and_the_f32_product_give_the_same_matches() {
-        if !quantized::have_vnni() {
-            eprintln!("skipping: this CPU has no AVX-512 VNNI");
-            return;
-        }
+        assert!(quantized::have_vnni(), "this CPU has no AVX-512 VNNI");
         let mut s = 11u64;
         let mut rnd = || {
             s = s

@@ -7,6 +7,8 @@
 //! * [`path`]: hand-held orbit, walk-through and forward camera paths with jitter and zoom;
 //! * [`render`]: ray-cast, anti-aliased, radially distorted images with depth maps and the
 //!   ground-truth [`handheld_core::MetricReconstruction`];
+//! * [`needs`]: what the real-data and tool-dependent tests need, probed by the build scripts of
+//!   the crates that have such tests (a missing data set or program shows as an ignored test);
 //! * [`correspondences`], [`multiview`]: cheap two-view, resection and multi-view correspondence sets
 //!   (noise, outliers, degenerate configurations) for solver tests, without rendering.
 //!
@@ -21,6 +23,7 @@ pub mod correspondences;
 pub mod default_scene;
 pub mod mesh;
 pub mod multiview;
+pub mod needs;
 pub mod path;
 pub mod render;
 pub mod ring;

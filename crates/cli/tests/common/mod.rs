@@ -71,19 +71,22 @@ pub fn no_temp_files(dir: &Path) -> bool {
     walk(dir)
 }
 
-pub fn have_ffmpeg() -> bool {
-    let ok = Command::new("ffmpeg")
-        .arg("-version")
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .status()
-        .is_ok();
-    if !ok {
-        assert!(
-            std::env::var_os("CI").is_none(),
-            "ffmpeg must be installed on CI"
-        );
-        eprintln!("ffmpeg not installed: skipping");
-    }
-    ok
+/// The data set folder the build script probed (`../shared/datasets`, or `$HANDHELD_DATASETS` at
+/// build time): `datasets().join(name)`.
+pub fn datasets() -> &'static str {
+    env!("HANDHELD_DATASETS_DIR")
+}
+
+/// `<datasets>/<name>`, or a panic naming the missing folder (the test itself is marked
+/// `cfg_attr(not(has_…), ignore)`, so this fails only on CI or when the data went after the build).
+#[track_caller]
+pub fn dataset(name: &'static str) -> std::path::PathBuf {
+    handheld_testkit::needs::dataset(datasets(), name)
+}
+
+/// Panics, saying how to install it, unless ffmpeg runs (tests marked
+/// `cfg_attr(not(has_ffmpeg), ignore)`).
+#[track_caller]
+pub fn need_ffmpeg() {
+    handheld_testkit::needs::ffmpeg();
 }
