@@ -2,8 +2,8 @@
 //! network blocked. The page reports its own state into `<pre id="hh-status">` (errors, what
 //! each layer drew, WebGL errors, a lost context) and `--dump-dom` reads it back; the hash of the
 //! URL drives the viewer as a person does (`#camera=N` selects a camera as a click on it does,
-//! `#layers=mesh` sets the layer toggles). Without Chromium these tests fail under `CI` and
-//! otherwise say `SKIPPED: chromium not installed` (CI installs it).
+//! `#layers=mesh` sets the layer toggles). Without Chromium (or the temple data set) these tests
+//! show as ignored with the reason, and fail under `CI` (which installs Chromium).
 
 mod common;
 use common::*;
@@ -11,27 +11,13 @@ use common::*;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-/// Chromium, or `None` with a `SKIPPED` line; on CI (env `CI` set) a missing browser fails.
-fn chromium(test: &str) -> Option<PathBuf> {
-    let p = std::env::var_os("HANDHELD_CHROMIUM")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from("chromium"));
-    let ok = Command::new(&p)
-        .arg("--version")
-        .output()
-        .is_ok_and(|o| o.status.success());
-    if ok {
-        return Some(p);
-    }
-    assert!(
-        std::env::var_os("CI").is_none(),
-        "{test}: chromium must be installed on CI ({} does not run)",
-        p.display()
-    );
-    eprintln!(
-        "SKIPPED: chromium not installed: {test} (apt-get install chromium, or set HANDHELD_CHROMIUM)"
-    );
-    None
+/// Chromium (the program `$HANDHELD_CHROMIUM` names, or `chromium`), or a panic naming it; the
+/// tests that call this are marked `cfg_attr(not(has_chromium), ignore)`, so a machine without it
+/// shows them as ignored, and CI (which installs it) fails.
+#[track_caller]
+fn chromium() -> PathBuf {
+    handheld_testkit::needs::chromium();
+    PathBuf::from(handheld_testkit::needs::chromium_program())
 }
 
 /// One headless run of `url`; the page's console goes to stderr (`--enable-logging=stderr`).
@@ -164,20 +150,11 @@ fn keep(png: &Path, name: &str) {
     eprintln!("screenshot kept: {}", kept.display());
 }
 
-fn temple() -> Option<PathBuf> {
-    let data = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../../shared/datasets/templeSparseRing/images");
-    if data.exists() {
-        Some(data)
-    } else {
-        assert!(
-            std::env::var_os("CI").is_none(),
-            "{} missing on CI",
-            data.display()
-        );
-        eprintln!("SKIPPED: {} missing", data.display());
-        None
-    }
+/// The temple's photos, or a panic naming the missing data set (tests marked
+/// `cfg_attr(not(has_temple), ignore)`).
+#[track_caller]
+fn temple() -> PathBuf {
+    dataset("templeSparseRing").join("images")
 }
 
 /// No request of the page left the workspace. Local files never reach the network log; what
@@ -218,11 +195,13 @@ fn assert_no_network(netlog: &Path, ws: &Path) {
 /// covers the canvas with the atlas's colours, while no layer at all leaves it one colour; and
 /// no request outside the workspace.
 #[test]
+#[cfg_attr(
+    not(all(has_chromium, has_temple)),
+    ignore = "needs chromium and ../shared/datasets/templeSparseRing (missing)"
+)]
 fn the_report_opens_in_a_browser_and_draws_its_layers() {
-    let Some(chrome) = chromium("the_report_opens_in_a_browser_and_draws_its_layers") else {
-        return;
-    };
-    let Some(data) = temple() else { return };
+    let chrome = chromium();
+    let data = temple();
     let dir = tempfile::tempdir().unwrap();
     let ws = dir.path().join("ws");
     let o = handheld(&[
@@ -325,11 +304,13 @@ fn hostile_names() -> Vec<String> {
 /// in its grid and, when its camera is selected (as a click does), in the camera panel; no
 /// injected script runs; the page carries its Content-Security-Policy and nothing is blocked.
 #[test]
+#[cfg_attr(
+    not(all(has_chromium, has_temple)),
+    ignore = "needs chromium and ../shared/datasets/templeSparseRing (missing)"
+)]
 fn hostile_file_names_are_shown_as_text_and_never_run() {
-    let Some(chrome) = chromium("hostile_file_names_are_shown_as_text_and_never_run") else {
-        return;
-    };
-    let Some(data) = temple() else { return };
+    let chrome = chromium();
+    let data = temple();
     let dir = tempfile::tempdir().unwrap();
     let photos = dir.path().join("photos");
     std::fs::create_dir_all(&photos).unwrap();

@@ -129,48 +129,7 @@ fn the_stage_graph_runs_through_the_library() {
         .expect("summary parses")
         .expect("sparse ran");
     assert_eq!(sparse.registered, seq.images.len());
-    let rec = ws.read_sparse_model().expect("model");
-    let est: Vec<(String, Rigid3)> = rec
-        .views
-        .values()
-        .map(|v| (v.name.clone(), v.cam_from_world))
-        .collect();
-    let err = relative_rotation_error_deg(&est, &seq);
-    assert!(err < 0.5, "relative rotation error {err}°");
-    // Points take the colour of their first observation's pixel, recorded by the features stage
-    // (the sparse stage decodes no image), and the features stage made the report's thumbnails.
-    let mut checked = 0;
-    for p in rec.points.values().step_by(50) {
-        let el = p.track.elements[0];
-        let v = &rec.views[&el.image_id];
-        let xy = v.observations[el.point2d_idx as usize].xy;
-        let k = seq
-            .gt
-            .views
-            .values()
-            .position(|g| g.name == v.name)
-            .expect("view");
-        let img = &seq.images[k];
-        let px = img.get_pixel(
-            (xy.x.round().max(0.0) as u32).min(img.width() - 1),
-            (xy.y.round().max(0.0) as u32).min(img.height() - 1),
-        );
-        assert_eq!(
-            p.color,
-            [px[0], px[1], px[2]],
-            "point at {xy:?} in {}",
-            v.name
-        );
-        checked += 1;
-    }
-    assert!(checked > 10);
-    for k in 0..seq.images.len() {
-        let t = ws_path
-            .join(stage::FEATURES)
-            .join(format!("thumbs/{k:06}.jpg"));
-        let t = image::open(&t).unwrap_or_else(|e| panic!("{}: {e}", t.display()));
-        assert_eq!(t.width().max(t.height()), 240);
-    }
+    check_sparse_model(&ws, &ws_path, &seq);
     // Rendering before the dense stage falls back to the fixed plane, and says so.
     let plane_only =
         handheld_pipeline::render::load_scene(&ws, &[], 1600).expect("scene without depth");
@@ -247,90 +206,7 @@ fn the_stage_graph_runs_through_the_library() {
     assert!(ws_path.join("render/flight.png").exists());
 
     // 3b. One held-out view, image-based, against its photo; a pose file that is not one.
-    let png = dir.path().join("view.png");
-    let view = render_view(
-        &ws,
-        &ViewSpec::Image("frame_0003.png".into()),
-        RenderMethod::Ulr,
-        0,
-        &Default::default(),
-        &png,
-    )
-    .expect("one view");
-    assert!(view.covered_fraction > 0.9, "{view:?}");
-    let rendered = image::open(&png).expect("png").to_rgb8();
-    let mask = vec![true; (rendered.width() * rendered.height()) as usize];
-    let q = handheld_render::quality(&rendered, &seq.images[3], &mask);
-    assert!(q.psnr > 20.0, "PSNR {} against the photo", q.psnr);
-    let bad = dir.path().join("pose.json");
-    std::fs::write(&bad, "{\"rotation\": [1, 0, 0]}").expect("write");
-    let err = render_view(
-        &ws,
-        &ViewSpec::PoseFile(bad.clone()),
-        RenderMethod::Ulr,
-        0,
-        &Default::default(),
-        &png,
-    )
-    .expect_err("not a pose");
-    assert!(
-        err.to_string().contains("pose.json") && err.to_string().contains("rotation"),
-        "{err}"
-    );
-
-    // 3c. Augmenting the image sequence (§5.3): the shipped box on the ground, one output frame
-    // per image; a placement behind every camera and a file that is not glTF are refused.
-    let aug_dir = dir.path().join("augment");
-    if have_ffmpeg() {
-        let aug = handheld_pipeline::augment::augment(
-            &ws,
-            &handheld_pipeline::augment::AugmentOptions::default(),
-            &aug_dir,
-            &NoProgress,
-        )
-        .expect("augmented");
-        assert_eq!(aug.frames, seq.images.len());
-        assert_eq!(aug.posed_frames, seq.images.len());
-        assert!(aug_dir.join("augmented.mp4").exists());
-        assert_eq!(
-            std::fs::read_to_string(aug_dir.join("camera.chan"))
-                .expect("chan")
-                .lines()
-                .count(),
-            seq.images.len()
-        );
-        let behind = dir.path().join("behind.json");
-        let rec = ws.read_sparse_model().expect("model");
-        let v0 = rec.views.values().next().expect("a view");
-        let c0 = v0.center();
-        let back = v0.cam_from_world.rotation.inverse() * nalgebra::Vector3::new(0.0, 0.0, -1000.0);
-        let far = c0.coords + back;
-        std::fs::write(
-            &behind,
-            format!(
-                "{{\"scale\": 0.001, \"rotation\": [1, 0, 0, 0], \"translation\": [{}, {}, {}]}}",
-                far.x, far.y, far.z
-            ),
-        )
-        .expect("write");
-        let err = handheld_pipeline::augment::augment(
-            &ws,
-            &handheld_pipeline::augment::AugmentOptions {
-                placement: handheld_pipeline::augment::PlacementMode::Transform(behind),
-                ..Default::default()
-            },
-            &aug_dir,
-            &NoProgress,
-        )
-        .expect_err("behind every camera");
-        assert!(err.to_string().contains("behind every camera"), "{err}");
-    }
-    let not_gltf = dir.path().join("object.glb");
-    std::fs::write(&not_gltf, "not a model").expect("write");
-    let err = handheld_pipeline::augment::ObjectSource::File(not_gltf)
-        .load()
-        .expect_err("not glTF");
-    assert!(err.to_string().contains("object.glb"), "{err}");
+    check_held_out_view(&ws, dir.path(), &seq);
 
     // 4. Changed options redo exactly the stages below the change.
     let mut finer = options.clone();
@@ -413,9 +289,178 @@ fn a_collapsed_metric_frame_fails_the_run_and_leaves_no_model() {
     assert!(!sparse.join("cameras.bin").exists() && !sparse.join("summary.json").exists());
 }
 
-fn have_ffmpeg() -> bool {
-    std::process::Command::new(handheld_io::video::ffmpeg_program())
-        .arg("-version")
-        .output()
-        .is_ok_and(|o| o.status.success())
+/// The sparse model against the truth: relative rotations, the points' colours (recorded by the
+/// features stage: the sparse stage decodes no image), and the report's thumbnails.
+fn check_sparse_model(ws: &Workspace, ws_path: &Path, seq: &SyntheticSequence) {
+    let rec = ws.read_sparse_model().expect("model");
+    let est: Vec<(String, Rigid3)> = rec
+        .views
+        .values()
+        .map(|v| (v.name.clone(), v.cam_from_world))
+        .collect();
+    let err = relative_rotation_error_deg(&est, seq);
+    assert!(err < 0.5, "relative rotation error {err}°");
+    // Points take the colour of their first observation's pixel, recorded by the features stage
+    // (the sparse stage decodes no image), and the features stage made the report's thumbnails.
+    let mut checked = 0;
+    for p in rec.points.values().step_by(50) {
+        let el = p.track.elements[0];
+        let v = &rec.views[&el.image_id];
+        let xy = v.observations[el.point2d_idx as usize].xy;
+        let k = seq
+            .gt
+            .views
+            .values()
+            .position(|g| g.name == v.name)
+            .expect("view");
+        let img = &seq.images[k];
+        let px = img.get_pixel(
+            (xy.x.round().max(0.0) as u32).min(img.width() - 1),
+            (xy.y.round().max(0.0) as u32).min(img.height() - 1),
+        );
+        assert_eq!(
+            p.color,
+            [px[0], px[1], px[2]],
+            "point at {xy:?} in {}",
+            v.name
+        );
+        checked += 1;
+    }
+    assert!(checked > 10);
+    for k in 0..seq.images.len() {
+        let t = ws_path
+            .join(stage::FEATURES)
+            .join(format!("thumbs/{k:06}.jpg"));
+        let t = image::open(&t).unwrap_or_else(|e| panic!("{}: {e}", t.display()));
+        assert_eq!(t.width().max(t.height()), 240);
+    }
+}
+
+/// One held-out view, image-based, against its photo; a pose file that is not one is refused,
+/// naming it.
+fn check_held_out_view(ws: &Workspace, dir: &Path, seq: &SyntheticSequence) {
+    let png = dir.join("view.png");
+    let view = render_view(
+        ws,
+        &ViewSpec::Image("frame_0003.png".into()),
+        RenderMethod::Ulr,
+        0,
+        &Default::default(),
+        &png,
+    )
+    .expect("one view");
+    assert!(view.covered_fraction > 0.9, "{view:?}");
+    let rendered = image::open(&png).expect("png").to_rgb8();
+    let mask = vec![true; (rendered.width() * rendered.height()) as usize];
+    let q = handheld_render::quality(&rendered, &seq.images[3], &mask);
+    assert!(q.psnr > 20.0, "PSNR {} against the photo", q.psnr);
+    let bad = dir.join("pose.json");
+    std::fs::write(&bad, "{\"rotation\": [1, 0, 0]}").expect("write");
+    let err = render_view(
+        ws,
+        &ViewSpec::PoseFile(bad.clone()),
+        RenderMethod::Ulr,
+        0,
+        &Default::default(),
+        &png,
+    )
+    .expect_err("not a pose");
+    assert!(
+        err.to_string().contains("pose.json") && err.to_string().contains("rotation"),
+        "{err}"
+    );
+}
+
+/// Augmenting the image sequence (§5.3) as one run of the graph: the shipped box on the ground,
+/// one output frame per image; a placement behind every camera and a file that is not glTF are
+/// refused, naming them.
+#[test]
+#[cfg_attr(not(has_ffmpeg), ignore = "needs ffmpeg (missing)")]
+fn augmenting_the_sequence_composites_every_frame() {
+    handheld_testkit::needs::ffmpeg();
+    let dir = tempfile::tempdir().expect("temp dir");
+    let seq = scene(dir.path());
+    let input = dir.path().join("images");
+    let ws_path = dir.path().join("ws");
+    let options = PipelineOptions {
+        augment: Some(handheld_pipeline::augment::AugmentOptions {
+            occlusion: false,
+            ..Default::default()
+        }),
+        ..Default::default()
+    };
+    // Without occlusion the augment stage needs only the sparse model: no dense or mesh runs.
+    let reports = handheld_pipeline::reconstruct(
+        &input,
+        &ws_path,
+        &options,
+        Some(stage::AUGMENT),
+        false,
+        &NoProgress,
+    )
+    .expect("augmented");
+    let ran: Vec<&str> = reports.iter().map(|r| r.stage.as_str()).collect();
+    assert_eq!(ran, ["ingest", "features", "matches", "sparse", "augment"]);
+    let ws = Workspace::open(&ws_path).expect("workspace");
+    let aug: handheld_pipeline::augment::AugmentSummary =
+        ws.summary(stage::AUGMENT).expect("parses").expect("ran");
+    assert_eq!(aug.frames, seq.images.len());
+    assert_eq!(aug.posed_frames, seq.images.len());
+    assert!(!aug.occlusion);
+    assert!(ws_path.join("augment/augmented.mp4").exists());
+    assert_eq!(
+        std::fs::read_to_string(ws_path.join("augment/camera.chan"))
+            .expect("chan")
+            .lines()
+            .count(),
+        seq.images.len()
+    );
+    // Called directly with occlusion and no mesh: drawn over everything, with a typed warning.
+    let aug_dir = dir.path().join("augment-again");
+    {
+        let aug = handheld_pipeline::augment::augment(
+            &ws,
+            &handheld_pipeline::augment::AugmentOptions::default(),
+            &aug_dir,
+            &NoProgress,
+        )
+        .expect("augmented");
+        assert_eq!(aug.frames, seq.images.len());
+        assert!(aug
+            .warnings
+            .iter()
+            .any(|w| w.code == handheld_pipeline::warning::code::INPUT_MISSING));
+        assert!(aug_dir.join("augmented.mp4").exists());
+        let behind = dir.path().join("behind.json");
+        let rec = ws.read_sparse_model().expect("model");
+        let v0 = rec.views.values().next().expect("a view");
+        let c0 = v0.center();
+        let back = v0.cam_from_world.rotation.inverse() * nalgebra::Vector3::new(0.0, 0.0, -1000.0);
+        let far = c0.coords + back;
+        std::fs::write(
+            &behind,
+            format!(
+                "{{\"scale\": 0.001, \"rotation\": [1, 0, 0, 0], \"translation\": [{}, {}, {}]}}",
+                far.x, far.y, far.z
+            ),
+        )
+        .expect("write");
+        let err = handheld_pipeline::augment::augment(
+            &ws,
+            &handheld_pipeline::augment::AugmentOptions {
+                placement: handheld_pipeline::augment::PlacementMode::Transform(behind),
+                ..Default::default()
+            },
+            &aug_dir,
+            &NoProgress,
+        )
+        .expect_err("behind every camera");
+        assert!(err.to_string().contains("behind every camera"), "{err}");
+    }
+    let not_gltf = dir.path().join("object.glb");
+    std::fs::write(&not_gltf, "not a model").expect("write");
+    let err = handheld_pipeline::augment::ObjectSource::File(not_gltf)
+        .load()
+        .expect_err("not glTF");
+    assert!(err.to_string().contains("object.glb"), "{err}");
 }
