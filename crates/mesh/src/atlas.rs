@@ -189,37 +189,7 @@ pub(crate) fn build_atlas(
     opts: &TextureOptions,
 ) -> Result<(TexturedMesh, AtlasStats)> {
     let mut charts = make_charts(labels, neighbours);
-    let projectors: Vec<Projector> = views.iter().map(|v| Projector::new(&v.posed)).collect();
-    // Chart vertices and their pixels; `slot[v]` marks vertices already listed by the current chart.
-    let mut slot = vec![u32::MAX; pos.len()];
-    for (ci, c) in charts.iter_mut().enumerate() {
-        for &f in &c.faces {
-            for &v in &mesh.faces[f as usize] {
-                if slot[v as usize] == ci as u32 {
-                    continue;
-                }
-                slot[v as usize] = ci as u32;
-                let px = if c.view == u32::MAX {
-                    Vector2::zeros()
-                } else {
-                    let p = &projectors[c.view as usize];
-                    p.cam_to_pixel(&p.to_cam(&pos[v as usize]))
-                        .unwrap_or_else(Vector2::zeros)
-                };
-                c.verts.push((v, px));
-            }
-        }
-        if c.view != u32::MAX {
-            c.min = c
-                .verts
-                .iter()
-                .fold(Vector2::repeat(f64::INFINITY), |m, v| m.inf(&v.1));
-            c.max = c
-                .verts
-                .iter()
-                .fold(Vector2::repeat(f64::NEG_INFINITY), |m, v| m.sup(&v.1));
-        }
-    }
+    chart_vertices(&mut charts, mesh, pos, views);
     let (aw, ah, s) = place(&mut charts, opts)?;
     let pad = opts.padding as f64;
     let atlas_of = |c: &Chart, px: &Vector2<f64>| -> Vector2<f64> {
@@ -310,6 +280,63 @@ pub(crate) fn build_atlas(
             (ci, rgb, mask)
         })
         .collect();
+    let atlas = paste_tiles(&charts, tiles, aw, ah);
+    let stats = AtlasStats {
+        charts: charts.len(),
+        texel_scale: s,
+        seam_step,
+    };
+    Ok((
+        TexturedMesh {
+            mesh: out,
+            texture: atlas,
+        },
+        stats,
+    ))
+}
+
+/// Lists each chart's vertices with their pixels in the chart's view, and the charts' pixel bounds.
+fn chart_vertices(charts: &mut [Chart], mesh: &TriMesh, pos: &[Point3<f64>], views: &[PosedView]) {
+    let projectors: Vec<Projector> = views.iter().map(|v| Projector::new(&v.posed)).collect();
+    // Chart vertices and their pixels; `slot[v]` marks vertices already listed by the current chart.
+    let mut slot = vec![u32::MAX; pos.len()];
+    for (ci, c) in charts.iter_mut().enumerate() {
+        for &f in &c.faces {
+            for &v in &mesh.faces[f as usize] {
+                if slot[v as usize] == ci as u32 {
+                    continue;
+                }
+                slot[v as usize] = ci as u32;
+                let px = if c.view == u32::MAX {
+                    Vector2::zeros()
+                } else {
+                    let p = &projectors[c.view as usize];
+                    p.cam_to_pixel(&p.to_cam(&pos[v as usize]))
+                        .unwrap_or_else(Vector2::zeros)
+                };
+                c.verts.push((v, px));
+            }
+        }
+        if c.view != u32::MAX {
+            c.min = c
+                .verts
+                .iter()
+                .fold(Vector2::repeat(f64::INFINITY), |m, v| m.inf(&v.1));
+            c.max = c
+                .verts
+                .iter()
+                .fold(Vector2::repeat(f64::NEG_INFINITY), |m, v| m.sup(&v.1));
+        }
+    }
+}
+
+/// Copies the charts' tiles into an `aw × ah` atlas at their origins.
+fn paste_tiles(
+    charts: &[Chart],
+    tiles: Vec<(usize, Vec<[u8; 3]>, Vec<bool>)>,
+    aw: u32,
+    ah: u32,
+) -> RgbImage {
     let mut atlas = RgbImage::new(aw, ah);
     for (ci, rgb, mask) in tiles {
         let c = &charts[ci];
@@ -323,18 +350,7 @@ pub(crate) fn build_atlas(
             }
         }
     }
-    let stats = AtlasStats {
-        charts: charts.len(),
-        texel_scale: s,
-        seam_step,
-    };
-    Ok((
-        TexturedMesh {
-            mesh: out,
-            texture: atlas,
-        },
-        stats,
-    ))
+    atlas
 }
 
 /// Calls `put(x, y, barycentrics)` for every texel centre of a `w × h` tile inside the triangle `a`.

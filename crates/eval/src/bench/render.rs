@@ -148,7 +148,8 @@ struct HoldOutKey {
     dense: serde_json::Value,
 }
 
-pub fn bench_render(o: &RenderBenchOptions, progress: &dyn Progress) -> Result<RenderBenchReport> {
+/// Checks the benchmark's options; the error names the flag.
+fn validate(o: &RenderBenchOptions) -> Result<()> {
     if o.every < 2 {
         return Err(EvalError::option("--every", "must be at least 2"));
     }
@@ -157,30 +158,35 @@ pub fn bench_render(o: &RenderBenchOptions, progress: &dyn Progress) -> Result<R
     }
     o.ibr
         .validate()
-        .map_err(|e| EvalError::option("--method", e.to_string()))?;
-    let ws = Workspace::open(&o.workspace)?;
-    let rec = ws.read_sparse_model()?;
-    let paths = ws.image_paths()?;
+        .map_err(|e| EvalError::option("--method", e.to_string()))
+}
+
+/// The registered views by name, the names of every `every`-th (held out) and the ids of the rest.
+#[allow(clippy::type_complexity)]
+fn hold_out_every(
+    rec: &handheld_core::MetricReconstruction,
+    every: usize,
+) -> Result<(Vec<(String, ImageId)>, Vec<String>, Vec<ImageId>)> {
     let mut names: Vec<(String, ImageId)> = rec
         .views
         .iter()
         .map(|(id, v)| (v.name.clone(), *id))
         .collect();
     names.sort();
-    if names.len() < o.every.max(3) {
+    if names.len() < every.max(3) {
         return Err(EvalError::option(
             "--every",
             format!(
                 "the workspace has {} registered images; holding out every {}-th leaves too few",
                 names.len(),
-                o.every
+                every
             ),
         ));
     }
     let held: Vec<String> = names
         .iter()
         .enumerate()
-        .filter(|(i, _)| i % o.every == 0)
+        .filter(|(i, _)| i % every == 0)
         .map(|(_, n)| n.0.clone())
         .collect();
     let keep: Vec<ImageId> = names
@@ -188,6 +194,15 @@ pub fn bench_render(o: &RenderBenchOptions, progress: &dyn Progress) -> Result<R
         .filter(|n| !held.contains(&n.0))
         .map(|n| n.1)
         .collect();
+    Ok((names, held, keep))
+}
+
+pub fn bench_render(o: &RenderBenchOptions, progress: &dyn Progress) -> Result<RenderBenchReport> {
+    validate(o)?;
+    let ws = Workspace::open(&o.workspace)?;
+    let rec = ws.read_sparse_model()?;
+    let paths = ws.image_paths()?;
+    let (names, held, keep) = hold_out_every(&rec, o.every)?;
     let dir = ws
         .root
         .join("bench")

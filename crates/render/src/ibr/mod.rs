@@ -24,9 +24,9 @@ pub mod source;
 pub mod support;
 mod ulr;
 
-use handheld_core::{Camera, FloatMap, PosedCamera};
+use handheld_core::{Camera, FloatMap, PosedCamera, Rigid3};
 use image::RgbImage;
-use nalgebra::{Vector2, Vector3};
+use nalgebra::{Matrix3, Vector2, Vector3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
@@ -281,54 +281,10 @@ impl Renderer {
         if w == 0 || h == 0 {
             return Err(IbrError::Camera("zero-sized image".into()));
         }
-        let mut k = camera.intrinsics;
-        k.k1 = 0.0;
-        k.k2 = 0.0;
-        let km = k.k_matrix();
-        let k_inv = km
-            .try_inverse()
-            .ok_or_else(|| IbrError::Camera("singular calibration matrix".into()))?;
-        let r = *cam_from_world.rotation.to_rotation_matrix().matrix();
-        let t = cam_from_world.translation.vector;
-        let virt = Virtual {
-            k: km,
-            r,
-            t,
-            center: -(r.transpose() * t),
-            d: r.transpose() * k_inv,
-        };
+        let virt = virtual_of(camera, cam_from_world)?;
         // The ideal pixels of the output pixels, and their bounding rectangle.
         let distorted = !camera.intrinsics.is_undistorted();
-        if distorted && self.ideal_of.as_ref() != Some(camera) {
-            self.ideal = (0..w * h)
-                .into_par_iter()
-                .map(|i| {
-                    let px = Vector2::new((i % w) as f64, (i / w) as f64);
-                    let n = camera.intrinsics.pixel_to_normalized(px);
-                    let q = km * Vector3::new(n.x, n.y, 1.0);
-                    Vector2::new(q.x as f32, q.y as f32)
-                })
-                .collect();
-            self.ideal_of = Some(camera.clone());
-        }
-        let (lo, hi) = if distorted {
-            self.ideal.iter().fold(
-                (
-                    Vector2::repeat(f64::INFINITY),
-                    Vector2::repeat(f64::NEG_INFINITY),
-                ),
-                |(lo, hi), p| {
-                    let p = p.cast::<f64>();
-                    (lo.inf(&p), hi.sup(&p))
-                },
-            )
-        } else {
-            (
-                Vector2::zeros(),
-                Vector2::new((w - 1) as f64, (h - 1) as f64),
-            )
-        };
-        let (lo, hi) = (lo.map(|v| v.floor() - 1.0), hi.map(|v| v.ceil() + 1.0));
+        let (lo, hi) = self.ideal_bounds(camera, &virt.k, distorted);
         let t_support = std::time::Instant::now();
         let support = support::build(
             &virt,
@@ -362,20 +318,7 @@ impl Renderer {
         let g = opts.ulr_grid_px as usize;
         let (gw, gh) = (dw.div_ceil(g) + 1, dh.div_ceil(g) + 1);
         if method == IbrMethod::Ulr {
-            self.grid.clear();
-            self.grid.resize(gw * gh, Blend::default());
-            let ids = &self.ids;
-            let leaves = &self.leaves;
-            self.grid.par_iter_mut().enumerate().for_each(|(i, b)| {
-                let p = Vector2::new(lo.x + ((i % gw) * g) as f64, lo.y + ((i / gw) * g) as f64);
-                let cx = ((p.x - lo.x) as usize).min(dw - 1);
-                let cy = ((p.y - lo.y) as usize).min(dh - 1);
-                let leaf = ids[cy * dw + cx];
-                let plane = leaves.get(leaf as usize).map_or(scene.plane, |l| l.plane);
-                if let Some((x, _)) = virt.hit(&p, &plane) {
-                    *b = ulr_blend(&virt, &x, &scene.sources, opts);
-                }
-            });
+            self.ulr_grid(scene, &virt, opts, lo, (dw, dh), (gw, gh));
         }
         // Shade.
         if out.image.width() != camera.width || out.image.height() != camera.height {
@@ -439,6 +382,75 @@ impl Renderer {
         })
     }
 
+    /// The ideal (undistorted) pixel of every output pixel, kept while the camera is the same, and
+    /// the bounding rectangle of the ideal pixels, one pixel wider on each side.
+    fn ideal_bounds(
+        &mut self,
+        camera: &Camera,
+        km: &Matrix3<f64>,
+        distorted: bool,
+    ) -> (Vector2<f64>, Vector2<f64>) {
+        let (w, h) = (camera.width as usize, camera.height as usize);
+        if distorted && self.ideal_of.as_ref() != Some(camera) {
+            self.ideal = (0..w * h)
+                .into_par_iter()
+                .map(|i| {
+                    let px = Vector2::new((i % w) as f64, (i / w) as f64);
+                    let n = camera.intrinsics.pixel_to_normalized(px);
+                    let q = km * Vector3::new(n.x, n.y, 1.0);
+                    Vector2::new(q.x as f32, q.y as f32)
+                })
+                .collect();
+            self.ideal_of = Some(camera.clone());
+        }
+        let (lo, hi) = if distorted {
+            self.ideal.iter().fold(
+                (
+                    Vector2::repeat(f64::INFINITY),
+                    Vector2::repeat(f64::NEG_INFINITY),
+                ),
+                |(lo, hi), p| {
+                    let p = p.cast::<f64>();
+                    (lo.inf(&p), hi.sup(&p))
+                },
+            )
+        } else {
+            (
+                Vector2::zeros(),
+                Vector2::new((w - 1) as f64, (h - 1) as f64),
+            )
+        };
+        (lo.map(|v| v.floor() - 1.0), hi.map(|v| v.ceil() + 1.0))
+    }
+
+    /// The unstructured-lumigraph blend at every `g`-th ideal pixel (the ULR grid), on the plane of
+    /// the support-mesh leaf under it.
+    fn ulr_grid(
+        &mut self,
+        scene: &IbrScene,
+        virt: &Virtual,
+        opts: &IbrOptions,
+        lo: Vector2<f64>,
+        (dw, dh): (usize, usize),
+        (gw, gh): (usize, usize),
+    ) {
+        let g = opts.ulr_grid_px as usize;
+        self.grid.clear();
+        self.grid.resize(gw * gh, Blend::default());
+        let ids = &self.ids;
+        let leaves = &self.leaves;
+        self.grid.par_iter_mut().enumerate().for_each(|(i, b)| {
+            let p = Vector2::new(lo.x + ((i % gw) * g) as f64, lo.y + ((i / gw) * g) as f64);
+            let cx = ((p.x - lo.x) as usize).min(dw - 1);
+            let cy = ((p.y - lo.y) as usize).min(dh - 1);
+            let leaf = ids[cy * dw + cx];
+            let plane = leaves.get(leaf as usize).map_or(scene.plane, |l| l.plane);
+            if let Some((x, _)) = virt.hit(&p, &plane) {
+                *b = ulr_blend(virt, &x, &scene.sources, opts);
+            }
+        });
+    }
+
     /// Renders one view into a new image.
     pub fn render(
         &mut self,
@@ -455,4 +467,24 @@ impl Renderer {
         let s = self.render_into(scene, view, method, opts, &mut out)?;
         Ok((out, s))
     }
+}
+
+/// The virtual camera as matrices in ideal (undistorted) pixels.
+fn virtual_of(camera: &Camera, cam_from_world: &Rigid3) -> Result<Virtual, IbrError> {
+    let mut k = camera.intrinsics;
+    k.k1 = 0.0;
+    k.k2 = 0.0;
+    let km = k.k_matrix();
+    let k_inv = km
+        .try_inverse()
+        .ok_or_else(|| IbrError::Camera("singular calibration matrix".into()))?;
+    let r = *cam_from_world.rotation.to_rotation_matrix().matrix();
+    let t = cam_from_world.translation.vector;
+    Ok(Virtual {
+        k: km,
+        r,
+        t,
+        center: -(r.transpose() * t),
+        d: r.transpose() * k_inv,
+    })
 }
