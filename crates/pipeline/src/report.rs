@@ -233,36 +233,12 @@ fn sparse_part(
             continue;
         };
         let r = v.cam_from_world.rotation.inverse().to_rotation_matrix();
-        let m = r.matrix();
-        up += m * Vector3::new(0.0, -1.0, 0.0);
-        let c = v.center();
+        up += r.matrix() * Vector3::new(0.0, -1.0, 0.0);
         let k = index.get(&v.name).copied().unwrap_or(0);
-        input.cameras.push((
-            k,
-            ViewerCamera {
-                name: v.name.clone(),
-                c: [c.x, c.y, c.z],
-                r: [
-                    m[(0, 0)],
-                    m[(0, 1)],
-                    m[(0, 2)],
-                    m[(1, 0)],
-                    m[(1, 1)],
-                    m[(1, 2)],
-                    m[(2, 0)],
-                    m[(2, 1)],
-                    m[(2, 2)],
-                ],
-                f: cam.intrinsics.f,
-                aspect: cam.intrinsics.aspect,
-                cx: cam.intrinsics.pp.x,
-                cy: cam.intrinsics.pp.y,
-                w: cam.width,
-                h: cam.height,
-                registered: true,
-                thumb: String::new(),
-            },
-        ));
+        let posed = handheld_core::PosedCamera::new(cam.clone(), v.cam_from_world);
+        input
+            .cameras
+            .push((k, ViewerCamera::from_posed(&v.name, &posed)));
     }
     input.cameras.sort_by_key(|c| c.0);
     let mut up = up.try_normalize(1e-9).unwrap_or(Vector3::z());

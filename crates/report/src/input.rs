@@ -45,6 +45,10 @@ pub struct ImageEntry {
 }
 
 /// One recorded camera for the viewer.
+///
+/// Not a `PosedCamera`: this is the viewer's wire format (`report/scene.js`, read by `viewer.js`),
+/// flat numbers in the frame the viewer draws in (centre and world ← camera rotation rather than
+/// `cam_from_world`). Build it with [`ViewerCamera::from_posed`].
 #[derive(Clone, Debug, Serialize)]
 pub struct ViewerCamera {
     pub name: String,
@@ -60,6 +64,39 @@ pub struct ViewerCamera {
     pub registered: bool,
     /// The thumbnail, relative to the page.
     pub thumb: String,
+}
+
+impl ViewerCamera {
+    /// The viewer's camera of a registered view.
+    pub fn from_posed(name: &str, view: &handheld_core::PosedCamera) -> Self {
+        let r = view.cam_from_world.rotation.inverse().to_rotation_matrix();
+        let m = r.matrix();
+        let c = view.center();
+        let i = &view.camera.intrinsics;
+        Self {
+            name: name.to_string(),
+            c: [c.x, c.y, c.z],
+            r: [
+                m[(0, 0)],
+                m[(0, 1)],
+                m[(0, 2)],
+                m[(1, 0)],
+                m[(1, 1)],
+                m[(1, 2)],
+                m[(2, 0)],
+                m[(2, 1)],
+                m[(2, 2)],
+            ],
+            f: i.f,
+            aspect: i.aspect,
+            cx: i.pp.x,
+            cy: i.pp.y,
+            w: view.camera.width,
+            h: view.camera.height,
+            registered: true,
+            thumb: String::new(),
+        }
+    }
 }
 
 /// A stage's warning: what happened in plain language, what to do, and the figures behind it
