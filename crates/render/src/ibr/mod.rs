@@ -24,7 +24,7 @@ pub mod source;
 pub mod support;
 mod ulr;
 
-use handheld_core::{Camera, FloatMap, PosedCamera, Rigid3};
+use handheld_core::{Camera, FloatMap, PosedCamera};
 use image::RgbImage;
 use nalgebra::{Matrix3, Vector2, Vector3};
 use rayon::prelude::*;
@@ -266,7 +266,7 @@ impl Renderer {
         proxy: Option<&FloatMap>,
         out: &mut Rendered,
     ) -> Result<FrameStats, IbrError> {
-        let (camera, cam_from_world) = (&view.camera, &view.cam_from_world);
+        let camera = &view.camera;
         if let Some(p) = proxy {
             if (p.width, p.height) != (camera.width as usize, camera.height as usize) {
                 return Err(IbrError::Camera(format!(
@@ -281,7 +281,7 @@ impl Renderer {
         if w == 0 || h == 0 {
             return Err(IbrError::Camera("zero-sized image".into()));
         }
-        let virt = virtual_of(camera, cam_from_world)?;
+        let virt = virtual_of(view)?;
         // The ideal pixels of the output pixels, and their bounding rectangle.
         let distorted = !camera.intrinsics.is_undistorted();
         let (lo, hi) = self.ideal_bounds(camera, &virt.k, distorted);
@@ -470,7 +470,8 @@ impl Renderer {
 }
 
 /// The virtual camera as matrices in ideal (undistorted) pixels.
-fn virtual_of(camera: &Camera, cam_from_world: &Rigid3) -> Result<Virtual, IbrError> {
+fn virtual_of(view: &PosedCamera) -> Result<Virtual, IbrError> {
+    let (camera, cam_from_world) = (&view.camera, &view.cam_from_world);
     let mut k = camera.intrinsics;
     k.k1 = 0.0;
     k.k2 = 0.0;
