@@ -20,6 +20,20 @@ import sys
 ITEM_RE = r"(?:fn|struct|enum|trait|type|const|static|union|mod)\s+{}\b|macro_rules!\s*{}\b"
 
 
+def matching_brace(code, i):
+    """The index of the `}` closing the `{` at `i` (or the end of `code`)."""
+    depth, j = 0, i
+    while j < len(code):
+        if code[j] == "{":
+            depth += 1
+        elif code[j] == "}":
+            depth -= 1
+            if depth == 0:
+                break
+        j += 1
+    return j
+
+
 def strip_code(text):
     """Blanks comments, strings and char literals (keeping newlines), so braces and paths are code."""
     out = []
@@ -100,16 +114,7 @@ class Crate:
             code = self.code[mod]
             spans = []
             for m in re.finditer(r"\bmod\s+\w+\s*\{", code):
-                depth, j = 0, m.end() - 1
-                while j < len(code):
-                    if code[j] == "{":
-                        depth += 1
-                    elif code[j] == "}":
-                        depth -= 1
-                        if depth == 0:
-                            break
-                    j += 1
-                spans.append((m.start(), j))
+                spans.append((m.start(), matching_brace(code, m.end() - 1)))
             self._inline[mod] = spans
         return sum(1 for a, b in self._inline[mod] if a <= pos <= b)
 
@@ -311,15 +316,7 @@ def long_functions(path, limit):
             i += 1
         if i < 0 or i >= len(code):
             continue
-        depth, j = 0, i
-        while j < len(code):
-            if code[j] == "{":
-                depth += 1
-            elif code[j] == "}":
-                depth -= 1
-                if depth == 0:
-                    break
-            j += 1
+        j = matching_brace(code, i)
         start = code.count("\n", 0, m.start()) + 1
         end = code.count("\n", 0, j) + 1
         if end - start + 1 > limit:
