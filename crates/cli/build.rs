@@ -18,5 +18,6 @@ fn main() {
         ("has_herzjesu", Need::Dataset("herzjesu-P8")),
         ("has_temple", Need::Dataset("templeSparseRing")),
         ("has_teddy", Need::Dataset("stereo-teddy")),
+        ("has_et", Need::Dataset("bundler-ET")),
     ]);
 }

@@ -27,6 +27,7 @@
 mod canonical;
 mod common;
 mod context;
+mod duplicates;
 mod error;
 pub mod graph;
 pub mod input;
@@ -51,6 +52,6 @@ pub use metric::uncertainty::{IntrinsicsSigma, UncertaintyReport};
 pub use options::{Distortion, KnownIntrinsics, SfmOptions};
 pub use pipeline::reconstruct;
 pub use projective::model::ProjectiveBaRecord;
-pub use summary::{GroupSummary, ModelSummary, SfmModel, SfmResult};
+pub use summary::{DuplicateShot, GroupSummary, ModelSummary, SfmModel, SfmResult};
 pub use upgrade::guard::CandidateRecord;
 pub use upgrade::transform::{RejectedStart, SelfCalibrationReport};

@@ -68,6 +68,19 @@ pub struct SfmModel {
 pub struct SfmResult {
     pub models: Vec<SfmModel>,
     pub unregistered: Vec<(String, String)>,
+    /// Duplicate shots held back from the projective stage (`duplicates.rs`); they are registered
+    /// after their model was built, or listed in `unregistered`.
+    pub duplicates: Vec<DuplicateShot>,
+}
+
+/// A photo that repeats another one (the same shot twice, a burst).
+#[derive(Clone, Debug, Serialize, PartialEq)]
+pub struct DuplicateShot {
+    pub image: String,
+    /// The photo kept in its place.
+    pub of: String,
+    /// Median displacement of their matched keypoints, pixels.
+    pub shift_px: f64,
 }
 
 #[allow(clippy::too_many_arguments)]

@@ -16,7 +16,9 @@ use handheld_io::database::Database;
 use handheld_io::images::{load_image, ImageIngestOptions};
 use handheld_io::ingest::InputKind;
 use handheld_robust::TwoViewConfiguration;
-use handheld_sfm::{reconstruct, ModelSummary, SfmImage, SfmInput, SfmOptions, SfmPair};
+use handheld_sfm::{
+    reconstruct, DuplicateShot, ModelSummary, SfmImage, SfmInput, SfmOptions, SfmPair,
+};
 use nalgebra::Vector2;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -83,6 +85,10 @@ pub struct SparseModelReport<'a> {
     pub unregistered: Option<&'a [Unregistered]>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub other_models: Option<Vec<&'a ModelSummary>>,
+    /// The largest model only: photos that repeat another (held back from the projective stage,
+    /// registered after the model was built).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub duplicates: Option<&'a [DuplicateShot]>,
 }
 
 /// What keypoint refinement did, and in how long.
@@ -159,6 +165,8 @@ impl Stage for Sparse {
                 unregistered: (k == 0).then_some(unregistered.as_slice()),
                 other_models: (k == 0)
                     .then(|| result.models[1..].iter().map(|m| &m.summary).collect()),
+                duplicates: (k == 0 && !result.duplicates.is_empty())
+                    .then_some(result.duplicates.as_slice()),
             };
             if k == 0 {
                 write_model(dir, &m.reconstruction, &report)?;

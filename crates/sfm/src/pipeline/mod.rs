@@ -38,7 +38,7 @@ use crate::graph::CorrespondenceGraph;
 use crate::input::SfmInput;
 use crate::merge::merge_models;
 use crate::options::SfmOptions;
-use crate::summary::{SfmModel, SfmResult};
+use crate::summary::{DuplicateShot, SfmModel, SfmResult};
 use steps::Search;
 
 /// Runs Table 2 and §3.4 end to end: models are built one after the other from the views still
@@ -102,9 +102,19 @@ pub fn reconstruct(
             c.restore(&mut m.reconstruction);
         }
     }
+    let duplicates = search
+        .duplicates
+        .iter()
+        .map(|d| DuplicateShot {
+            image: input.images[d.image].name.clone(),
+            of: input.images[d.of].name.clone(),
+            shift_px: d.shift_px,
+        })
+        .collect();
     Ok(SfmResult {
         models,
         unregistered,
+        duplicates,
     })
 }
 

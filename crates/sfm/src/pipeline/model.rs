@@ -226,6 +226,8 @@ fn register_banned_again(
         allowed[*i] = true;
     }
     let mut again = Search {
+        deferred: vec![false; allowed.len()],
+        duplicates: Vec::new(),
         allowed,
         failures: std::mem::take(&mut search.failures),
     };

@@ -1,0 +1,212 @@
+//! Duplicate and near-duplicate shots (the same photo twice, a burst): views that carry no depth
+//! against another view of the set. A pair whose matches one homography explains (GRIC, Torr 1998,
+//! as in Pollefeys et al. 2002, *Surviving dominant planes*) and whose frames nearly coincide has
+//! zero baseline. Inside the projective stage such a view is harmful: its points triangulated
+//! against its twin lie anywhere along their rays (a projective frame has no angle to test), the
+//! self-calibration counts the same camera twice, and the metric adjustment of every upgrade
+//! candidate then throws out the points it cannot place (bundler-ET with 4 of its 9 photos copied
+//! under new names: 45–100 % of the observations removed, no model).
+//!
+//! So each such view is held back from the projective stage and the upgrade, and joins the metric
+//! model by calibrated resection once the model is built (`metric/register.rs`), where it gets
+//! (about) its twin's pose. Nothing is lost when the test misfires on a view that is not a
+//! duplicate (a small pan): it is registered in the metric model like any view the projective
+//! stage could not add.
+
+use handheld_robust::TwoViewConfiguration;
+
+use crate::input::SfmInput;
+
+/// Frames whose matched keypoints moved less than this share of the image diagonal (median) are
+/// the same shot. Two photos that coincide this closely and that a homography explains add
+/// nothing to each other but noise; a misfire only moves a view to calibrated registration.
+pub const MAX_SHIFT_OF_DIAGONAL: f64 = 0.02;
+
+/// One view held back as the duplicate of another.
+#[derive(Clone, Debug, PartialEq)]
+pub(crate) struct Duplicate {
+    /// The view held back (index into the input's images).
+    pub image: usize,
+    /// The view kept in its place.
+    pub of: usize,
+    /// Median displacement of the pair's matched keypoints, pixels.
+    pub shift_px: f64,
+}
+
+/// The median displacement (pixels) of a pair's matches when the pair carries no depth (a
+/// homography explains it) and its frames nearly coincide; `None` otherwise.
+fn duplicate_shift(input: &SfmInput, pair: &crate::input::SfmPair) -> Option<f64> {
+    if !matches!(
+        pair.configuration,
+        TwoViewConfiguration::Planar | TwoViewConfiguration::PureRotation
+    ) || pair.matches.is_empty()
+    {
+        return None;
+    }
+    let (a, b) = (&input.images[pair.a], &input.images[pair.b]);
+    if (a.width, a.height) != (b.width, b.height) {
+        return None;
+    }
+    let mut d: Vec<f64> = pair
+        .matches
+        .iter()
+        .map(|&(i, j)| (a.keypoints[i as usize] - b.keypoints[j as usize]).norm())
+        .collect();
+    let mid = d.len() / 2;
+    let shift = *d.select_nth_unstable_by(mid, f64::total_cmp).1;
+    let diagonal = f64::from(a.width).hypot(f64::from(a.height));
+    (shift <= MAX_SHIFT_OF_DIAGONAL * diagonal).then_some(shift)
+}
+
+/// The views to hold back from the projective stage, among those `allowed`: each is a duplicate of
+/// a view that is kept. Views are visited by their total number of verified matches (then by
+/// index), and a view is held back only when it duplicates a view already kept, so a slow pan whose
+/// consecutive frames nearly coincide keeps every other frame, not only its first. Video input has
+/// none: its key-frames were chosen for their baseline (§3.1). At least two views are always kept.
+pub(crate) fn find_duplicates(input: &SfmInput, allowed: &[bool]) -> Vec<Duplicate> {
+    if input.video {
+        return Vec::new();
+    }
+    let n = input.images.len();
+    let mut matches = vec![0usize; n];
+    let mut twins: Vec<Vec<(usize, f64)>> = vec![Vec::new(); n];
+    for p in &input.pairs {
+        if p.configuration == TwoViewConfiguration::TooFewInliers {
+            continue;
+        }
+        matches[p.a] += p.matches.len();
+        matches[p.b] += p.matches.len();
+        if let Some(shift) = duplicate_shift(input, p) {
+            twins[p.a].push((p.b, shift));
+            twins[p.b].push((p.a, shift));
+        }
+    }
+    let mut order: Vec<usize> = (0..n).filter(|&i| allowed[i]).collect();
+    order.sort_by(|&x, &y| matches[y].cmp(&matches[x]).then(x.cmp(&y)));
+    let mut kept = vec![false; n];
+    let mut out = Vec::new();
+    for &v in &order {
+        let twin = twins[v]
+            .iter()
+            .filter(|(u, _)| kept[*u])
+            .min_by(|x, y| x.1.total_cmp(&y.1).then(x.0.cmp(&y.0)));
+        match twin {
+            Some(&(of, shift_px)) => out.push(Duplicate {
+                image: v,
+                of,
+                shift_px,
+            }),
+            None => kept[v] = true,
+        }
+    }
+    if kept.iter().filter(|k| **k).count() < 2 {
+        return Vec::new();
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::input::{SfmImage, SfmPair};
+    use handheld_core::ImageId;
+    use nalgebra::Vector2;
+
+    fn image(i: u32, shift: f64) -> SfmImage {
+        SfmImage {
+            id: ImageId(i),
+            name: format!("{i}.jpg"),
+            width: 640,
+            height: 480,
+            keypoints: (0..50)
+                .map(|k| Vector2::new(10.0 + 11.0 * f64::from(k) + shift, 200.0 + shift))
+                .collect(),
+            keypoint_scales: Vec::new(),
+            camera_key: "cam".into(),
+            focal_prior_px: None,
+            frame: None,
+            track_ids: Vec::new(),
+            descriptors: Vec::new(),
+            descriptor_dim: 0,
+        }
+    }
+
+    fn pair(a: usize, b: usize, configuration: TwoViewConfiguration, n: u32) -> SfmPair {
+        SfmPair {
+            a,
+            b,
+            matches: (0..n).map(|k| (k, k)).collect(),
+            f: None,
+            configuration,
+            view_distance_px: None,
+        }
+    }
+
+    #[test]
+    fn an_exact_copy_is_held_back_and_a_view_with_depth_is_not() {
+        use TwoViewConfiguration::*;
+        // 0, 1, 2 are distinct views (General pairs); 3 is a copy of 1 (zero shift, H = I).
+        let input = SfmInput {
+            images: vec![image(0, 0.0), image(1, 0.0), image(2, 0.0), image(3, 0.0)],
+            pairs: vec![
+                pair(0, 1, General, 40),
+                pair(1, 2, General, 40),
+                pair(0, 2, General, 30),
+                pair(0, 3, General, 40),
+                pair(3, 2, General, 40),
+                pair(1, 3, PureRotation, 50),
+            ],
+            video: false,
+        };
+        let d = find_duplicates(&input, &[true; 4]);
+        assert_eq!(
+            d,
+            vec![Duplicate {
+                image: 3,
+                of: 1,
+                shift_px: 0.0
+            }]
+        );
+    }
+
+    #[test]
+    fn frames_that_moved_are_not_duplicates_and_two_views_are_always_kept() {
+        use TwoViewConfiguration::*;
+        // A pan: 1 moved 100 px from 0 (more than 2 % of 800 px), a homography explains it.
+        let input = SfmInput {
+            images: vec![image(0, 0.0), image(1, 100.0)],
+            pairs: vec![pair(0, 1, PureRotation, 50)],
+            video: false,
+        };
+        assert!(find_duplicates(&input, &[true; 2]).is_empty());
+        // Two copies and nothing else: both are kept (no model can hold fewer than two views).
+        let input = SfmInput {
+            images: vec![image(0, 0.0), image(1, 0.0)],
+            pairs: vec![pair(0, 1, PureRotation, 50)],
+            video: false,
+        };
+        assert!(find_duplicates(&input, &[true; 2]).is_empty());
+    }
+
+    #[test]
+    fn a_slow_pan_is_not_collapsed_into_one_view() {
+        use TwoViewConfiguration::*;
+        // Frames 10 px apart (1.25 % of the diagonal): neighbours coincide, frames two apart not.
+        let input = SfmInput {
+            images: (0..4).map(|i| image(i, 10.0 * f64::from(i))).collect(),
+            pairs: vec![
+                pair(0, 1, PureRotation, 40),
+                pair(1, 2, PureRotation, 50),
+                pair(2, 3, PureRotation, 40),
+                pair(0, 2, PureRotation, 30),
+                pair(1, 3, PureRotation, 30),
+            ],
+            video: false,
+        };
+        let d = find_duplicates(&input, &[true; 4]);
+        // 1 has the most matches and is kept; 0 and 2 duplicate it; 3 duplicates only 2, which
+        // is held back, so 3 is kept: the chain 0–1–2–3 does not collapse onto 1.
+        let held: Vec<(usize, usize)> = d.iter().map(|d| (d.image, d.of)).collect();
+        assert_eq!(held, vec![(2, 1), (0, 1)]);
+    }
+}
