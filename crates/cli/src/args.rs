@@ -109,6 +109,25 @@ pub struct DemoArgs {
     /// projection against the exact cameras (use with --video).
     #[arg(long)]
     pub augment: bool,
+    /// The scene: `objects` (boxes and spheres on a ground) or `wall` (a phone's capture: a
+    /// patterned wall filling most of each frame, an object mounted on it, orbited at 1.7 m).
+    #[arg(long, default_value = choice_name(&demo_defaults().scene), value_parser = choice::<handheld_eval::DemoScene>)]
+    pub scene: handheld_eval::DemoScene,
+    /// Field of view across the longer image side, degrees (a phone: 65–70); default: the focal
+    /// length is 0.9 × the width.
+    #[arg(long)]
+    pub fov: Option<f64>,
+    /// First radial distortion coefficient of the synthetic camera (k2 is then 0); default −0.08
+    /// with k2 = 0.01.
+    #[arg(long, allow_hyphen_values = true)]
+    pub k1: Option<f64>,
+    /// x264 constant rate factor of the video (--video); default 12 (visually lossless), a
+    /// phone's bit rate is about 23.
+    #[arg(long)]
+    pub crf: Option<u8>,
+    /// Stop after this stage and what it needs (e.g. `sparse`); the stages not run are not scored.
+    #[arg(long)]
+    pub until: Option<String>,
 }
 
 /// `handheld mesh`: the mesh stage alone, on a dense folder.

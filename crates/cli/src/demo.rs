@@ -19,6 +19,11 @@ pub fn run(a: &DemoArgs, g: &GlobalArgs, bars: &Bars) -> Result<()> {
         aspect_ratio: a.aspect_ratio,
         video: a.video,
         augment: a.augment,
+        scene: a.scene,
+        fov_deg: a.fov,
+        k1: a.k1,
+        crf: a.crf,
+        until: a.until.clone(),
     };
     let r = handheld_eval::run_demo(&o, bars)?;
     let value = serde_json::to_value(&r)?;

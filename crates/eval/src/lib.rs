@@ -18,7 +18,7 @@ pub mod bench;
 pub mod demo;
 pub mod error;
 
-pub use demo::{run_demo, CameraPath, DemoOptions, DemoReport};
+pub use demo::{run_demo, CameraPath, DemoOptions, DemoReport, DemoScene};
 pub use error::{EvalError, Result};
 pub use handheld_pipeline::Context;
 

@@ -24,6 +24,7 @@
 //!
 //! Deterministic for a given input and seed, and for photos independent of their order.
 
+mod calibrated;
 mod canonical;
 mod common;
 mod context;

@@ -76,3 +76,37 @@ impl Scene {
         Self::new(prims).unwrap_or_else(|e| panic!("default scene is invalid: {e}"))
     }
 }
+
+impl Scene {
+    /// A phone's view of a wall-mounted object: a 6 m × 4 m patterned wall at `y = 0.5` facing
+    /// `−y`, which fills most of every frame (a dominant plane), with a box and a sphere mounted on
+    /// it, 0.2–0.45 m proud of it, around `(0, 0.3, 1.4)`. Seen by [`crate::PathOptions::wall_orbit`].
+    pub fn wall_scene(seed: u64) -> Self {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x3A11_0000);
+        let yaw = rng.random_range(-0.4..0.4);
+        let prims = vec![
+            Primitive::Plane {
+                origin: Point3::new(-3.0, 0.5, -0.6),
+                edge_u: Vector3::new(6.0, 0.0, 0.0),
+                edge_v: Vector3::new(0.0, 0.0, 4.0),
+                texture: rng.random(),
+            },
+            Primitive::Box {
+                center: Point3::new(-0.1, 0.28, 1.45),
+                half_extents: Vector3::new(
+                    rng.random_range(0.16..0.24),
+                    0.2,
+                    rng.random_range(0.2..0.3),
+                ),
+                rotation: UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw * 0.2),
+                texture: rng.random(),
+            },
+            Primitive::Sphere {
+                center: Point3::new(0.35, 0.35, 1.05),
+                radius: rng.random_range(0.12..0.17),
+                texture: rng.random(),
+            },
+        ];
+        Self::new(prims).unwrap_or_else(|e| panic!("wall scene is invalid: {e}"))
+    }
+}

@@ -87,6 +87,17 @@ impl PathOptions {
         Self::base(CameraPath::Orbit, num_frames, 4.0, 1.7, 80.0)
     }
 
+    /// A phone held in the hand, orbiting a wall-mounted object ([`crate::Scene::wall_scene`]):
+    /// a 60° arc at 1.7 m from it, at the object's height, with a hand's jitter.
+    pub fn wall_orbit(num_frames: usize) -> Self {
+        Self {
+            target: Point3::new(0.0, 0.3, 1.3),
+            jitter_pos: 0.015,
+            jitter_rot: 1.0,
+            ..Self::base(CameraPath::Orbit, num_frames, 1.7, 1.35, 60.0)
+        }
+    }
+
     /// A 2.4 m lateral walk, 3.8 m in front of the objects, 1.5 m high.
     pub fn walk_through(num_frames: usize) -> Self {
         Self::base(CameraPath::WalkThrough, num_frames, 3.8, 1.5, 2.4)

@@ -36,6 +36,18 @@ pub enum CameraPath {
     Forward,
 }
 
+/// The synthetic scene.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum DemoScene {
+    /// Boxes and spheres on a textured ground before a back wall.
+    #[default]
+    Objects,
+    /// A phone's capture: a patterned wall filling most of every frame (a dominant plane) with an
+    /// object mounted on it, orbited at 1.7 m (the path is always this orbit).
+    Wall,
+}
+
 /// What the demo renders and how it reconstructs it.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
@@ -63,6 +75,20 @@ pub struct DemoOptions {
     /// Place the shipped box automatically, composite it into every frame, and score its
     /// projection against the exact cameras (§5.3). Default false.
     pub augment: bool,
+    /// The scene. Default objects.
+    pub scene: DemoScene,
+    /// Field of view across the longer image side, degrees, in (10, 150); `None`: the focal
+    /// length is 0.9 × the width.
+    pub fov_deg: Option<f64>,
+    /// First radial distortion coefficient (eq. 3; k2 is then 0), in [-0.3, 0.3]; `None`: k1 =
+    /// −0.08 and k2 = 0.01.
+    pub k1: Option<f64>,
+    /// x264 constant rate factor of the video (0–51); `None`: 12, visually lossless. A phone's
+    /// bit rate is about 23.
+    pub crf: Option<u8>,
+    /// Stop after this stage (and what it needs), as `handheld reconstruct --until`; the stages
+    /// not run are reported as not scored. `None`: the whole graph.
+    pub until: Option<String>,
 }
 
 impl Default for DemoOptions {
@@ -78,6 +104,11 @@ impl Default for DemoOptions {
             aspect_ratio: 1.0,
             video: false,
             augment: false,
+            scene: DemoScene::Objects,
+            fov_deg: None,
+            k1: None,
+            crf: None,
+            until: None,
         }
     }
 }
@@ -103,6 +134,21 @@ impl DemoOptions {
                 "--aspect-ratio",
                 format!("{} is not in [0.5, 2]", self.aspect_ratio),
             ));
+        }
+        if let Some(f) = self.fov_deg {
+            if !(f > 10.0 && f < 150.0) {
+                return Err(EvalError::option("--fov", format!("{f} is not in (10, 150)")));
+            }
+        }
+        if let Some(k) = self.k1 {
+            if !(-0.3..=0.3).contains(&k) {
+                return Err(EvalError::option("--k1", format!("{k} is not in [-0.3, 0.3]")));
+            }
+        }
+        if let Some(c) = self.crf {
+            if c > 51 {
+                return Err(EvalError::option("--crf", format!("{c} is not in 0..=51")));
+            }
         }
         sequence_options(self)
             .validate()
@@ -197,7 +243,10 @@ pub fn run_demo(o: &DemoOptions, progress: &dyn Progress) -> Result<DemoReport> 
             o.seed
         );
         progress.start("rendering", 0);
-        let seq = handheld_testkit::render::render_sequence(&seq_opts);
+        let seq = handheld_testkit::render::render_sequence_with_scene(
+            sequence::scene(o),
+            &seq_opts,
+        );
         progress.finish();
         let seq = seq.context("rendering the synthetic sequence")?;
         write_sequence(&o.output, &seq, progress)?;
@@ -216,7 +265,7 @@ pub fn run_demo(o: &DemoOptions, progress: &dyn Progress) -> Result<DemoReport> 
         let v = if fresh && v.exists() {
             v
         } else {
-            sequence::encode_video(&o.output)?
+            sequence::encode_video(&o.output, o.crf)?
         };
         (v, o.output.join("workspace-video"))
     } else {
@@ -231,7 +280,14 @@ pub fn run_demo(o: &DemoOptions, progress: &dyn Progress) -> Result<DemoReport> 
         options.augment = Some(handheld_pipeline::augment::AugmentOptions::default());
     }
     let stages =
-        handheld_pipeline::reconstruct(&input, &workspace, &options, None, o.force, progress)?;
+        handheld_pipeline::reconstruct(
+        &input,
+        &workspace,
+        &options,
+        o.until.as_deref(),
+        o.force,
+        progress,
+    )?;
     let (out, ws, video) = (&o.output, &workspace, o.video);
     let accuracy = DemoAccuracy {
         matching: Scored::of(matching_accuracy(out, ws, video)),

@@ -10,7 +10,7 @@ use handheld_testkit::path::PathOptions;
 use handheld_testkit::render::{SequenceOptions, SyntheticSequence};
 use serde::{Deserialize, Serialize};
 
-use super::{CameraPath, DemoOptions};
+use super::{CameraPath, DemoOptions, DemoScene};
 use crate::error::Result;
 use handheld_pipeline::Context;
 
@@ -22,15 +22,18 @@ pub const GROUND_TRUTH_DIR: &str = "ground_truth";
 /// The testkit sequence a demo renders.
 pub fn sequence_options(o: &DemoOptions) -> SequenceOptions {
     let n = o.frames as usize;
-    let path = match o.path {
-        CameraPath::Orbit => PathOptions::orbit(n),
-        CameraPath::Walk => PathOptions::walk_through(n),
-        CameraPath::Forward => PathOptions::forward(n),
+    let path = match (o.scene, o.path) {
+        (DemoScene::Wall, _) => PathOptions::wall_orbit(n),
+        (_, CameraPath::Orbit) => PathOptions::orbit(n),
+        (_, CameraPath::Walk) => PathOptions::walk_through(n),
+        (_, CameraPath::Forward) => PathOptions::forward(n),
     };
     let path = PathOptions {
         seed: o.seed,
         ..path
     };
+    let defaults = SequenceOptions::default();
+    let (k1, k2) = o.k1.map_or((defaults.k1, defaults.k2), |k| (k, 0.0));
     SequenceOptions {
         seed: o.seed,
         width: o.width,
@@ -38,7 +41,20 @@ pub fn sequence_options(o: &DemoOptions) -> SequenceOptions {
         num_frames: n,
         path,
         aspect: o.aspect_ratio,
-        ..Default::default()
+        focal_px: o
+            .fov_deg
+            .map(|fov| f64::from(o.width.max(o.height)) / 2.0 / (fov.to_radians() / 2.0).tan()),
+        k1,
+        k2,
+        ..defaults
+    }
+}
+
+/// The testkit scene a demo renders.
+pub fn scene(o: &DemoOptions) -> handheld_testkit::Scene {
+    match o.scene {
+        DemoScene::Objects => handheld_testkit::Scene::default_scene(o.seed),
+        DemoScene::Wall => handheld_testkit::Scene::wall_scene(o.seed),
     }
 }
 
@@ -54,6 +70,14 @@ pub struct DemoStamp {
     /// The camera path's name (`Orbit`, `Walk`, `Forward`).
     pub path: String,
     pub aspect: f64,
+    #[serde(default)]
+    pub scene: DemoScene,
+    #[serde(default)]
+    pub fov_deg: Option<f64>,
+    #[serde(default)]
+    pub k1: Option<f64>,
+    #[serde(default)]
+    pub crf: Option<u8>,
 }
 
 impl DemoStamp {
@@ -67,6 +91,10 @@ impl DemoStamp {
             seed: o.seed,
             path: format!("{:?}", o.path),
             aspect: o.aspect_ratio,
+            scene: o.scene,
+            fov_deg: o.fov_deg,
+            k1: o.k1,
+            crf: o.crf,
         }
     }
 
@@ -132,12 +160,16 @@ pub fn write_sequence(dir: &Path, seq: &SyntheticSequence, progress: &dyn Progre
 }
 
 /// Encodes the rendered frames as an H.264 video (`ffmpeg`), as a camcorder or phone would.
-pub(crate) fn encode_video(out: &Path) -> Result<PathBuf> {
+pub(crate) fn encode_video(out: &Path, crf: Option<u8>) -> Result<PathBuf> {
     let video = out.join("video.mp4");
+    let defaults = handheld_io::video::EncodeOptions::default();
     handheld_io::video::encode_h264(
         &out.join(IMAGES_DIR).join("frame_%04d.png"),
         &video,
-        &handheld_io::video::EncodeOptions::default(),
+        &handheld_io::video::EncodeOptions {
+            crf: crf.unwrap_or(defaults.crf),
+            ..defaults
+        },
     )?;
     Ok(video)
 }

@@ -225,7 +225,15 @@ impl Stage for Sparse {
         for (source, why) in &failed {
             tracing::info!("the metric frame from {source} was rejected ({why})");
         }
-        let first_choice = matches!(kept, "self-calibration" | "known calibration");
+        // A calibrated incremental model was built because no stratified frame was sound: its
+        // own rejected starts are no warning (the kept one passed every check).
+        let first_choice = matches!(kept, "self-calibration" | "known calibration")
+            || best.self_calibration.calibrated_incremental;
+        if best.self_calibration.calibrated_incremental {
+            tracing::info!(
+                "the model was built by calibrated incremental reconstruction ({kept}): no stratified metric frame was sound (sparse/summary.json, self_calibration.rejected_starts)"
+            );
+        }
         if let (Some((source, why)), false) = (failed.first(), first_choice) {
             let mut details = format!("{source}: {why}");
             let others = failed.len() - 1;

@@ -241,7 +241,7 @@ pub(crate) fn keep_scale(rec: &mut MetricReconstruction) {
 /// So the scale starts from the residuals' own spread, σ̂ = median ‖r‖ / 1.1774 (the median of a
 /// 2D Gaussian error's norm, a Rayleigh variable, is 1.1774 σ), as Huber's proposal 2 estimates
 /// it, and is never below the final one.
-fn first_step_loss(rec: &MetricReconstruction, final_scale_px: f64) -> RobustLoss {
+pub(crate) fn first_step_loss(rec: &MetricReconstruction, final_scale_px: f64) -> RobustLoss {
     let mut e = rec.reprojection_errors();
     e.retain(|v| v.is_finite());
     if e.is_empty() {

@@ -8,6 +8,7 @@ use std::time::Instant;
 
 use handheld_core::{MetricReconstruction, Progress};
 
+use crate::calibrated;
 use crate::context::Context;
 use crate::error::StepError;
 use crate::metric::ba::MetricBaRecord;
@@ -297,14 +298,15 @@ fn core_model(
     let mut timings = Timings::new();
     let mut excluded: Vec<(usize, usize)> = Vec::new();
     let mut rejected: Vec<RejectedStart> = Vec::new();
-    let (model, (mut rec, is_prior, mut report, mut metric_ba)) = loop {
+    let entry = (search.allowed.clone(), search.failures.clone());
+    let stratified = loop {
         let saved = (search.allowed.clone(), search.failures.clone());
         let t0 = Instant::now();
         let model = match projective_step(ctx, search, &excluded, progress) {
             Ok(m) => m,
             // No other start: the last start's failure is the one to report.
-            Err(e) if !rejected.is_empty() => return Err(abandoned(&rejected, e)),
-            Err(e) => return Err(e),
+            Err(e) if !rejected.is_empty() => break Err(abandoned(&rejected, e)),
+            Err(e) => break Err(e),
         };
         add(&mut timings, "projective", t0);
         if model.order.len() < 2 {
@@ -317,7 +319,7 @@ fn core_model(
         let metric = up.and_then(|up| frame::adjust_metric_frame(ctx, &model, up, estimate_aspect));
         add(&mut timings, "metric_ba", t2);
         match metric {
-            Ok(m) => break (model, m),
+            Ok(m) => break Ok((model, m)),
             Err(e) => {
                 let names = &ctx.input.images;
                 let (a, b) = model.init_pair;
@@ -332,11 +334,23 @@ fn core_model(
                 });
                 excluded.push((a.min(b), a.max(b)));
                 if rejected.len() >= MAX_STARTS {
-                    return Err(abandoned(&rejected, e));
+                    break Err(abandoned(&rejected, e));
                 }
                 search.allowed = saved.0;
                 search.failures = saved.1;
             }
+        }
+    };
+    let (model, (mut rec, is_prior, mut report, mut metric_ba)) = match stratified {
+        Ok(found) => found,
+        Err(e) => {
+            // No stratified start gave a sound metric frame: the calibrated incremental candidate.
+            search.allowed = entry.0;
+            search.failures = entry.1;
+            let t = Instant::now();
+            let found = calibrated_core(ctx, search, estimate_aspect, e);
+            add(&mut timings, "calibrated_incremental", t);
+            found?
         }
     };
     report.rejected_starts = rejected;
@@ -361,4 +375,49 @@ fn core_model(
         timings,
         metric_frame_s,
     }))
+}
+
+/// The model of the free views built by the calibrated incremental candidate (`calibrated.rs`),
+/// when no stratified start gave a sound metric frame (`failure`, returned when no calibrated
+/// start is sound either). The views it registers are taken from `search`.
+fn calibrated_core(
+    ctx: &Context,
+    search: &mut Search,
+    estimate_aspect: bool,
+    failure: StepError,
+) -> Result<(ProjectiveModel, (MetricReconstruction, bool, SelfCalibrationReport, Vec<MetricBaRecord>)), StepError> {
+    let allowed = search.projective();
+    if allowed.iter().filter(|a| **a).count() < 2 {
+        return Err(failure);
+    }
+    tracing::info!(
+        "no stratified start gave a sound metric frame: building the model by calibrated incremental reconstruction"
+    );
+    let mut records = Vec::new();
+    let mut built = calibrated::build_all(ctx, &allowed, estimate_aspect, &mut records);
+    if built.is_empty() {
+        return Err(failure);
+    }
+    let best = built.swap_remove(0);
+    for r in records.iter_mut() {
+        r.accepted = r.source == best.record.source
+            && r.focal_before_px == best.record.focal_before_px;
+    }
+    let mut report = SelfCalibrationReport {
+        calibrated_incremental: true,
+        focal_ambiguity: guard::focal_ambiguity(&records),
+        ..Default::default()
+    };
+    if let Some(w) = &report.focal_ambiguity {
+        tracing::warn!("{w}");
+    }
+    report.candidates = records;
+    let images: Vec<usize> = (0..ctx.input.images.len())
+        .filter(|&i| best.rec.views.contains_key(&ctx.input.images[i].id))
+        .collect();
+    search.take(&images);
+    let mut model = ProjectiveModel::new(ctx);
+    model.init_pair = best.init_pair;
+    model.order = images;
+    Ok((model, (best.rec, false, report, best.adjustments)))
 }

@@ -149,13 +149,21 @@ pub(crate) fn bougnoux_focal(f: &Matrix3<f64>) -> Option<f64> {
 /// an independent source beside the absolute quadric's hypotheses; `None` when fewer than
 /// [`MIN_TWO_VIEW_ESTIMATES`] pairs give one in [`RANGE`].
 pub(crate) fn two_view_focal(ctx: &Context, model: &ProjectiveModel) -> Option<f64> {
-    let in_model: std::collections::BTreeSet<usize> = model.order.iter().copied().collect();
+    let mut members = vec![false; ctx.input.images.len()];
+    for &i in &model.order {
+        members[i] = true;
+    }
+    two_view_focal_among(ctx, &members)
+}
+
+/// [`two_view_focal`] over the verified pairs between the images marked in `members`.
+pub(crate) fn two_view_focal_among(ctx: &Context, members: &[bool]) -> Option<f64> {
     let mut pairs: Vec<_> = ctx
         .input
         .pairs
         .iter()
         .filter(|p| p.configuration == TwoViewConfiguration::General)
-        .filter(|p| in_model.contains(&p.a) && in_model.contains(&p.b))
+        .filter(|p| members[p.a] && members[p.b])
         .filter_map(|p| Some((p, p.f?)))
         .collect();
     pairs.sort_by_key(|p| std::cmp::Reverse(p.0.matches.len()));

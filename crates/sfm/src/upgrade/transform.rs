@@ -63,6 +63,9 @@ pub struct SelfCalibrationReport {
     pub principal_point_held: bool,
     /// Largest angle between a view's orientation and the views' mean orientation, degrees.
     pub orientation_spread_deg: Option<f64>,
+    /// True when no stratified start gave a sound metric frame and the model was built by the
+    /// calibrated incremental candidate instead (`calibrated.rs`).
+    pub calibrated_incremental: bool,
 }
 
 /// A start of the model that was abandoned: its initial pair and why.
@@ -145,6 +148,7 @@ pub(crate) fn upgrade(
         principal_point_spread: Vec::new(),
         principal_point_held: false,
         orientation_spread_deg: None,
+        calibrated_incremental: false,
     };
     Ok(Upgraded {
         rec,
