@@ -4,6 +4,16 @@
 //! a homography (GRIC, Torr 1998), and, "to avoid selecting too many key-frames", at the last frame
 //! for which `nᵢ ≥ 0.9·nₑ`, where `nᵢ` is the number of valid tracks shared with the previous
 //! key-frame and `nₑ` that number when F first overtook H. In-between frames get their poses later.
+//!
+//! GRIC alone never fires where a homography explains every pair: a corridor of plain walls and a
+//! tiled floor, a phone panning along a wall (dominant planes, Pollefeys et al. 2002). The key-frames
+//! must still follow the motion, or the sequence has one key-frame and no model ("the camera hardly
+//! moves" of a camera that walked 14.6 m). So a key-frame is also taken when the image content has
+//! moved since the last one: the tracks it shares with the last key-frame have moved by a median of
+//! [`KeyframeOptions::min_shift`] of the tracked area's diagonal. And when the very next frame
+//! already shares too few tracks (a cut, a fast turn), it becomes a key-frame and the sequence goes
+//! on from there. (The share of the key-frame's tracks still alive is no measure: KLT re-detects
+//! weak features at every frame and loses many of them at once, on a steady orbit as well.)
 
 use handheld_robust::{
     estimate_two_view_geometry, Match2d2d, TwoViewConfiguration, TwoViewOptions,
@@ -22,6 +32,10 @@ pub struct KeyframeOptions {
     pub min_tracks: usize,
     /// Two-view estimation used for the F-versus-H test (no refinement needed).
     pub two_view: TwoViewOptions,
+    /// Before F overtakes H, a frame whose tracks shared with the last key-frame have moved by a
+    /// median of this fraction of the tracked area's diagonal is a key-frame: the content moved
+    /// that much (a quarter: the frames still overlap by about three quarters).
+    pub min_shift: f64,
 }
 
 impl Default for KeyframeOptions {
@@ -35,6 +49,7 @@ impl Default for KeyframeOptions {
                 h_threshold_px: 2.5,
                 ..Default::default()
             },
+            min_shift: 0.25,
         }
     }
 }
@@ -53,6 +68,33 @@ fn shared(tracks: &[Track2d], a: usize, b: usize) -> Vec<Match2d2d> {
         .collect()
 }
 
+/// The diagonal of the bounding box of the tracks in `frame` (the image, where it is textured).
+fn tracked_diagonal(tracks: &[Track2d], frame: usize) -> f64 {
+    let pts: Vec<Vector2<f64>> = tracks.iter().filter_map(|t| position(t, frame)).collect();
+    let (mut lo, mut hi) = (
+        Vector2::repeat(f64::INFINITY),
+        Vector2::repeat(f64::NEG_INFINITY),
+    );
+    for p in &pts {
+        lo = lo.inf(p);
+        hi = hi.sup(p);
+    }
+    if pts.len() < 2 {
+        return f64::INFINITY;
+    }
+    (hi - lo).norm()
+}
+
+/// The median displacement of matched positions, pixels.
+fn median_shift(m: &[Match2d2d]) -> f64 {
+    let mut d: Vec<f64> = m.iter().map(|x| (x.x2 - x.x1).norm()).collect();
+    if d.is_empty() {
+        return 0.0;
+    }
+    let mid = d.len() / 2;
+    *d.select_nth_unstable_by(mid, f64::total_cmp).1
+}
+
 /// Why a key-frame was chosen.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub enum KeyframeReason {
@@ -61,8 +103,12 @@ pub enum KeyframeReason {
     /// F overtook H, then the last frame with `nᵢ ≥ 0.9·nₑ` (footnote 1).
     EpipolarGeometry,
     /// Tracks ran out before F overtook H (e.g. a pure rotation or a cut): the last frame with
-    /// enough shared tracks.
+    /// enough shared tracks, or the next frame when even it shares too few.
     TracksLost,
+    /// A homography still explained the tracks, but they had moved by
+    /// [`KeyframeOptions::min_shift`] of the image since the last key-frame (a dominant plane, a
+    /// pan).
+    ContentChanged,
 }
 
 /// Selects key-frames among `num_frames` frames from KLT tracks. Returns `(frame, reason)` in order.
@@ -78,9 +124,11 @@ pub fn select_keyframes(
     keys.push((0, KeyframeReason::First));
     let mut k = 0;
     while k + 1 < num_frames {
+        let diagonal = tracked_diagonal(tracks, k);
         let mut n_e: Option<usize> = None;
         let mut candidate = None;
         let mut last_enough = None;
+        let mut changed = None;
         for i in k + 1..num_frames {
             let m = shared(tracks, k, i);
             if m.len() < opts.min_tracks {
@@ -95,15 +143,21 @@ pub fn select_keyframes(
                     if general {
                         n_e = Some(m.len());
                         candidate = Some(i);
+                    } else if median_shift(&m) > opts.min_shift * diagonal {
+                        changed = Some(i);
+                        break;
                     }
                 }
                 Some(ne) if m.len() as f64 >= opts.track_ratio * ne as f64 => candidate = Some(i),
                 Some(_) => break,
             }
         }
-        let next = match (candidate, last_enough) {
-            (Some(c), _) => (c, KeyframeReason::EpipolarGeometry),
-            (None, Some(l)) if l + 1 < num_frames => (l, KeyframeReason::TracksLost),
+        let next = match (candidate, changed, last_enough) {
+            (Some(c), _, _) => (c, KeyframeReason::EpipolarGeometry),
+            (None, Some(c), _) => (c, KeyframeReason::ContentChanged),
+            (None, None, Some(l)) if l + 1 < num_frames => (l, KeyframeReason::TracksLost),
+            // Even the next frame shares too few tracks (a cut, a fast turn): it starts anew.
+            (None, None, None) => (k + 1, KeyframeReason::TracksLost),
             _ => break,
         };
         keys.push(next);

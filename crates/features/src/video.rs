@@ -126,11 +126,27 @@ impl VideoTracks {
 /// the motion being small.
 pub const MIN_TRACK_SURVIVAL: f64 = 0.5;
 
-/// Whether KLT tracking held over a video, or why not: too few tracks kept from frame to frame (see [`MIN_TRACK_SURVIVAL`]), or key-frames that stop long before the end.
+/// The median number of tracks per frame below which KLT is not trusted: key-frames then share a
+/// few dozen matches, too few for a well-conditioned epipolar geometry and for resection (an indoor
+/// walk past plain walls: 67 per frame, one key-frame, no model), while descriptor matching finds
+/// its matches wherever there is texture, at every scale.
+pub const MIN_TRACKS_PER_FRAME: usize = 100;
+
+/// Whether KLT tracking held over a video, or why not: too few tracks per frame (see
+/// [`MIN_TRACKS_PER_FRAME`]), too few kept from frame to frame (see [`MIN_TRACK_SURVIVAL`]), or
+/// key-frames that stop long before the end.
 pub fn tracking_verdict(tracks: &VideoTracks) -> Result<(), String> {
     let n = tracks.num_frames();
     if n < 2 {
         return Ok(());
+    }
+    let mut counts: Vec<usize> = tracks.ids.iter().map(Vec::len).collect();
+    counts.sort_unstable();
+    let held = counts[counts.len() / 2];
+    if held < MIN_TRACKS_PER_FRAME {
+        return Err(format!(
+            "KLT holds only {held} tracks per frame (median; need {MIN_TRACKS_PER_FRAME}): the frames have too little texture for tracking"
+        ));
     }
     let mut survival: Vec<f64> = (0..n - 1)
         .map(|k| {
@@ -281,6 +297,25 @@ mod tests {
             errs[errs.len() / 2]
         );
         assert_eq!(t.keyframes.first().map(|k| k.0), Some(0));
+    }
+
+    /// `n` frames whose `per_frame` tracks all last the whole video, with key-frames every 3.
+    fn steady(n: usize, per_frame: usize) -> VideoTracks {
+        VideoTracks {
+            points: vec![vec![[1.0, 1.0]; per_frame]; n],
+            ids: vec![(0..per_frame as u64).collect(); n],
+            keyframes: (0..n)
+                .step_by(3)
+                .map(|k| (k, KeyframeReason::EpipolarGeometry))
+                .collect(),
+        }
+    }
+
+    #[test]
+    fn few_tracks_per_frame_fail_the_verdict_like_lost_ones() {
+        assert_eq!(tracking_verdict(&steady(12, 400)), Ok(()));
+        let e = tracking_verdict(&steady(12, 67)).unwrap_err();
+        assert!(e.contains("only 67 tracks per frame"), "{e}");
     }
 
     #[test]

@@ -72,3 +72,64 @@ fn keyframes_follow_the_f_versus_h_rule() {
         );
     }
 }
+
+/// Tracks of a textured wall seen by a camera sliding along it: every frame moves the image 6 px
+/// to the left (a homography explains every pair, so GRIC never prefers F), a track lives while
+/// its point is in the 320-px-wide frame, and new points enter on the right. `life` caps a
+/// track's length (KLT losing it early).
+fn sliding_wall(n: usize, life: usize) -> Vec<handheld_features::klt::Track2d> {
+    let mut tracks = Vec::new();
+    let mut id = 0;
+    // Points at world x = 4 px steps; a point at x is at x − 6f in frame f.
+    for p in 0..((320 + 6 * n) / 4) {
+        let x0 = 4.0 * p as f32 + 1.0;
+        let y = 20.0 + ((p * 37) % 200) as f32;
+        let frames: Vec<usize> = (0..n)
+            .filter(|&f| {
+                let x = x0 - 6.0 * f as f32;
+                (0.0..320.0).contains(&x)
+            })
+            .collect();
+        let Some(&birth) = frames.first() else {
+            continue;
+        };
+        let positions: Vec<(usize, f32, f32)> = frames
+            .iter()
+            .take(life)
+            .map(|&f| (f, x0 - 6.0 * f as f32, y))
+            .collect();
+        tracks.push(handheld_features::klt::Track2d {
+            id,
+            positions,
+            alive: birth + life >= n,
+        });
+        id += 1;
+    }
+    tracks
+}
+
+#[test]
+fn keyframes_follow_the_motion_when_a_homography_explains_every_pair() {
+    let n = 60;
+    let tracks = sliding_wall(n, usize::MAX);
+    let keys = select_keyframes(&tracks, n, &KeyframeOptions::default());
+    // A quarter of the tracked area's diagonal (320 × 200 px: 377 px) is 94 px: 16 frames.
+    assert!(keys.len() >= 3, "{keys:?}");
+    for w in keys.windows(2) {
+        assert_eq!(w[1].1, KeyframeReason::ContentChanged, "{keys:?}");
+        let gap = w[1].0 - w[0].0;
+        assert!((14..=18).contains(&gap), "{keys:?}");
+    }
+}
+
+#[test]
+fn a_video_whose_tracks_do_not_last_a_frame_is_not_cut_short() {
+    // Each track is followed in one frame only: no two frames share 30 tracks, so before the
+    // key-frames stopped
+    // at the first frame ("the camera hardly moves").
+    let n = 12;
+    let tracks = sliding_wall(n, 1);
+    let keys = select_keyframes(&tracks, n, &KeyframeOptions::default());
+    assert_eq!(keys.len(), n, "{keys:?}");
+    assert!(keys[1..].iter().all(|k| k.1 == KeyframeReason::TracksLost));
+}

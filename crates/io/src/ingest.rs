@@ -12,7 +12,7 @@ use serde::{Deserialize, Serialize};
 use crate::atomic::write_bytes_atomic;
 use crate::error::{IoError, Result};
 use crate::images::{
-    has_image_extension, list_image_folder, load_image, ImageInfo, ImageIngestOptions,
+    has_image_extension, list_image_folder, load_image, ExifInfo, ImageInfo, ImageIngestOptions,
 };
 use crate::video::{has_video_extension, VideoInfo, VideoOptions, VideoReader};
 
@@ -172,8 +172,15 @@ fn ingest_video(
                 height,
                 bit_depth: 8,
                 channels: 3,
-                exif: Default::default(),
-                focal_prior_px: None,
+                exif: ExifInfo {
+                    focal_length_35mm: info.focal_length_35mm,
+                    ..Default::default()
+                },
+                focal_prior_px: ExifInfo {
+                    focal_length_35mm: info.focal_length_35mm,
+                    ..Default::default()
+                }
+                .focal_prior_px(width, height),
             },
             frame: Some(FrameInfo {
                 index: frame.index,

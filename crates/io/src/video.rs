@@ -97,6 +97,35 @@ pub struct VideoInfo {
     pub duration_s: Option<f64>,
     /// Number of frames, when the container records it.
     pub num_frames: Option<u64>,
+    /// The 35 mm-equivalent focal length (mm) a phone wrote in the container's metadata
+    /// ([`focal_35mm_from_tags`]), when present: a prior only.
+    #[serde(default)]
+    pub focal_length_35mm: Option<f64>,
+}
+
+/// Metadata keys (QuickTime/MP4 tags as `ffprobe` shows them, compared in lower case) that hold a
+/// 35 mm-equivalent focal length in millimetres: Apple's (iPhone videos carry
+/// `com.apple.quicktime.camera.focal_length.35mm_equivalent`) and the EXIF name some Android
+/// recorders copy into their `udta` atoms.
+pub const FOCAL_35MM_TAGS: [&str; 3] = [
+    "com.apple.quicktime.camera.focal_length.35mm_equivalent",
+    "focallengthin35mmfilm",
+    "focal_length_35mm",
+];
+
+/// The 35 mm-equivalent focal length in the format's or the stream's tags (an `ffprobe -of json`
+/// `tags` object each), when one of [`FOCAL_35MM_TAGS`] holds a number in 5–500 mm.
+pub fn focal_35mm_from_tags(tags: &[&serde_json::Value]) -> Option<f64> {
+    tags.iter()
+        .filter_map(|t| t.as_object())
+        .flat_map(|o| o.iter())
+        .filter(|(k, _)| FOCAL_35MM_TAGS.contains(&k.to_ascii_lowercase().as_str()))
+        .filter_map(|(_, v)| {
+            v.as_str()
+                .and_then(|s| s.trim().trim_end_matches("mm").trim().parse::<f64>().ok())
+                .or_else(|| v.as_f64())
+        })
+        .find(|f| (5.0..=500.0).contains(f))
 }
 
 /// One decoded frame.
@@ -163,7 +192,7 @@ pub fn probe(path: &Path) -> Result<VideoInfo> {
     let program = ffprobe_program();
     let out = Command::new(&program)
         .args(["-v", "error", "-select_streams", "v:0", "-show_entries"])
-        .arg("stream=codec_name,width,height,avg_frame_rate,r_frame_rate,nb_frames,duration:format=duration")
+        .arg("stream=codec_name,width,height,avg_frame_rate,r_frame_rate,nb_frames,duration:stream_tags:format=duration:format_tags")
         .args(["-of", "json"])
         .arg(path)
         .stdin(Stdio::null())
@@ -206,6 +235,7 @@ pub fn probe(path: &Path) -> Result<VideoInfo> {
         fps,
         duration_s: num(&stream["duration"]).or_else(|| num(&json["format"]["duration"])),
         num_frames: num(&stream["nb_frames"]).map(|n| n as u64),
+        focal_length_35mm: focal_35mm_from_tags(&[&json["format"]["tags"], &stream["tags"]]),
     })
 }
 

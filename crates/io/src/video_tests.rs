@@ -347,3 +347,39 @@ fn video_writer_keeps_the_source_audio() {
         .to_string_lossy()
         .starts_with("gone")));
 }
+
+/// A phone's focal length in the container's metadata (iPhone: the 35 mm equivalent under Apple's
+/// QuickTime key) is read by the probe; a file without it has none; a value that is no focal
+/// length is ignored.
+#[test]
+#[cfg_attr(not(has_ffmpeg), ignore = "needs ffmpeg (missing)")]
+fn the_35mm_focal_length_a_phone_writes_is_read() {
+    need_ffmpeg();
+    let dir = tempfile::tempdir().unwrap();
+    let tagged = |name: &str, value: Option<&str>| {
+        let p = dir.path().join(name);
+        let mut cmd = Command::new("ffmpeg");
+        cmd.args([
+            "-v",
+            "error",
+            "-y",
+            "-f",
+            "lavfi",
+            "-i",
+            "testsrc=size=64x48:rate=10",
+        ])
+        .args(["-t", "0.5", "-c:v", "mpeg4"]);
+        if let Some(v) = value {
+            cmd.args(["-movflags", "use_metadata_tags", "-metadata"])
+                .arg(format!("{}={v}", FOCAL_35MM_TAGS[0]));
+        }
+        assert!(cmd.arg(&p).status().unwrap().success());
+        probe(&p).unwrap().focal_length_35mm
+    };
+    assert_eq!(tagged("phone.mov", Some("26")), Some(26.0));
+    assert_eq!(tagged("plain.mov", None), None);
+    assert_eq!(tagged("odd.mov", Some("0")), None);
+
+    let tags = serde_json::json!({"FocalLengthIn35mmFilm": "28 mm"});
+    assert_eq!(focal_35mm_from_tags(&[&tags]), Some(28.0));
+}

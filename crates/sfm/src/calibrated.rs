@@ -27,8 +27,8 @@ use nalgebra::{Rotation3, UnitQuaternion, Vector2};
 
 use crate::common::image_centre;
 use crate::context::Context;
-use crate::metric::ba::{filter_metric, first_step_loss, keep_scale, refine_metric, setup};
 use crate::metric::ba::MetricBaRecord;
+use crate::metric::ba::{filter_metric, first_step_loss, keep_scale, refine_metric, setup};
 use crate::metric::register::{matches_2d3d, register_calibrated, triangulate_new};
 use crate::metric::resect::{insert_view, register_one};
 use crate::projective::init::{essential_pose, initial_pair_candidates};
@@ -169,10 +169,7 @@ fn build(
 ) -> Result<Built, String> {
     let n_allowed = allowed.iter().filter(|a| **a).count();
     let mut last = String::from("no initial pair");
-    for &(a, b, _) in initial_pair_candidates(ctx, allowed)
-        .iter()
-        .take(MAX_PAIRS)
-    {
+    for &(a, b, _) in initial_pair_candidates(ctx, allowed).iter().take(MAX_PAIRS) {
         let mut rec = match two_view(ctx, allowed, a, b, start.focal_px) {
             Ok(r) => r,
             Err(e) => {
@@ -228,7 +225,9 @@ fn two_view(
     for i in (0..allowed.len()).filter(|&i| allowed[i]) {
         let im = &ctx.input.images[i];
         let n = group.len() as u32;
-        let id = *group.entry(im.camera_key.as_str()).or_insert(CameraId(n + 1));
+        let id = *group
+            .entry(im.camera_key.as_str())
+            .or_insert(CameraId(n + 1));
         rec.cameras.entry(id).or_insert_with(|| Camera {
             id,
             width: im.width,

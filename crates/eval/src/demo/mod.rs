@@ -137,12 +137,18 @@ impl DemoOptions {
         }
         if let Some(f) = self.fov_deg {
             if !(f > 10.0 && f < 150.0) {
-                return Err(EvalError::option("--fov", format!("{f} is not in (10, 150)")));
+                return Err(EvalError::option(
+                    "--fov",
+                    format!("{f} is not in (10, 150)"),
+                ));
             }
         }
         if let Some(k) = self.k1 {
             if !(-0.3..=0.3).contains(&k) {
-                return Err(EvalError::option("--k1", format!("{k} is not in [-0.3, 0.3]")));
+                return Err(EvalError::option(
+                    "--k1",
+                    format!("{k} is not in [-0.3, 0.3]"),
+                ));
             }
         }
         if let Some(c) = self.crf {
@@ -243,10 +249,8 @@ pub fn run_demo(o: &DemoOptions, progress: &dyn Progress) -> Result<DemoReport> 
             o.seed
         );
         progress.start("rendering", 0);
-        let seq = handheld_testkit::render::render_sequence_with_scene(
-            sequence::scene(o),
-            &seq_opts,
-        );
+        let seq =
+            handheld_testkit::render::render_sequence_with_scene(sequence::scene(o), &seq_opts);
         progress.finish();
         let seq = seq.context("rendering the synthetic sequence")?;
         write_sequence(&o.output, &seq, progress)?;
@@ -279,8 +283,7 @@ pub fn run_demo(o: &DemoOptions, progress: &dyn Progress) -> Result<DemoReport> 
     if o.augment {
         options.augment = Some(handheld_pipeline::augment::AugmentOptions::default());
     }
-    let stages =
-        handheld_pipeline::reconstruct(
+    let stages = handheld_pipeline::reconstruct(
         &input,
         &workspace,
         &options,

@@ -80,7 +80,11 @@ pub(crate) fn register_calibrated(
 }
 
 /// `(keypoint, point)` pairs of `image`: keypoints matched to an observation of a metric point.
-pub(crate) fn matches_2d3d(ctx: &Context, rec: &MetricReconstruction, image: usize) -> Vec<(usize, PointId)> {
+pub(crate) fn matches_2d3d(
+    ctx: &Context,
+    rec: &MetricReconstruction,
+    image: usize,
+) -> Vec<(usize, PointId)> {
     let mut out = Vec::new();
     for k in 0..ctx.graph.num_keypoints(image) {
         let mut votes: BTreeMap<PointId, usize> = BTreeMap::new();

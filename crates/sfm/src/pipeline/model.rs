@@ -385,7 +385,18 @@ fn calibrated_core(
     search: &mut Search,
     estimate_aspect: bool,
     failure: StepError,
-) -> Result<(ProjectiveModel, (MetricReconstruction, bool, SelfCalibrationReport, Vec<MetricBaRecord>)), StepError> {
+) -> Result<
+    (
+        ProjectiveModel,
+        (
+            MetricReconstruction,
+            bool,
+            SelfCalibrationReport,
+            Vec<MetricBaRecord>,
+        ),
+    ),
+    StepError,
+> {
     let allowed = search.projective();
     if allowed.iter().filter(|a| **a).count() < 2 {
         return Err(failure);
@@ -400,8 +411,8 @@ fn calibrated_core(
     }
     let best = built.swap_remove(0);
     for r in records.iter_mut() {
-        r.accepted = r.source == best.record.source
-            && r.focal_before_px == best.record.focal_before_px;
+        r.accepted =
+            r.source == best.record.source && r.focal_before_px == best.record.focal_before_px;
     }
     let mut report = SelfCalibrationReport {
         calibrated_incremental: true,
