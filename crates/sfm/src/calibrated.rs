@@ -128,7 +128,13 @@ pub(crate) fn build_all(
                 );
                 tried.push(b.record.clone());
                 if b.record.sound {
+                    let agreed = sound.iter().any(|o: &Built| agree(o, &b));
                     sound.push(b);
+                    // Two starts from different focal lengths that end at the same one, with the
+                    // same views: the images determine it, the other starts would end there too.
+                    if agreed {
+                        break;
+                    }
                 }
             }
             Err(e) => {
@@ -154,6 +160,18 @@ pub(crate) fn build_all(
     sound
 }
 
+/// Focal lengths within this ratio are the same result of two starts.
+const AGREE: f64 = 0.01;
+
+/// Whether two built models register the same number of views with focal lengths within
+/// [`AGREE`].
+fn agree(a: &Built, b: &Built) -> bool {
+    let (fa, fb) = (guard::focal_lengths(&a.rec), guard::focal_lengths(&b.rec));
+    a.rec.views.len() == b.rec.views.len()
+        && fa.len() == fb.len()
+        && fa.iter().zip(&fb).all(|(x, y)| (x / y - 1.0).abs() < AGREE)
+}
+
 fn score(b: &Built) -> f64 {
     b.record.score.unwrap_or(f64::NEG_INFINITY)
 }
@@ -169,7 +187,7 @@ fn build(
 ) -> Result<Built, String> {
     let n_allowed = allowed.iter().filter(|a| **a).count();
     let mut last = String::from("no initial pair");
-    for &(a, b, _) in initial_pair_candidates(ctx, allowed).iter().take(MAX_PAIRS) {
+    for (a, b) in initial_pairs(ctx, allowed).into_iter().take(MAX_PAIRS) {
         let mut rec = match two_view(ctx, allowed, a, b, start.focal_px) {
             Ok(r) => r,
             Err(e) => {
@@ -200,6 +218,37 @@ fn build(
         });
     }
     Err(last)
+}
+
+/// The initial pairs of the calibrated model, best first: the stratified route's (general pairs,
+/// by inliers × the eq. 14 distance), then the pairs a homography explains that still have a
+/// fundamental matrix, by inliers. Where a wall fills every frame, no pair is general (GRIC
+/// prefers H while the points off the plane are a minority; the paper defers this case to
+/// Pollefeys et al. 2002), yet the F that RANSAC found on all the matches, the off-plane ones
+/// included, gives the essential matrix once a calibration is assumed: the calibrated relative
+/// pose has no planar degeneracy.
+fn initial_pairs(ctx: &Context, allowed: &[bool]) -> Vec<(usize, usize)> {
+    use handheld_robust::TwoViewConfiguration as C;
+    let mut out: Vec<(usize, usize)> = initial_pair_candidates(ctx, allowed)
+        .into_iter()
+        .map(|(a, b, _)| (a, b))
+        .collect();
+    let mut planar: Vec<(usize, usize, usize)> = ctx
+        .input
+        .pairs
+        .iter()
+        .filter(|p| {
+            allowed[p.a]
+                && allowed[p.b]
+                && matches!(p.configuration, C::Planar | C::PureRotation)
+                && p.f.is_some()
+                && p.matches.len() >= ctx.opts.init_min_points
+        })
+        .map(|p| (p.a.min(p.b), p.a.max(p.b), p.matches.len()))
+        .collect();
+    planar.sort_by(|x, y| y.2.cmp(&x.2).then((x.0, x.1).cmp(&(y.0, y.1))));
+    out.extend(planar.into_iter().map(|(a, b, _)| (a, b)));
+    out
 }
 
 /// The two-view model of the pair `(a, b)` under focal length `f`: one camera per camera key of

@@ -266,7 +266,8 @@ pub fn run_demo(o: &DemoOptions, progress: &dyn Progress) -> Result<DemoReport> 
 
     let (input, workspace) = if o.video {
         let v = o.output.join("video.mp4");
-        let v = if fresh && v.exists() {
+        // A given --crf always encodes again (it changes only the video, not the frames).
+        let v = if fresh && v.exists() && o.crf.is_none() {
             v
         } else {
             sequence::encode_video(&o.output, o.crf)?

@@ -76,8 +76,6 @@ pub struct DemoStamp {
     pub fov_deg: Option<f64>,
     #[serde(default)]
     pub k1: Option<f64>,
-    #[serde(default)]
-    pub crf: Option<u8>,
 }
 
 impl DemoStamp {
@@ -94,7 +92,6 @@ impl DemoStamp {
             scene: o.scene,
             fov_deg: o.fov_deg,
             k1: o.k1,
-            crf: o.crf,
         }
     }
 

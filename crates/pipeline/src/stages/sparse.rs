@@ -231,7 +231,7 @@ impl Stage for Sparse {
             || best.self_calibration.calibrated_incremental;
         if best.self_calibration.calibrated_incremental {
             tracing::info!(
-                "the model was built by calibrated incremental reconstruction ({kept}): no stratified metric frame was sound (sparse/summary.json, self_calibration.rejected_starts)"
+                "the model was built by calibrated incremental reconstruction ({kept}): no stratified metric frame was sound, or the one kept explained the images less well (sparse/summary.json, self_calibration.candidates)"
             );
         }
         if let (Some((source, why)), false) = (failed.first(), first_choice) {

@@ -104,7 +104,7 @@ fn pair_disagreement(
     // E = K_bᵀ F K_a is an essential matrix only up to the model's calibration error and F's
     // noise: the pose it is projected to is refined on the inliers' Sampson errors first.
     let scale = pair.matches.len() as f64 / xa.len().max(1) as f64;
-    let (r, t, sigma) = refine_pose(&r, &t, &xa, &xb, scale);
+    let (r, _, sigma) = refine_pose(&r, &t, &xa, &xb, scale);
     let model =
         (vb.cam_from_world.rotation * va.cam_from_world.rotation.inverse()).to_rotation_matrix();
     let cos = (((r * model.matrix().transpose()).trace() - 1.0) / 2.0).clamp(-1.0, 1.0);
