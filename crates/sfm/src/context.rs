@@ -28,6 +28,11 @@ pub(crate) struct Context<'a> {
     /// Localisation σ (pixels) of every keypoint, per image id, for metric BA; empty when the
     /// observations are not weighted (see [`keypoint_sigmas`]).
     pub keypoint_sigma: BTreeMap<ImageId, Arc<[f64]>>,
+    /// The view each view repeats (a duplicate shot, `duplicates.rs`), else the view itself: a new
+    /// point needs two views of different twins (a zero-baseline pair fixes no depth).
+    pub twin: Vec<usize>,
+    /// The duplicate shots found in the input.
+    pub duplicates: Vec<crate::duplicates::Duplicate>,
     /// Set when the model being built was found not to determine its principal point
     /// (`frame::principal_point_test`): every later adjustment holds it at the image centre.
     principal_point_held: AtomicBool,
@@ -86,7 +91,29 @@ impl<'a> Context<'a> {
             })
             .collect();
         let scale = kn.iter().map(|k| 1.0 / k[(0, 0)]).collect();
+        let linked: Vec<bool> = input
+            .images
+            .iter()
+            .enumerate()
+            .map(|(i, im)| !im.keypoints.is_empty() && !graph.neighbours(i).is_empty())
+            .collect();
+        let duplicates = crate::duplicates::find_duplicates(input, &linked);
+        for d in &duplicates {
+            let names = &input.images;
+            tracing::info!(
+                "{} is the same shot as {} (their matches moved {:.1} px, and one homography explains them): no point is made from the two alone",
+                names[d.image].name,
+                names[d.of].name,
+                d.shift_px
+            );
+        }
+        let mut twin: Vec<usize> = (0..input.images.len()).collect();
+        for d in &duplicates {
+            twin[d.image] = d.of;
+        }
         Self {
+            twin,
+            duplicates,
             input,
             graph,
             opts,

@@ -1,17 +1,16 @@
 //! Duplicate and near-duplicate shots (the same photo twice, a burst): views that carry no depth
 //! against another view of the set. A pair whose matches one homography explains (GRIC, Torr 1998,
-//! as in Pollefeys et al. 2002, *Surviving dominant planes*) and whose frames nearly coincide has
-//! zero baseline. Inside the projective stage such a view is harmful: its points triangulated
-//! against its twin lie anywhere along their rays (a projective frame has no angle to test), the
-//! self-calibration counts the same camera twice, and the metric adjustment of every upgrade
-//! candidate then throws out the points it cannot place (bundler-ET with 4 of its 9 photos copied
-//! under new names: 45–100 % of the observations removed, no model).
+//! as in Pollefeys et al. 2002, *Surviving dominant planes*), whose frames nearly coincide and
+//! which shares more matches than either view has with any other view has zero baseline.
 //!
-//! So each such view is held back from the projective stage and the upgrade, and joins the metric
-//! model by calibrated resection once the model is built (`metric/register.rs`), where it gets
-//! (about) its twin's pose. Nothing is lost when the test misfires on a view that is not a
-//! duplicate (a small pan): it is registered in the metric model like any view the projective
-//! stage could not add.
+//! Such a pair fixes no depth, and a projective frame has no angle to test it by: a point
+//! triangulated from a duplicate and its twin alone lies anywhere along its rays. With four of
+//! bundler-ET's nine photos copied under new names, those points made every upgrade candidate's
+//! metric adjustment remove 45–100 % of the observations, and no model was built. So the
+//! projective stage never makes a new point from the views of one shot alone
+//! (`Context::twin`); the duplicate is still registered, observes the points the other views make,
+//! and is adjusted with them (templeSparseRing holds one: views 1 and 11 have the same ground-truth
+//! pose).
 
 use handheld_robust::TwoViewConfiguration;
 
@@ -22,12 +21,12 @@ use crate::input::SfmInput;
 /// nothing to each other but noise; a misfire only moves a view to calibrated registration.
 pub const MAX_SHIFT_OF_DIAGONAL: f64 = 0.02;
 
-/// One view held back as the duplicate of another.
+/// One view that repeats another.
 #[derive(Clone, Debug, PartialEq)]
 pub(crate) struct Duplicate {
-    /// The view held back (index into the input's images).
+    /// The duplicate (index into the input's images).
     pub image: usize,
-    /// The view kept in its place.
+    /// The view it repeats.
     pub of: usize,
     /// Median displacement of the pair's matched keypoints, pixels.
     pub shift_px: f64,
@@ -58,11 +57,11 @@ fn duplicate_shift(input: &SfmInput, pair: &crate::input::SfmPair) -> Option<f64
     (shift <= MAX_SHIFT_OF_DIAGONAL * diagonal).then_some(shift)
 }
 
-/// The views to hold back from the projective stage, among those `allowed`: each is a duplicate of
-/// a view that is kept. Views are visited by their total number of verified matches (then by
-/// index), and a view is held back only when it duplicates a view already kept, so a slow pan whose
-/// consecutive frames nearly coincide keeps every other frame, not only its first. Video input has
-/// none: its key-frames were chosen for their baseline (§3.1). At least two views are always kept.
+/// The duplicate shots among the `allowed` views, each with the view it repeats. Views are visited
+/// by their total number of verified matches (then by index), and a view is a duplicate only of a
+/// view that is not one itself, so a slow pan whose consecutive frames nearly coincide keeps every
+/// other frame as an independent one, not only its first. Video input has none: its key-frames were
+/// chosen for their baseline (§3.1). At least two views are always independent.
 pub(crate) fn find_duplicates(input: &SfmInput, allowed: &[bool]) -> Vec<Duplicate> {
     if input.video {
         return Vec::new();
@@ -253,7 +252,7 @@ mod tests {
         let d = find_duplicates(&input, &[true; 4]);
         // 1 and 2 have the most matches, 1 comes first and is kept; 0 and 2 duplicate it; 3
         // duplicates only 2, which
-        // is held back, so 3 is kept: the chain 0–1–2–3 does not collapse onto 1.
+        // is a duplicate itself, so 3 is independent: the chain 0–1–2–3 does not collapse onto 1.
         let held: Vec<(usize, usize)> = d.iter().map(|d| (d.image, d.of)).collect();
         assert_eq!(held, vec![(2, 1), (0, 1)]);
     }

@@ -68,8 +68,7 @@ pub struct SfmModel {
 pub struct SfmResult {
     pub models: Vec<SfmModel>,
     pub unregistered: Vec<(String, String)>,
-    /// Duplicate shots held back from the projective stage (`duplicates.rs`); they are registered
-    /// after their model was built, or listed in `unregistered`.
+    /// Duplicate shots (`duplicates.rs`): no point is made from a duplicate and its twin alone.
     pub duplicates: Vec<DuplicateShot>,
 }
 
@@ -77,7 +76,7 @@ pub struct SfmResult {
 #[derive(Clone, Debug, Serialize, PartialEq)]
 pub struct DuplicateShot {
     pub image: String,
-    /// The photo kept in its place.
+    /// The photo it repeats.
     pub of: String,
     /// Median displacement of their matched keypoints, pixels.
     pub shift_px: f64,

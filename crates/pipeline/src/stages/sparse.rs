@@ -85,8 +85,8 @@ pub struct SparseModelReport<'a> {
     pub unregistered: Option<&'a [Unregistered]>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub other_models: Option<Vec<&'a ModelSummary>>,
-    /// The largest model only: photos that repeat another (held back from the projective stage,
-    /// registered after the model was built).
+    /// The largest model only: photos that repeat another (no point is made from such a pair
+    /// alone).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub duplicates: Option<&'a [DuplicateShot]>,
 }

@@ -102,7 +102,7 @@ pub fn reconstruct(
             c.restore(&mut m.reconstruction);
         }
     }
-    let duplicates = search
+    let duplicates = ctx
         .duplicates
         .iter()
         .map(|d| DuplicateShot {

@@ -227,8 +227,6 @@ fn register_banned_again(
         allowed[*i] = true;
     }
     let mut again = Search {
-        deferred: vec![false; allowed.len()],
-        duplicates: Vec::new(),
         allowed,
         failures: std::mem::take(&mut search.failures),
     };
@@ -409,7 +407,7 @@ fn calibrated_core(
     ),
     StepError,
 > {
-    let allowed = search.projective();
+    let allowed = search.allowed.clone();
     if allowed.iter().filter(|a| **a).count() < 2 {
         return Err(failure);
     }
@@ -502,6 +500,11 @@ fn calibrated_challenge(
             b.record.source,
             guard::focal_lengths(&b.rec).first().copied().unwrap_or(0.0)
         );
+    }
+    if !replace {
+        for r in records.iter_mut() {
+            r.accepted = false;
+        }
     }
     report.candidates.extend(records);
     if let (Some(b), true) = (best, replace) {

@@ -11,7 +11,6 @@ use std::time::Instant;
 use handheld_core::{MetricReconstruction, Progress};
 
 use crate::context::Context;
-use crate::duplicates::{find_duplicates, Duplicate};
 use crate::error::StepError;
 use crate::metric::ba::{self as metric_ba, MetricBaRecord};
 use crate::metric::{predict, register};
@@ -25,11 +24,6 @@ use crate::video;
 pub(crate) struct Search {
     /// Views that may start or join the next projective model.
     pub allowed: Vec<bool>,
-    /// Views held back from the projective stage and the upgrade (duplicate shots, see
-    /// `duplicates.rs`): they join a model by calibrated registration only.
-    pub deferred: Vec<bool>,
-    /// The duplicate shots found in the input, each with the view kept in its place.
-    pub duplicates: Vec<Duplicate>,
     pub failures: BTreeMap<usize, String>,
 }
 
@@ -43,39 +37,17 @@ impl Search {
             .iter()
             .enumerate()
             .map(|(i, im)| !im.keypoints.is_empty() && !ctx.graph.neighbours(i).is_empty())
-            .collect::<Vec<bool>>();
-        let duplicates = find_duplicates(ctx.input, &allowed);
-        let mut deferred = vec![false; allowed.len()];
-        for d in &duplicates {
-            let names = &ctx.input.images;
-            tracing::info!(
-                "{} is the same shot as {} (their matches moved {:.1} px, and one homography explains them): it carries no depth, so it joins the model after it is built",
-                names[d.image].name,
-                names[d.of].name,
-                d.shift_px
-            );
-            deferred[d.image] = true;
-        }
+            .collect();
         Self {
             allowed,
-            deferred,
-            duplicates,
             failures: BTreeMap::new(),
         }
     }
 
-    /// Views that may start or join the projective model: the free ones not held back.
-    pub fn projective(&self) -> Vec<bool> {
-        self.allowed
-            .iter()
-            .zip(&self.deferred)
-            .map(|(a, d)| *a && !d)
-            .collect()
-    }
 
-    /// Views still free to start a model (not held back).
+    /// Views still free to start a model.
     pub fn free(&self) -> usize {
-        self.projective().iter().filter(|a| **a).count()
+        self.allowed.iter().filter(|a| **a).count()
     }
 
     /// Marks views as taken by a model: they no longer start or join another one.
@@ -106,7 +78,7 @@ pub(crate) fn projective_step(
     excluded: &[(usize, usize)],
     progress: &dyn Progress,
 ) -> Result<ProjectiveModel, StepError> {
-    let model = reconstruct_projective(ctx, &search.projective(), excluded, progress)
+    let model = reconstruct_projective(ctx, &search.allowed, excluded, progress)
         .map_err(StepError::Projective)?;
     search.take(&model.order);
     for (i, e) in &model.failures {

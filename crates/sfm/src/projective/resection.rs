@@ -174,7 +174,9 @@ impl ProjectiveModel {
                     obs.push((oi, ok));
                 }
             }
-            if obs.len() < 2 {
+            // Two views of one shot (a duplicate and its twin) fix no depth.
+            let twin = ctx.twin[image];
+            if obs.len() < 2 || obs.iter().all(|o| ctx.twin[o.0 as usize] == twin) {
                 continue;
             }
             self.try_add_point(ctx, obs);
@@ -204,7 +206,10 @@ impl ProjectiveModel {
                 .max_by(|a, b| a.1.total_cmp(b.1))
                 .unwrap_or((0, &0.0));
             if we < 1.0 {
-                self.add_point(m, obs);
+                let first = ctx.twin[obs[0].0 as usize];
+                if obs.iter().any(|o| ctx.twin[o.0 as usize] != first) {
+                    self.add_point(m, obs);
+                }
                 return;
             }
             // Drop the worst view (never the new image, which is first) and retry while ≥ 2 remain.
