@@ -44,7 +44,6 @@ impl Search {
         }
     }
 
-
     /// Views still free to start a model.
     pub fn free(&self) -> usize {
         self.allowed.iter().filter(|a| **a).count()
