@@ -22,12 +22,14 @@
 //! - `predict.rs`: more observations at the points' predicted projections (§3.2's guided matching).
 //! - `consistency.rs`: every registered view against its verified pairs (the rotation of
 //!   `E = K_bᵀ F K_a` against the model's, H&Z §9.6.2); the pipeline takes out a view that
-//!   disagrees, builds the model again without it and registers it again.
+//!   disagrees, builds the model again without it and registers it again; `pair_rotation.rs`: each
+//!   pair's rotation refined on its inliers and its uncertainty, which widens what the pair allows.
 //! - `uncertainty.rs`: per-point and intrinsics uncertainty from the adjustment's covariance.
 
 pub mod ba;
 pub mod consistency;
 pub(crate) mod noise;
+pub(crate) mod pair_rotation;
 pub(crate) mod planes;
 pub(crate) mod predict;
 pub(crate) mod principal_point;

@@ -459,7 +459,7 @@ fn needs_challenge(ctx: &Context, report: &SelfCalibrationReport) -> bool {
 
 /// The calibrated incremental candidate built on the views of the stratified model, scored like
 /// every candidate: it replaces the stratified frame when it registers more of the views, or the
-/// same views with a better score; when the two explain the images about as well with focal
+/// same views with a clearly better score (beyond `guard::CLOSE_SCORE`); when the two explain the images about as well with focal
 /// lengths more than 10 % apart, the focal length is undetermined (`guard::focal_ambiguity`).
 fn calibrated_challenge(
     ctx: &Context,
@@ -482,10 +482,12 @@ fn calibrated_challenge(
         .and_then(|c| c.score)
         .unwrap_or(f64::NEG_INFINITY);
     let best = built.into_iter().next();
+    // Two models that explain the images about as well (scores within `CLOSE_SCORE`) keep the
+    // stratified one; the focal-length check below says when they disagree.
     let replace = best.as_ref().is_some_and(|b| {
         b.rec.views.len() > rec.views.len()
             || (b.rec.views.len() == rec.views.len()
-                && b.record.score.unwrap_or(f64::NEG_INFINITY) > kept_score)
+                && b.record.score.unwrap_or(f64::NEG_INFINITY) * guard::CLOSE_SCORE > kept_score)
     });
     if let (Some(b), true) = (best.as_ref(), replace) {
         for c in report.candidates.iter_mut() {

@@ -1,0 +1,155 @@
+//! A verified pair's relative rotation under the model's calibration, and how well the pair fixes
+//! it: the rotation of `E = K_bᵀ F K_a` (H&Z §9.6.2) refined by Gauss–Newton on the inliers'
+//! Sampson errors, and its first-order covariance (H&Z §5.2). Used by the view-consistency check
+//! (`consistency.rs`) to widen what a pair allows: a long lens or a short baseline fixes a pair's
+//! rotation only to degrees, a wide pair to a fraction of one.
+
+use nalgebra::Vector2;
+
+/// The standard deviation (radians, the largest axis) of the relative rotation that the matches
+/// `xa ↔ xb` (normalised coordinates) give with `x_b ~ R x_a + t`: the first-order covariance
+/// σ̂² (JᵀJ)⁻¹ of the five-parameter pose (a rotation increment, two angles of the unit
+/// translation) that minimises their Sampson errors (H&Z §5.2, §11.4.3), with σ̂ from the residuals
+/// themselves. `scale` is the number of inliers per sample (JᵀJ grows with them). A long lens, a
+/// short baseline or few inliers give a wide covariance: rotation then trades against translation
+/// (a narrow field of view cannot tell a turn from a sideways step). `None` when the matches do
+/// not fix the pose (JᵀJ singular).
+pub(crate) fn rotation_sigma(
+    r: &nalgebra::Matrix3<f64>,
+    t: &nalgebra::Vector3<f64>,
+    xa: &[Vector2<f64>],
+    xb: &[Vector2<f64>],
+    scale: f64,
+) -> Option<f64> {
+    pose_step(r, t, xa, xb, scale).and_then(|s| s.sigma)
+}
+
+/// The relative pose `(R, t)` refined by Gauss–Newton on the Sampson errors of `xa ↔ xb` (a few
+/// damped steps, each kept only when it lowers their sum of squares), with the rotation's standard
+/// deviation there ([`rotation_sigma`]).
+pub(crate) fn refine_pose(
+    r: &nalgebra::Matrix3<f64>,
+    t: &nalgebra::Vector3<f64>,
+    xa: &[Vector2<f64>],
+    xb: &[Vector2<f64>],
+    scale: f64,
+) -> (nalgebra::Matrix3<f64>, nalgebra::Vector3<f64>, Option<f64>) {
+    let (mut r, mut t) = (*r, *t);
+    for _ in 0..5 {
+        let Some(s) = pose_step(&r, &t, xa, xb, scale) else {
+            break;
+        };
+        match s.next {
+            Some((r2, t2)) => (r, t) = (r2, t2),
+            None => return (r, t, s.sigma),
+        }
+    }
+    let sigma = rotation_sigma(&r, &t, xa, xb, scale);
+    (r, t, sigma)
+}
+
+/// One Gauss–Newton step of [`refine_pose`] and the covariance at its start.
+struct PoseStep {
+    /// The pose after the step, when it lowered the cost.
+    next: Option<(nalgebra::Matrix3<f64>, nalgebra::Vector3<f64>)>,
+    sigma: Option<f64>,
+}
+
+fn pose_step(
+    r: &nalgebra::Matrix3<f64>,
+    t: &nalgebra::Vector3<f64>,
+    xa: &[Vector2<f64>],
+    xb: &[Vector2<f64>],
+    scale: f64,
+) -> Option<PoseStep> {
+    use nalgebra::{Matrix5, Rotation3, Vector3, Vector5};
+    let n = xa.len();
+    if n < 8 {
+        return None;
+    }
+    let t0 = t.try_normalize(1e-12)?;
+    // Two unit vectors orthogonal to t0.
+    let helper = if t0.x.abs() < 0.9 {
+        Vector3::x()
+    } else {
+        Vector3::y()
+    };
+    let b1 = t0.cross(&helper).normalize();
+    let b2 = t0.cross(&b1);
+    let residuals = |p: &Vector5<f64>| -> Vec<f64> {
+        let rot = Rotation3::new(Vector3::new(p[0], p[1], p[2])).matrix() * r;
+        let tt = (t0 + p[3] * b1 + p[4] * b2).normalize();
+        let e = handheld_geometry::skew(&tt) * rot;
+        xa.iter()
+            .zip(xb)
+            .map(|(a, b)| {
+                let (ha, hb) = (a.push(1.0), b.push(1.0));
+                let (ea, etb) = (e * ha, e.transpose() * hb);
+                let den = (ea.x * ea.x + ea.y * ea.y + etb.x * etb.x + etb.y * etb.y).sqrt();
+                if den > 0.0 {
+                    hb.dot(&ea) / den
+                } else {
+                    0.0
+                }
+            })
+            .collect()
+    };
+    let r0 = residuals(&Vector5::zeros());
+    let h = 1e-7;
+    let cols: Vec<Vec<f64>> = (0..5)
+        .map(|k| {
+            let mut p = Vector5::zeros();
+            p[k] = h;
+            residuals(&p)
+                .iter()
+                .zip(&r0)
+                .map(|(a, b)| (a - b) / h)
+                .collect()
+        })
+        .collect();
+    let mut jtj = Matrix5::zeros();
+    for i in 0..5 {
+        for j in 0..5 {
+            jtj[(i, j)] = (0..n).map(|k| cols[i][k] * cols[j][k]).sum::<f64>() * scale;
+        }
+    }
+    let cost0 = r0.iter().map(|v| v * v).sum::<f64>();
+    let sigma2 = cost0 / (n as f64 - 5.0).max(1.0);
+    let inv = jtj.try_inverse()?;
+    let rot = (inv * sigma2).fixed_view::<3, 3>(0, 0).into_owned();
+    let largest = rot.symmetric_eigenvalues().max();
+    let sigma = (largest.is_finite() && largest >= 0.0).then(|| largest.sqrt());
+    // The Gauss–Newton step (JᵀJ was scaled by `scale`; so is Jᵀr).
+    let mut jtr = Vector5::zeros();
+    for i in 0..5 {
+        jtr[i] = (0..n).map(|k| cols[i][k] * r0[k]).sum::<f64>() * scale;
+    }
+    let delta = -(inv * jtr);
+    let next = delta.iter().all(|d| d.is_finite()).then(|| {
+        let rot = Rotation3::new(Vector3::new(delta[0], delta[1], delta[2])).matrix() * r;
+        let tt = (t0 + delta[3] * b1 + delta[4] * b2).normalize();
+        (rot, tt)
+    });
+    let next = next.filter(|(r2, t2)| {
+        let e = handheld_geometry::skew(t2) * r2;
+        sampson_cost(&e, xa, xb) < cost0 * (1.0 - 1e-9)
+    });
+    Some(PoseStep { next, sigma })
+}
+
+/// Σ of the squared Sampson errors of `xa ↔ xb` under `e`.
+fn sampson_cost(e: &nalgebra::Matrix3<f64>, xa: &[Vector2<f64>], xb: &[Vector2<f64>]) -> f64 {
+    xa.iter()
+        .zip(xb)
+        .map(|(a, b)| {
+            let (ha, hb) = (a.push(1.0), b.push(1.0));
+            let (ea, etb) = (e * ha, e.transpose() * hb);
+            let den = ea.x * ea.x + ea.y * ea.y + etb.x * etb.x + etb.y * etb.y;
+            if den > 0.0 {
+                hb.dot(&ea).powi(2) / den
+            } else {
+                0.0
+            }
+        })
+        .sum()
+}
