@@ -54,6 +54,16 @@ pub enum StepError {
 }
 
 impl StepError {
+    /// The same failure with `more` appended to its reason.
+    pub(crate) fn with_note(self, more: &str) -> Self {
+        match self {
+            Self::Projective(m) => Self::Projective(format!("{m}; {more}")),
+            Self::MetricUpgrade(m) => Self::MetricUpgrade(format!("{m}; {more}")),
+            Self::MetricAdjustment(m) => Self::MetricAdjustment(format!("{m}; {more}")),
+            other => other,
+        }
+    }
+
     /// Whether no further model should be attempted after this failure (the others only discard
     /// the current model).
     pub fn ends_search(&self) -> bool {

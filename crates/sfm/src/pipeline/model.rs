@@ -346,7 +346,7 @@ fn core_model(
             search.allowed = entry.0;
             search.failures = entry.1;
             let t = Instant::now();
-            let found = calibrated_core(ctx, search, estimate_aspect, e);
+            let found = calibrated_core(ctx, search, estimate_aspect, e, progress);
             add(&mut timings, "calibrated_incremental", t);
             found?
         }
@@ -361,6 +361,7 @@ fn core_model(
             &mut report,
             &mut metric_ba,
             estimate_aspect,
+            progress,
         );
         add(&mut timings, "calibrated_incremental", t);
     }
@@ -395,6 +396,7 @@ fn calibrated_core(
     search: &mut Search,
     estimate_aspect: bool,
     failure: StepError,
+    progress: &dyn Progress,
 ) -> Result<
     (
         ProjectiveModel,
@@ -415,9 +417,16 @@ fn calibrated_core(
         "no stratified start gave a sound metric frame: building the model by calibrated incremental reconstruction"
     );
     let mut records = Vec::new();
-    let mut built = calibrated::build_all(ctx, &allowed, estimate_aspect, &mut records);
+    let mut built = calibrated::build_all(ctx, &allowed, estimate_aspect, &mut records, progress);
     if built.is_empty() {
-        return Err(failure);
+        let why = records
+            .iter()
+            .find_map(|r| r.rejected.clone())
+            .unwrap_or_else(|| "no start".into());
+        return Err(failure.with_note(&format!(
+            "the calibrated incremental candidate found no sound model either ({} starts; the first: {why})",
+            records.len()
+        )));
     }
     let best = built.swap_remove(0);
     for r in records.iter_mut() {
@@ -468,13 +477,14 @@ fn calibrated_challenge(
     report: &mut SelfCalibrationReport,
     metric_ba: &mut Vec<MetricBaRecord>,
     estimate_aspect: bool,
+    progress: &dyn Progress,
 ) {
     let mut allowed = vec![false; ctx.input.images.len()];
     for &i in &model.order {
         allowed[i] = true;
     }
     let mut records = Vec::new();
-    let built = calibrated::build_all(ctx, &allowed, estimate_aspect, &mut records);
+    let built = calibrated::build_all(ctx, &allowed, estimate_aspect, &mut records, progress);
     let kept_score = report
         .candidates
         .iter()
