@@ -101,7 +101,7 @@ fn sliding_wall(n: usize, life: usize) -> Vec<handheld_features::klt::Track2d> {
         tracks.push(handheld_features::klt::Track2d {
             id,
             positions,
-            alive: birth + life >= n,
+            alive: birth.saturating_add(life) >= n,
         });
         id += 1;
     }

@@ -54,7 +54,8 @@ pub(crate) struct Start {
     pub source: &'static str,
 }
 
-/// The focal lengths to start from, for the images marked in `allowed`: the EXIF focal length
+/// The focal lengths to start from, for the images marked in `allowed`: a known calibration's
+/// alone when one is given; else the EXIF focal length
 /// (median over the images that have one), the two-view estimate, then [`SPREAD`]; duplicates
 /// (within 10 %) dropped.
 pub(crate) fn starts(ctx: &Context, allowed: &[bool]) -> Vec<Start> {
@@ -62,6 +63,13 @@ pub(crate) fn starts(ctx: &Context, allowed: &[bool]) -> Vec<Start> {
     let Some(&first) = imgs.first() else {
         return Vec::new();
     };
+    // A calibration given is the only start: the model is built under it (the adjustments pin it).
+    if let Some(k) = ctx.opts.known_intrinsics {
+        return vec![Start {
+            focal_px: k.fx,
+            source: "calibrated incremental (known calibration)",
+        }];
+    }
     let mut out: Vec<Start> = Vec::new();
     let mut exif: Vec<f64> = imgs
         .iter()
@@ -354,6 +362,7 @@ fn adjust(
     estimate_aspect: bool,
     intrinsics: bool,
 ) -> Result<(), String> {
+    implausible_focal(rec)?;
     let s = setup(ctx, rec, estimate_aspect);
     let config = MetricBundleConfig {
         refine: if intrinsics {
@@ -374,7 +383,26 @@ fn adjust(
         .map_err(|e| format!("calibrated incremental adjustment: {e}"))?;
     keep_scale(rec);
     filter_metric(rec, ctx.opts.metric_max_error_px, ctx.opts.min_track_length);
-    Ok(())
+    implausible_focal(rec)
+}
+
+/// Stops a start whose focal length has left the range the focal hypotheses search (0.2–5 ×
+/// (w + h), `upgrade::hypotheses::RANGE`): the judge would reject it at the end, after the whole
+/// growth (a calibration 100× too short grew every view into a model that the judge then threw
+/// away).
+fn implausible_focal(rec: &MetricReconstruction) -> Result<(), String> {
+    let (lo, hi) = crate::upgrade::hypotheses::RANGE;
+    match rec.cameras.values().find(|c| {
+        let s = f64::from(c.width + c.height);
+        let f = c.intrinsics.f;
+        !(f.is_finite() && f > lo * s && f < hi * s)
+    }) {
+        Some(c) => Err(format!(
+            "implausible focal length {:.1} px for a {}×{} image (outside {lo}–{hi} × (w + h))",
+            c.intrinsics.f, c.width, c.height
+        )),
+        None => Ok(()),
+    }
 }
 
 /// Adds the `allowed` views by calibrated resection, most 2D–3D matches first, triangulating the
