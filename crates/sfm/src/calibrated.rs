@@ -31,7 +31,7 @@ use crate::metric::ba::MetricBaRecord;
 use crate::metric::ba::{filter_metric, first_step_loss, keep_scale, refine_metric, setup};
 use crate::metric::register::{matches_2d3d, register_calibrated, triangulate_new};
 use crate::metric::resect::{insert_view, register_one};
-use crate::projective::init::{essential_pose, initial_pair_candidates};
+use crate::projective::init::{can_start, essential_pose, initial_pair_candidates};
 use crate::upgrade::guard::{self, CandidateRecord};
 use crate::upgrade::hypotheses::two_view_focal_among;
 
@@ -254,11 +254,9 @@ fn initial_pairs(ctx: &Context, allowed: &[bool]) -> Vec<(usize, usize)> {
         .pairs
         .iter()
         .filter(|p| {
-            allowed[p.a]
-                && allowed[p.b]
-                && matches!(p.configuration, C::Planar | C::PureRotation)
+            matches!(p.configuration, C::Planar | C::PureRotation)
                 && p.f.is_some()
-                && p.matches.len() >= ctx.opts.init_min_points
+                && can_start(ctx, allowed, p)
         })
         .map(|p| (p.a.min(p.b), p.a.max(p.b), p.matches.len()))
         .collect();

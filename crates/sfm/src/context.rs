@@ -33,6 +33,9 @@ pub(crate) struct Context<'a> {
     pub twin: Vec<usize>,
     /// The duplicate shots found in the input.
     pub duplicates: Vec<crate::duplicates::Duplicate>,
+    /// Images with keypoints and at least one verified pair: the ones a projective model can hold
+    /// (a video's in-between frames have none; they are registered from their tracks).
+    pub linked: Vec<bool>,
     /// Set when the model being built was found not to determine its principal point
     /// (`frame::principal_point_test`): every later adjustment holds it at the image centre.
     principal_point_held: AtomicBool,
@@ -114,6 +117,7 @@ impl<'a> Context<'a> {
         Self {
             twin,
             duplicates,
+            linked,
             input,
             graph,
             opts,

@@ -31,15 +31,8 @@ impl Search {
     /// Images without any verified pair (a video's in-between frames) cannot start or join the
     /// projective model; video frames are registered from their tracks afterwards.
     pub fn new(ctx: &Context) -> Self {
-        let allowed = ctx
-            .input
-            .images
-            .iter()
-            .enumerate()
-            .map(|(i, im)| !im.keypoints.is_empty() && !ctx.graph.neighbours(i).is_empty())
-            .collect();
         Self {
-            allowed,
+            allowed: ctx.linked.clone(),
             failures: BTreeMap::new(),
         }
     }

@@ -175,6 +175,11 @@ pub(crate) fn initialize(ctx: &Context, a: usize, b: usize) -> Option<Projective
     Some(model)
 }
 
+/// Whether a verified pair could start a model: both views allowed, and enough inliers.
+pub(crate) fn can_start(ctx: &Context, allowed: &[bool], p: &crate::input::SfmPair) -> bool {
+    allowed[p.a] && allowed[p.b] && p.matches.len() >= ctx.opts.init_min_points
+}
+
 /// Candidate initial pairs among `allowed` images, best first: general (non-planar, non-rotation)
 /// pairs scored by inliers × the image-based distance of eq. 14.
 pub(crate) fn initial_pair_candidates(ctx: &Context, allowed: &[bool]) -> Vec<(usize, usize, f64)> {
@@ -183,12 +188,7 @@ pub(crate) fn initial_pair_candidates(ctx: &Context, allowed: &[bool]) -> Vec<(u
         .input
         .pairs
         .iter()
-        .filter(|p| {
-            allowed[p.a]
-                && allowed[p.b]
-                && p.configuration == C::General
-                && p.matches.len() >= ctx.opts.init_min_points
-        })
+        .filter(|p| p.configuration == C::General && can_start(ctx, allowed, p))
         .map(|p| {
             let d = p.view_distance_px.unwrap_or(1.0).max(1e-3);
             (p.a.min(p.b), p.a.max(p.b), p.matches.len() as f64 * d)
