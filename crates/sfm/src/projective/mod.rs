@@ -21,5 +21,6 @@ pub(crate) mod ba;
 pub(crate) mod grow;
 pub(crate) mod init;
 pub(crate) mod model;
+pub(crate) mod planar;
 pub(crate) mod resection;
 pub(crate) mod tracks;

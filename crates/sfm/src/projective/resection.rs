@@ -8,6 +8,7 @@ use handheld_robust::{run as ransac, Match2d3d, Msac, ResectionEstimator, Unifor
 use nalgebra::{Matrix3x4, Vector2, Vector4};
 
 use super::model::{ProjectiveModel, NONE};
+use super::planar::{recover_parallax, PlaneTest};
 use crate::context::Context;
 
 impl ProjectiveModel {
@@ -82,19 +83,37 @@ impl ProjectiveModel {
             ));
         };
         // Refit on the inliers among all candidates, twice (the set grows once the camera is good).
-        let thr_all = thr;
-        let mut inl: Vec<usize> = Vec::new();
-        for _ in 0..2 {
-            let next: Vec<usize> = (0..all.len())
-                .filter(|&k| reprojection_distance(&p, &all[k].m, &all[k].x) < thr_all)
-                .collect();
-            if next.len() < 6 {
-                break;
-            }
-            inl = next;
-            let (m, x): (Vec<_>, Vec<_>) = inl.iter().map(|&k| (all[k].m, all[k].x)).unzip();
-            if let Ok(r) = resection_iterative(&m, &x, 3) {
-                p = r;
+        let mut inl = refit(&mut p, &all, thr);
+        // A plane's points leave the camera undetermined (`planar.rs`): take the member of the
+        // degenerate family the off-plane matches support, or wait for structure off the plane.
+        let (m, x): (Vec<_>, Vec<_>) = inl.iter().map(|&k| (all[k].m, all[k].x)).unzip();
+        if let Some(test) = PlaneTest::of(&p, &m, &x).filter(PlaneTest::planar) {
+            let (am, ax): (Vec<_>, Vec<_>) = all.iter().map(|c| (c.m, c.x)).unzip();
+            let planar = |t: &PlaneTest| {
+                format!(
+                    "its {} resection inliers lie on one plane (GRIC: camera {:.0}, plane {:.0}), which leaves its camera undetermined; it waits for structure off the plane, or calibrated resection after the upgrade",
+                    inl.len(),
+                    t.gric_camera,
+                    t.gric_plane
+                )
+            };
+            let Some(q) = recover_parallax(&p, &test.plane, &am, &ax, thr, ropts.seed) else {
+                return Err(planar(&test));
+            };
+            let mut q = q;
+            let inl_q = refit(&mut q, &all, thr);
+            let (m, x): (Vec<_>, Vec<_>) = inl_q.iter().map(|&k| (all[k].m, all[k].x)).unzip();
+            match PlaneTest::of(&q, &m, &x) {
+                Some(t) if !t.planar() => {
+                    tracing::debug!(
+                        "{}: resection on a plane, completed by {} matches off it",
+                        ctx.input.images[image].name,
+                        inl_q.len().saturating_sub(inl.len())
+                    );
+                    p = q;
+                    inl = inl_q;
+                }
+                _ => return Err(planar(&test)),
             }
         }
         let samples = all;
@@ -219,4 +238,24 @@ impl ProjectiveModel {
             obs.remove(worst);
         }
     }
+}
+
+/// The camera refitted (6-point DLT then iterative, `resection_iterative`) on the candidates within
+/// `thr` of it, twice (the set grows once the camera is good). Returns the inliers of the last fit.
+fn refit(p: &mut Matrix3x4<f64>, all: &[Match2d3d], thr: f64) -> Vec<usize> {
+    let mut inl: Vec<usize> = Vec::new();
+    for _ in 0..2 {
+        let next: Vec<usize> = (0..all.len())
+            .filter(|&k| reprojection_distance(p, &all[k].m, &all[k].x) < thr)
+            .collect();
+        if next.len() < 6 {
+            break;
+        }
+        inl = next;
+        let (m, x): (Vec<_>, Vec<_>) = inl.iter().map(|&k| (all[k].m, all[k].x)).unzip();
+        if let Ok(r) = resection_iterative(&m, &x, 3) {
+            *p = r;
+        }
+    }
+    inl
 }
