@@ -13,7 +13,7 @@ out=$2
 shift 2
 here=$(cd "$(dirname "$0")/.." && pwd)
 data=${HANDHELD_DATASETS:-$here/../shared/datasets}
-eval_sfm=$data/../tools/eval_sfm.py
+eval_sfm=${HANDHELD_EVAL_SFM:-$data/../tools/eval_sfm.py}
 sets=("$@")
 if [ ${#sets[@]} -eq 0 ]; then
   sets=(fountain-P11 herzjesu-P8 templeSparseRing dinoSparseRing kitti-seq1 iclnuim-5 monstree-phone bundler-ET bundler-kermit sceaux-castle)

@@ -110,7 +110,8 @@ fn temple_subset_all_views_posed_and_principal_point_estimated() {
 }
 
 /// bundler-ET with four of its nine photos copied under new names (a folder with duplicate shots):
-/// the copies are found and held back from the projective stage, every photo is registered, and
+/// the copies are found as identical (no point is made from a copy and its original alone), every
+/// photo is registered, and
 /// the focal length is the one of the set without the copies (within 1 %). Before, every metric
 /// candidate lost 45–100 % of its observations in its adjustment and no model was built.
 #[test]
@@ -155,6 +156,14 @@ fn et_with_duplicate_shots_gives_the_model_without_them() {
         .map(|k| (format!("copy_{k}.jpg"), format!("et00{k}.jpg")))
         .collect();
     assert_eq!(pairs, expected);
+    assert!(
+        summary["duplicates"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .all(|d| d["identical"] == true),
+        "copies of a file are identical duplicates: {summary}"
+    );
     let f = focal(ws.path());
     assert!(
         (f / f_plain - 1.0).abs() < 0.01,

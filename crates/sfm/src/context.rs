@@ -28,8 +28,8 @@ pub(crate) struct Context<'a> {
     /// Localisation σ (pixels) of every keypoint, per image id, for metric BA; empty when the
     /// observations are not weighted (see [`keypoint_sigmas`]).
     pub keypoint_sigma: BTreeMap<ImageId, Arc<[f64]>>,
-    /// The view each view repeats (a duplicate shot, `duplicates.rs`), else the view itself: a new
-    /// point needs two views of different twins (a zero-baseline pair fixes no depth).
+    /// The view each view is an identical copy of (`duplicates.rs`), else the view itself: a new
+    /// point needs two views of different twins (the same keypoints twice fix no depth).
     pub twin: Vec<usize>,
     /// The duplicate shots found in the input.
     pub duplicates: Vec<crate::duplicates::Duplicate>,
@@ -101,18 +101,24 @@ impl<'a> Context<'a> {
             .map(|(i, im)| !im.keypoints.is_empty() && !graph.neighbours(i).is_empty())
             .collect();
         let duplicates = crate::duplicates::find_duplicates(input, &linked);
-        for d in &duplicates {
-            let names = &input.images;
-            tracing::info!(
-                "{} is the same shot as {} (their matches moved {:.1} px, and one homography explains them): no point is made from the two alone",
-                names[d.image].name,
-                names[d.of].name,
-                d.shift_px
-            );
-        }
         let mut twin: Vec<usize> = (0..input.images.len()).collect();
         for d in &duplicates {
-            twin[d.image] = d.of;
+            let names = &input.images;
+            if d.identical() {
+                twin[d.image] = d.of;
+                tracing::info!(
+                    "{} is a copy of {} (the same keypoints): no point is made from the two alone",
+                    names[d.image].name,
+                    names[d.of].name
+                );
+            } else {
+                tracing::info!(
+                    "{} nearly repeats {} (their matches moved {:.1} px, and one homography explains them)",
+                    names[d.image].name,
+                    names[d.of].name,
+                    d.shift_px
+                );
+            }
         }
         Self {
             twin,

@@ -45,6 +45,10 @@ pub struct ModelSummary {
     pub groups: Vec<GroupSummary>,
     pub self_calibration: SelfCalibrationReport,
     pub projective_ba: Vec<ProjectiveBaRecord>,
+    /// Views whose projective resection inliers lay on one plane, completed by the matches off it
+    /// (`projective/planar.rs`).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub planar_resections: Vec<String>,
     pub metric_ba: Vec<MetricBaRecord>,
     pub uncertainty: Option<UncertaintyReport>,
     /// Why uncertainty statistics are missing, when they are.
@@ -68,7 +72,8 @@ pub struct SfmModel {
 pub struct SfmResult {
     pub models: Vec<SfmModel>,
     pub unregistered: Vec<(String, String)>,
-    /// Duplicate shots (`duplicates.rs`): no point is made from a duplicate and its twin alone.
+    /// Duplicate shots (`duplicates.rs`): no point is made from an identical copy and its original
+    /// alone.
     pub duplicates: Vec<DuplicateShot>,
 }
 
@@ -80,6 +85,8 @@ pub struct DuplicateShot {
     pub of: String,
     /// Median displacement of their matched keypoints, pixels.
     pub shift_px: f64,
+    /// The same keypoints (a copy of the file): no point is made from the two alone.
+    pub identical: bool,
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -110,6 +117,11 @@ pub(crate) fn summarize(
         groups,
         self_calibration,
         projective_ba: model.ba.clone(),
+        planar_resections: model
+            .planar_completed
+            .iter()
+            .map(|&i| names[i].name.clone())
+            .collect(),
         metric_ba,
         uncertainty,
         uncertainty_note,

@@ -213,6 +213,7 @@ fn model(rec: MetricReconstruction) -> SfmModel {
         groups: Vec::new(),
         self_calibration: Default::default(),
         projective_ba: Vec::new(),
+        planar_resections: Vec::new(),
         metric_ba: Vec::new(),
         uncertainty: None,
         uncertainty_note: None,

@@ -109,6 +109,7 @@ pub fn reconstruct(
             image: input.images[d.image].name.clone(),
             of: input.images[d.of].name.clone(),
             shift_px: d.shift_px,
+            identical: d.identical(),
         })
         .collect();
     Ok(SfmResult {

@@ -42,6 +42,8 @@ pub(crate) struct ProjectiveModel {
     pub ba: Vec<ProjectiveBaRecord>,
     /// Images whose resection failed, with the reason (the last attempt).
     pub failures: BTreeMap<usize, String>,
+    /// Images resected on a plane and completed by the matches off it (`planar.rs`).
+    pub planar_completed: Vec<usize>,
 }
 
 impl ProjectiveModel {
@@ -60,6 +62,7 @@ impl ProjectiveModel {
             init_pair: (0, 0),
             ba: Vec::new(),
             failures: BTreeMap::new(),
+            planar_completed: Vec::new(),
         }
     }
 

@@ -112,6 +112,7 @@ impl ProjectiveModel {
                     );
                     p = q;
                     inl = inl_q;
+                    self.planar_completed.push(image);
                 }
                 _ => return Err(planar(&test)),
             }
