@@ -164,6 +164,20 @@ fn et_with_duplicate_shots_gives_the_model_without_them() {
             .all(|d| d["identical"] == true),
         "copies of a file are identical duplicates: {summary}"
     );
+    let manifest = read_json(&ws.path().join("sparse/manifest.json"));
+    let warned = manifest["warnings"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .find(|w| w["code"] == "duplicate_photos")
+        .unwrap_or_else(|| panic!("no duplicate_photos warning: {manifest}"));
+    assert!(
+        warned["message"]
+            .as_str()
+            .unwrap()
+            .starts_with("4 photos appear twice"),
+        "{warned}"
+    );
     let f = focal(ws.path());
     assert!(
         (f / f_plain - 1.0).abs() < 0.01,

@@ -139,6 +139,30 @@ pub fn write_workspace_report(ws: &Workspace, stages: &[&str]) -> Result<ReportS
     Ok(summary)
 }
 
+/// "the same photo as X" / "nearly repeats X" under each duplicate shot of the sparse summary.
+fn duplicate_notes(
+    full: &serde_json::Value,
+    index: &BTreeMap<String, usize>,
+    input: &mut ReportInput,
+) {
+    for d in full["duplicates"].as_array().into_iter().flatten() {
+        let (Some(image), Some(of)) = (d["image"].as_str(), d["of"].as_str()) else {
+            continue;
+        };
+        let Some(&k) = index.get(image) else {
+            continue;
+        };
+        input.images[k].note = Some(if d["identical"] == true {
+            format!("the same photo as {of}")
+        } else {
+            format!(
+                "nearly repeats {of} (moved {:.1} px)",
+                d["shift_px"].as_f64().unwrap_or(0.0)
+            )
+        });
+    }
+}
+
 fn sparse_part(
     ws: &Workspace,
     rec: &MetricReconstruction,
@@ -171,6 +195,14 @@ fn sparse_part(
     let full: Option<serde_json::Value> = std::fs::read(ws.path(stage::SPARSE, SUMMARY_JSON))
         .ok()
         .and_then(|b| serde_json::from_slice(&b).ok());
+    if let Some(full) = &full {
+        duplicate_notes(full, index, input);
+        input.verdict.metric_frame = full["self_calibration"]["candidates"]
+            .as_array()
+            .and_then(|c| c.iter().find(|c| c["accepted"] == true))
+            .and_then(|c| c["source"].as_str())
+            .map(str::to_string);
+    }
     if let Some(cam) = rec.cameras.values().next() {
         let i = &cam.intrinsics;
         let model = if i.k2 != 0.0 {

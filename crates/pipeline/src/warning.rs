@@ -31,6 +31,8 @@ pub mod code {
     pub const TRACKING: &str = "tracking";
     /// An image was not registered in the model.
     pub const UNREGISTERED: &str = "unregistered";
+    /// Photos that are copies of others (the same keypoints under another name).
+    pub const DUPLICATE_PHOTOS: &str = "duplicate_photos";
     /// The images form several models.
     pub const SEPARATE_MODELS: &str = "separate_models";
     /// A merge of two pieces that no verified pair between them confirms.

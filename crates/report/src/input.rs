@@ -27,6 +27,10 @@ pub struct Verdict {
     pub focal_px: Option<f64>,
     pub focal_sigma_px: Option<f64>,
     pub reprojection_px: Option<f64>,
+    /// How the metric frame was found (e.g. "self-calibration", "calibrated incremental
+    /// (two-view focal length)").
+    #[serde(default)]
+    pub metric_frame: Option<String>,
     pub total_seconds: f64,
 }
 
@@ -38,6 +42,8 @@ pub struct ImageEntry {
     pub registered: Option<bool>,
     /// Why it was not registered.
     pub reason: Option<String>,
+    /// What else to know about it (e.g. "a copy of a.jpg").
+    pub note: Option<String>,
     pub observations: Option<usize>,
     /// Relative to the workspace: the dense stage's depth preview, and its fill.
     pub depth_preview: Option<String>,

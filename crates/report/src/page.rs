@@ -19,7 +19,7 @@ header{background:#1d2530;color:#fff;padding:16px 28px}header h1{margin:0;font-s
 main{padding:8px 28px 40px;max-width:1400px}section{margin:22px 0}h2{font-size:17px;border-bottom:1px solid #ccd;padding-bottom:4px}
 .verdict{display:flex;flex-wrap:wrap;gap:10px}.kv{background:#fff;border:1px solid #dde;border-radius:6px;padding:8px 14px;min-width:150px}
 .kv b{display:block;font-size:18px}.warn{background:#fff4e0;border-left:4px solid #e69500;padding:8px 12px;margin:6px 0}
-.ok{background:#e8f6ea;border-left:4px solid #2e9d49;padding:8px 12px}.missing{color:#777}
+.ok{background:#e8f6ea;border-left:4px solid #2e9d49;padding:8px 12px}.missing{color:#777}.note{color:#8a5a00}
 .grid{display:grid;grid-template-columns:repeat(auto-fill,minmax(170px,1fr));gap:10px}
 .img{background:#fff;border:1px solid #dde;border-radius:6px;padding:6px;font-size:12px}.img img{width:100%;display:block}
 .img>div,#hh-photo div{overflow-wrap:anywhere}.img.bad{border-color:#d33;background:#fff0f0}.tag{display:inline-block;padding:0 6px;border-radius:3px;color:#fff;background:#2e9d49}
@@ -90,6 +90,9 @@ fn verdict(h: &mut String, input: &ReportInput) {
             _ => "—".into(),
         },
     );
+    if let Some(m) = &v.metric_frame {
+        kv(h, "metric frame from", m.clone());
+    }
     kv(
         h,
         "reprojection error",
@@ -157,6 +160,9 @@ fn images(h: &mut String, input: &ReportInput, thumbs: &[Option<String>]) {
                 );
             }
             None => h.push_str("<span class=\"missing\">not reconstructed yet</span>"),
+        }
+        if let Some(n) = &im.note {
+            let _ = write!(h, "<div class=\"note\">{}</div>", esc(n));
         }
         if let Some(d) = &im.depth_preview {
             let _ = write!(

@@ -2,7 +2,8 @@
 use super::*;
 use image::RgbImage;
 
-/// A failed image shows with its reason, a warning and a missing stage show in the verdict,
+/// A failed image shows with its reason, an image's note under it, a warning, the metric frame's
+/// source and a missing stage in the verdict,
 /// and every file is inside `report/` or the page itself.
 #[test]
 fn failed_images_warnings_and_missing_stages_are_shown() {
@@ -11,6 +12,7 @@ fn failed_images_warnings_and_missing_stages_are_shown() {
         verdict: Verdict {
             images_in: 2,
             registered: Some(1),
+            metric_frame: Some("calibrated incremental (two-view focal length)".into()),
             ..Default::default()
         },
         warnings: vec!["sparse: critical motion <give --intrinsics>".into()],
@@ -21,6 +23,7 @@ fn failed_images_warnings_and_missing_stages_are_shown() {
                 thumb: Some(RgbImage::new(8, 6)),
                 registered: Some(true),
                 observations: Some(10),
+                note: Some("a copy of b.jpg".into()),
                 ..Default::default()
             },
             ImageEntry {
@@ -39,6 +42,8 @@ fn failed_images_warnings_and_missing_stages_are_shown() {
     assert!(html.contains("too few matches") && html.contains("not registered"));
     assert!(html.contains("critical motion &lt;give --intrinsics&gt;"));
     assert!(html.contains("Not run yet: mesh"));
+    assert!(html.contains("a copy of b.jpg"));
+    assert!(html.contains("calibrated incremental (two-view focal length)"));
     assert!(html.contains("<svg") && html.contains("Reprojection errors"));
     for (p, _) in &out.files {
         assert!(

@@ -107,7 +107,7 @@ impl<'a> Context<'a> {
             if d.identical() {
                 twin[d.image] = d.of;
                 tracing::info!(
-                    "{} is a copy of {} (the same keypoints): no point is made from the two alone",
+                    "{} and {} are the same photo (the same keypoints): no point is made from the two alone",
                     names[d.image].name,
                     names[d.of].name
                 );

@@ -194,6 +194,29 @@ impl Stage for Sparse {
                 .advice("add photos that link the pieces (overlapping views between them)"),
             );
         }
+        let copies: Vec<String> = result
+            .duplicates
+            .iter()
+            .filter(|d| d.identical)
+            .map(|d| format!("{} and {}", d.image, d.of))
+            .collect();
+        if !copies.is_empty() {
+            warnings.push(
+                Warning::new(
+                    code::DUPLICATE_PHOTOS,
+                    format!(
+                        "{} (the same pixels under two names): a copy adds nothing, and no point was made from a photo and its copy alone",
+                        if copies.len() == 1 {
+                            "1 photo appears twice".to_string()
+                        } else {
+                            format!("{} photos appear twice", copies.len())
+                        }
+                    ),
+                )
+                .advice("remove one of each pair from the input folder")
+                .details(copies.join("; ")),
+            );
+        }
         let best = &result.models[0].summary;
         for m in best.merged.iter().filter(|m| m.cross_pairs == 0) {
             warnings.push(Warning::new(
