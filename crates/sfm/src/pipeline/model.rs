@@ -297,6 +297,8 @@ fn core_model(
     let mut excluded: Vec<(usize, usize)> = Vec::new();
     let mut rejected: Vec<RejectedStart> = Vec::new();
     let entry = (search.allowed.clone(), search.failures.clone());
+    // The calibrated candidate tried after the first failed start, when it held fewer views.
+    let mut early = None;
     let stratified = loop {
         let saved = (search.allowed.clone(), search.failures.clone());
         let t0 = Instant::now();
@@ -331,6 +333,28 @@ fn core_model(
                     reason: e.to_string(),
                 });
                 excluded.push((a.min(b), a.max(b)));
+                // The causes that sink a start are mostly the images' own (lens distortion, a
+                // dominant plane, critical motion), and the next initial pair meets them again:
+                // on 50 portrait phone photos each further start cost minutes. The calibrated
+                // candidate does not depend on the start; when it holds every view this start's
+                // projective model did, it is the model and no further start is tried.
+                if rejected.len() == 1 {
+                    let mut trial = Search {
+                        allowed: entry.0.clone(),
+                        failures: entry.1.clone(),
+                    };
+                    let t = Instant::now();
+                    let found =
+                        calibrated_core(ctx, &mut trial, estimate_aspect, e.clone(), progress);
+                    add(&mut timings, "calibrated_incremental", t);
+                    if let Ok(found) = found {
+                        if found.0.order.len() >= model.order.len() {
+                            *search = trial;
+                            break Ok(found);
+                        }
+                        early = Some((found, trial));
+                    }
+                }
                 if rejected.len() >= MAX_STARTS {
                     break Err(abandoned(&rejected, e));
                 }
@@ -339,10 +363,15 @@ fn core_model(
             }
         }
     };
-    let (model, (mut rec, is_prior, mut report, mut metric_ba)) = match stratified {
-        Ok(found) => found,
-        Err(e) => {
-            // No stratified start gave a sound metric frame: the calibrated incremental candidate.
+    let (model, (mut rec, is_prior, mut report, mut metric_ba)) = match (stratified, early) {
+        (Ok(found), _) => found,
+        // No stratified start gave a sound metric frame: the calibrated incremental candidate
+        // (already built after the first failed start, when it was sound).
+        (Err(_), Some((found, trial))) => {
+            *search = trial;
+            found
+        }
+        (Err(e), None) => {
             search.allowed = entry.0;
             search.failures = entry.1;
             let t = Instant::now();
