@@ -8,10 +8,10 @@
 //! | phase | where | what |
 //! |---|---|---|
 //! | input | `input.rs`, `canonical.rs`, `graph.rs`, `context.rs` | images, verified pairs; photos put in content order (ids renumbered and restored, so file names and order change nothing); the correspondence graph (Table 2 step 1); the read-only `Context` with the keypoints normalised by `K_N` (eq. 24) |
-//! | §3.1–3.3 projective | `projective/` | initial pair (eqs. 14, 16–18), resection and structure extension (eq. 20), projective BA (eq. 21), track completion |
+//! | §3.1–3.3 projective | `projective/` | initial pair (eqs. 14, 16–18), resection and structure extension (eq. 20) with its planar case (Pollefeys et al. 2002, `planar.rs`), projective BA (eq. 21), track completion |
 //! | §3.4 upgrade | `upgrade/` | linear self-calibration with the dual absolute quadric (eqs. 22–27, `selfcal/`), the upgrade applied (eq. 27), focal hypotheses under critical motion, the candidate frames and their judge (`guard/`) |
 //! | §3.4 metric | `metric/` | metric BA with radial distortion (eq. 3) and its noise-scaled loss, calibrated registration, predicted matches (§3.2), view consistency, the principal point's test, uncertainty |
-//! | safety net | `calibrated.rs`, `duplicates.rs` | the calibrated incremental candidate (a focal length assumed from the start, E from F, P3P growth, f and k1 adjusted as the model grows; COLMAP's way) when no stratified start is sound or the one kept is a fall-back; duplicate shots, from which no point is made alone |
+//! | safety net | `calibrated.rs`, `duplicates.rs` | the calibrated incremental candidate (a focal length assumed from the start, E from F, P3P growth, f and k1 adjusted as the model grows; COLMAP's way) when the first stratified start fails, when none is sound or the one kept is a fall-back; duplicate shots (an identical copy makes no point with its original alone) |
 //! | pieces | `merge/` | models of a broken sequence merged where they share points (3D–3D or 2D–3D) |
 //! | video | `video.rs` | in-between frames posed from their KLT tracks (Table 2's "for every frame") |
 //! | steps | `pipeline/` | [`reconstruct`]: the models one after the other, each by named steps that fail with a [`StepError`] |

@@ -12,7 +12,8 @@
 //!   each followed by removal of observations that no longer reproject within the threshold.
 //!
 //! Layout: `model.rs` (the growing [`model::ProjectiveModel`] and its bookkeeping, which every
-//! other file shares), `init.rs` (§3.1), `resection.rs` (§3.2), `ba.rs` (§3.3), `tracks.rs`
+//! other file shares), `init.rs` (§3.1), `resection.rs` (§3.2) and `planar.rs` (its degenerate case:
+//! inliers on one plane, Pollefeys et al. 2002), `ba.rs` (§3.3), `tracks.rs`
 //! (track completion and merging after the last view), `grow.rs` (the loop of Table 2 steps 2–4,
 //! [`grow::reconstruct_projective`]). The read-only data of a reconstruction (the input, the
 //! correspondence graph, the `K_N`-normalised keypoints) are in `crate::context`.
