@@ -119,7 +119,26 @@ pub(crate) fn refine_metric(
     rec: &mut MetricReconstruction,
     estimate_aspect: bool,
 ) -> Result<Vec<MetricBaRecord>, String> {
-    adjust_metric(ctx, rec, estimate_aspect, false)
+    adjust_metric_schedule(ctx, rec, estimate_aspect, false, false)
+}
+
+/// Removed fraction at which a candidate frame's schedule stops after a step ([`adjust_candidate`]).
+/// Such a frame is rejected whatever follows (it is far beyond the guard's
+/// `MAX_REMOVED_FRACTION`, and the removals only grow), and it cannot explain the images about as
+/// well as a sound frame (`guard::focal_ambiguity` needs 95 % of the kept score, which at most
+/// 10 % of the observations reach only when the kept frame's RMS exceeds 7 px).
+pub const COLLAPSED_FRACTION: f64 = 0.9;
+
+/// [`refine_metric`] for a candidate frame: the schedule stops after a step that has removed
+/// [`COLLAPSED_FRACTION`] of the observations (a wrong upgrade collapses in its first step: a
+/// phone's distorted projective model lost 93–100 % there for every candidate, and the two further
+/// steps cost more than half of the time).
+pub(crate) fn adjust_candidate(
+    ctx: &Context,
+    rec: &mut MetricReconstruction,
+    estimate_aspect: bool,
+) -> Result<Vec<MetricBaRecord>, String> {
+    adjust_metric_schedule(ctx, rec, estimate_aspect, false, true)
 }
 
 /// Only the last step of [`refine_metric`]: for a model that was adjusted and then extended (new
@@ -129,17 +148,20 @@ pub(crate) fn final_adjustment(
     rec: &mut MetricReconstruction,
     estimate_aspect: bool,
 ) -> Result<Vec<MetricBaRecord>, String> {
-    adjust_metric(ctx, rec, estimate_aspect, true)
+    adjust_metric_schedule(ctx, rec, estimate_aspect, true, false)
 }
 
-fn adjust_metric(
+fn adjust_metric_schedule(
     ctx: &Context,
     rec: &mut MetricReconstruction,
     estimate_aspect: bool,
     only_final: bool,
+    stop_on_collapse: bool,
 ) -> Result<Vec<MetricBaRecord>, String> {
     let o = ctx.opts;
     let mut records = Vec::new();
+    let observations: usize = rec.points.values().map(|p| p.track.len()).sum();
+    let mut removed = 0usize;
     // A known calibration is the starting point too: the upgrade assumed a centred principal point.
     if let (Some(k), false) = (o.known_intrinsics, only_final) {
         for cam in rec.cameras.values_mut() {
@@ -183,6 +205,13 @@ fn adjust_metric(
         keep_scale(rec);
         let (ro, rp) = filter_metric(rec, thr, o.min_track_length);
         records.push(MetricBaRecord::of(name, &s, loss, noise, ro, rp));
+        removed += ro;
+        if stop_on_collapse && removed as f64 >= COLLAPSED_FRACTION * observations.max(1) as f64 {
+            tracing::debug!(
+                "the {name} step removed {removed} of {observations} observations: the schedule stops"
+            );
+            break;
+        }
         // The model reported is the optimum of the observations it keeps: the ones the last
         // filter removed had pulled on it, and on the weakly determined parameters (the
         // principal point against the rotations) that pull is worth pixels (herzjesu-P8: 12 px

@@ -11,7 +11,7 @@ use handheld_core::MetricReconstruction;
 
 use crate::context::Context;
 use crate::error::StepError;
-use crate::metric::ba::{refine_metric, MetricBaRecord};
+use crate::metric::ba::{adjust_candidate, MetricBaRecord};
 use crate::metric::profile::{focal_profile, held_adjustment, PROFILE_STEP};
 use crate::projective::model::ProjectiveModel;
 use crate::upgrade::transform::{from_transform, prior_frame, SelfCalibrationReport, Upgraded};
@@ -138,7 +138,7 @@ pub(crate) fn adjust_metric_frame(
             candidates.len() > 1,
             candidates.iter().map(|c| (c, c.source, &c.rec)),
             projective_rms,
-            |rec| refine_metric(ctx, rec, estimate_aspect),
+            |rec| adjust_candidate(ctx, rec, estimate_aspect),
             &mut tried,
         );
         if let Some((c, rec, adjustments)) = found {
@@ -259,7 +259,7 @@ fn probe_translation(
         if let Some((p, r, a)) = guard::challenge(
             (p, p.source, &p.rec),
             projective_rms,
-            |r| refine_metric(ctx, r, estimate_aspect),
+            |r| adjust_candidate(ctx, r, estimate_aspect),
             tried,
             true,
             &format!("a probe of the focal length only ({why})"),
@@ -323,7 +323,7 @@ fn descend_focal_profile(
         match guard::challenge(
             (&(), "focal profile", &start),
             projective_rms,
-            |r| refine_metric(ctx, r, estimate_aspect),
+            |r| adjust_candidate(ctx, r, estimate_aspect),
             tried,
             false,
             "scored below the kept frame",
