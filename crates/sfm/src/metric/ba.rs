@@ -119,7 +119,7 @@ pub(crate) fn refine_metric(
     rec: &mut MetricReconstruction,
     estimate_aspect: bool,
 ) -> Result<Vec<MetricBaRecord>, String> {
-    adjust_metric_schedule(ctx, rec, estimate_aspect, false, false)
+    adjust_metric_schedule(ctx, rec, estimate_aspect, Schedule::Full)
 }
 
 /// Removed fraction at which a candidate frame's schedule stops after a step ([`adjust_candidate`]).
@@ -138,7 +138,7 @@ pub(crate) fn adjust_candidate(
     rec: &mut MetricReconstruction,
     estimate_aspect: bool,
 ) -> Result<Vec<MetricBaRecord>, String> {
-    adjust_metric_schedule(ctx, rec, estimate_aspect, false, true)
+    adjust_metric_schedule(ctx, rec, estimate_aspect, Schedule::Candidate)
 }
 
 /// Only the last step of [`refine_metric`]: for a model that was adjusted and then extended (new
@@ -148,16 +148,27 @@ pub(crate) fn final_adjustment(
     rec: &mut MetricReconstruction,
     estimate_aspect: bool,
 ) -> Result<Vec<MetricBaRecord>, String> {
-    adjust_metric_schedule(ctx, rec, estimate_aspect, true, false)
+    adjust_metric_schedule(ctx, rec, estimate_aspect, Schedule::FinalOnly)
+}
+
+/// Which part of the schedule runs.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Schedule {
+    /// Every step ([`refine_metric`]).
+    Full,
+    /// Every step, stopping after one that collapsed the frame ([`adjust_candidate`]).
+    Candidate,
+    /// The last step only ([`final_adjustment`]).
+    FinalOnly,
 }
 
 fn adjust_metric_schedule(
     ctx: &Context,
     rec: &mut MetricReconstruction,
     estimate_aspect: bool,
-    only_final: bool,
-    stop_on_collapse: bool,
+    schedule: Schedule,
 ) -> Result<Vec<MetricBaRecord>, String> {
+    let only_final = schedule == Schedule::FinalOnly;
     let o = ctx.opts;
     let mut records = Vec::new();
     let observations: usize = rec.points.values().map(|p| p.track.len()).sum();
@@ -206,7 +217,9 @@ fn adjust_metric_schedule(
         let (ro, rp) = filter_metric(rec, thr, o.min_track_length);
         records.push(MetricBaRecord::of(name, &s, loss, noise, ro, rp));
         removed += ro;
-        if stop_on_collapse && removed as f64 >= COLLAPSED_FRACTION * observations.max(1) as f64 {
+        if schedule == Schedule::Candidate
+            && removed as f64 >= COLLAPSED_FRACTION * observations.max(1) as f64
+        {
             tracing::debug!(
                 "the {name} step removed {removed} of {observations} observations: the schedule stops"
             );
