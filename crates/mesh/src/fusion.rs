@@ -74,7 +74,11 @@ impl Default for FusionOptions {
 #[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(default)]
 pub struct FusionSummary {
+    /// The views fused.
     pub views: usize,
+    /// The views left out because their depth map holds no valid pixel.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub views_without_depth: Vec<String>,
     /// Voxel edge length used (world units).
     pub voxel_size: f64,
     /// Truncation distance (world units).
@@ -114,7 +118,9 @@ pub struct FusionSummary {
 
 /// Fuses the views' depth maps (weighted by their confidence maps where present; images are not
 /// read) into one mesh in the world (sparse model) frame, counter-clockwise seen from outside
-/// (the free-space side), with vertex normals. Every view needs a depth map; to hold a view out
+/// (the free-space side), with vertex normals. Every view needs a depth map; one without any
+/// valid pixel is left out (named in the summary), and only a set where none has any is an
+/// error ([`MeshError::EmptyDepth`]). To hold a view out
 /// of the model, leave it out of `views` (e.g. `Vec::remove` it first).
 pub fn fuse_depth_maps(
     views: &[PosedView],
@@ -125,38 +131,58 @@ pub fn fuse_depth_maps(
     if views.is_empty() {
         return Err(MeshError::NoViews { what: "depth maps" });
     }
+    // A view whose depth map holds nothing (its pairs all failed) adds nothing to the volume: it
+    // is left out and named in the summary; only a set without any depth is an error.
+    let mut without_depth = Vec::new();
     for (i, v) in views.iter().enumerate() {
-        let v = Depth::of(v, i)?;
-        if !(0..v.depth.data.len()).any(|p| v.weight(p, opts.tsdf.min_confidence) > 0.0) {
-            return Err(MeshError::EmptyDepth { view: i });
+        let d = Depth::of(v, i)?;
+        if !(0..d.depth.data.len()).any(|p| d.weight(p, opts.tsdf.min_confidence) > 0.0) {
+            without_depth.push(i);
         }
+    }
+    if without_depth.len() == views.len() {
+        return Err(MeshError::EmptyDepth { view: 0 });
+    }
+    let used: Vec<(usize, &PosedView)> = views
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| !without_depth.contains(i))
+        .collect();
+    if !without_depth.is_empty() {
+        tracing::warn!(
+            "fusion: {} of {} views have no depth and are left out: {}",
+            without_depth.len(),
+            views.len(),
+            without_depth.iter().map(|&i| views[i].name.as_str()).collect::<Vec<_>>().join(", ")
+        );
     }
     let t0 = Instant::now();
     let voxel_size = resolve_voxel_size(views, &opts.tsdf)?;
     let mut vol = TsdfVolume::new(voxel_size, &opts.tsdf)?;
-    progress.start("TSDF fusion", 2 * views.len() as u64);
-    for (i, v) in views.iter().enumerate() {
+    progress.start("TSDF fusion", 2 * used.len() as u64);
+    for &(i, v) in &used {
         vol.allocate(v, i)?;
         progress.inc(1);
     }
-    for (i, v) in views.iter().enumerate() {
+    for &(i, v) in &used {
         vol.update(v, i)?;
         progress.inc(1);
     }
     progress.finish();
-    let min_obs = opts.extract.min_observations.clamp(1, views.len());
+    let min_obs = opts.extract.min_observations.clamp(1, used.len());
     let seen = vol
         .blocks()
         .iter()
         .any(|b| b.observations.iter().any(|&o| o as usize >= min_obs));
     if !seen {
         return Err(MeshError::NoOverlap {
-            views: views.len(),
+            views: used.len(),
             min_observations: min_obs,
         });
     }
     let mut summary = FusionSummary {
-        views: views.len(),
+        views: used.len(),
+        views_without_depth: without_depth.iter().map(|&i| views[i].name.clone()).collect(),
         voxel_size,
         truncation: vol.truncation,
         blocks: vol.num_blocks(),

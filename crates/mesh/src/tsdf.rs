@@ -137,7 +137,7 @@ pub struct TsdfVolume {
     blocks: Vec<Box<Block>>,
 }
 
-/// The voxel size `opts` asks for, given the views (the median over views of `median depth / f`
+/// The voxel size `opts` asks for, given the views (the median over the views with depth of `median depth / f`
 /// for [`VoxelSize::PixelFootprint`]).
 pub fn resolve_voxel_size(views: &[PosedView], opts: &TsdfOptions) -> Result<f64> {
     match opts.voxel_size {
@@ -146,14 +146,16 @@ pub fn resolve_voxel_size(views: &[PosedView], opts: &TsdfOptions) -> Result<f64
             let mut per_view: Vec<f64> = Vec::with_capacity(views.len());
             for (i, v) in views.iter().enumerate() {
                 let v = Depth::of(v, i)?;
-                let z = depth_quantile(&v, 0.5).ok_or(MeshError::EmptyDepth { view: i })?;
-                per_view.push(z / v.posed.camera.intrinsics.f);
+                // A view without depth says nothing about the scale (fusion leaves it out).
+                if let Some(z) = depth_quantile(&v, 0.5) {
+                    per_view.push(z / v.posed.camera.intrinsics.f);
+                }
             }
             per_view.sort_by(f64::total_cmp);
             let m = per_view
                 .get(per_view.len() / 2)
                 .copied()
-                .ok_or(MeshError::NoViews { what: "depth maps" })?;
+                .ok_or(MeshError::EmptyDepth { view: 0 })?;
             Ok(factor * m)
         }
     }

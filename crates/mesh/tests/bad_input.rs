@@ -53,10 +53,20 @@ fn wrong_sizes_and_empty_maps_are_named() {
     );
     let empty = FloatMap::filled(160, 120, 1, f32::NAN);
     let mut bad = views.clone();
-    bad[0].depth = Some(empty);
-    let err = fuse_depth_maps(&bad, &opts(), &NoProgress).unwrap_err();
-    assert_eq!(err, MeshError::EmptyDepth { view: 0 });
+    bad[0].depth = Some(empty.clone());
+    // One view without depth (all its pairs failed) is left out and named; the others are fused.
+    let (mesh, summary) = fuse_depth_maps(&bad, &opts(), &NoProgress).unwrap();
+    assert!(!mesh.faces.is_empty());
+    assert_eq!(summary.views, views.len() - 1);
+    assert_eq!(summary.views_without_depth, vec![bad[0].name.clone()]);
     let err = mesh_from_depth_map(&bad[0], &SingleMeshOptions::default(), &NoProgress).unwrap_err();
+    assert_eq!(err, MeshError::EmptyDepth { view: 0 });
+    // A set where no view has depth is an error.
+    let mut all_empty = views.clone();
+    for v in &mut all_empty {
+        v.depth = Some(empty.clone());
+    }
+    let err = fuse_depth_maps(&all_empty, &opts(), &NoProgress).unwrap_err();
     assert_eq!(err, MeshError::EmptyDepth { view: 0 });
     let err = fuse_depth_maps(&[], &opts(), &NoProgress).unwrap_err();
     assert!(matches!(err, MeshError::NoViews { .. }));

@@ -72,7 +72,8 @@ pub fn to_colmap(rec: &MetricReconstruction) -> Result<ColmapModel, String> {
     Ok(m)
 }
 
-fn camera_to_colmap(cam: &Camera) -> Result<ColmapCamera, String> {
+/// One camera in COLMAP's form (model, parameters in its pixel convention), as [`to_colmap`] writes it.
+pub fn camera_to_colmap(cam: &Camera) -> Result<ColmapCamera, String> {
     let k = &cam.intrinsics;
     if k.skew != 0.0 {
         return Err(format!(

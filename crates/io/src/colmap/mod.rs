@@ -17,7 +17,7 @@ pub mod convert;
 pub mod text;
 
 pub use binary::{read_binary, write_binary};
-pub use convert::{from_colmap, to_colmap};
+pub use convert::{camera_to_colmap, from_colmap, to_colmap};
 pub use text::{read_text, write_text};
 
 /// The COLMAP camera models Handheld reads and writes (ids and names as in COLMAP).

@@ -278,6 +278,20 @@ pub fn build(
             atlas: [textured.texture.width(), textured.texture.height()],
             summary: ts,
         });
+        if !fs.views_without_depth.is_empty() {
+            warnings.push(
+                Warning::new(
+                    code::VIEW_SKIPPED,
+                    format!(
+                        "{} of {} views have no depth and are not in the mesh: {}",
+                        fs.views_without_depth.len(),
+                        fs.views_without_depth.len() + fs.views,
+                        fs.views_without_depth.join(", ")
+                    ),
+                )
+                .advice("see the dense stage's failed pairs: a view whose every pair failed has no depth"),
+            );
+        }
         summary.fusion = Some(fs);
     }
     // `summary.json` keeps the per-view list; the manifest does not.
