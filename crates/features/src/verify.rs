@@ -86,8 +86,9 @@ impl PairVerificationOptions {
     }
 }
 
-/// The outcome for one pair.
-#[derive(Clone, Debug)]
+/// The outcome for one pair (serialisable for the work units of a distributed run; use an exact
+/// binary format: `gric_*` may be infinite and `sigma_px` NaN).
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct VerifiedPair {
     /// Image indices (into the feature list).
     pub i: usize,

@@ -153,7 +153,11 @@ pub fn fuse_depth_maps(
             "fusion: {} of {} views have no depth and are left out: {}",
             without_depth.len(),
             views.len(),
-            without_depth.iter().map(|&i| views[i].name.as_str()).collect::<Vec<_>>().join(", ")
+            without_depth
+                .iter()
+                .map(|&i| views[i].name.as_str())
+                .collect::<Vec<_>>()
+                .join(", ")
         );
     }
     let t0 = Instant::now();
@@ -182,7 +186,10 @@ pub fn fuse_depth_maps(
     }
     let mut summary = FusionSummary {
         views: used.len(),
-        views_without_depth: without_depth.iter().map(|&i| views[i].name.clone()).collect(),
+        views_without_depth: without_depth
+            .iter()
+            .map(|&i| views[i].name.clone())
+            .collect(),
         voxel_size,
         truncation: vol.truncation,
         blocks: vol.num_blocks(),

@@ -2,7 +2,8 @@
 //! that stage's crate (features, sfm, dense, mesh, render, report) and every format in `handheld-io`.
 //!
 //! - [`files`]: the workspace's files, each named once with a typed reader or writer;
-//! - [`stage`]: the stage graph: the `Stage` trait with typed options and summary, `Pipeline` registration, `plan`,
+//! - [`stage`]: the stage graph: the `Stage` trait with typed options and summary (and work units run apart, for
+//!   the distributed pipeline), `Pipeline` registration, `plan`,
 //!   run-or-skip;
 //! - [`manifest`]: resumption: manifests, fingerprints of the serialised options, the skip rule, the workspace format;
 //! - [`stages`]: the standard stages (ingest, features + KLT tracks, matches, sparse, dense, mesh, render, and augment

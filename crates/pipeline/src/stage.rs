@@ -6,15 +6,24 @@
 //! The fingerprint of a stage is its serialised options, whatever inputs it adds itself (the
 //! photos' identities for ingest), and the input hashes of the stages it reads, which carry their
 //! own upstream hashes: a change anywhere upstream reaches every stage below it, and nothing else.
+//!
+//! Work units: a stage may split its work into units that run apart, on other machines, before it
+//! (the per-image work of the features stage). [`Pipeline::run_unit`] runs one into
+//! `WS/.units/<stage>/<input hash>/`, each file written under a temporary name and renamed, and
+//! its marker (`unit-<k>.json`, with the unit's result) last, so a unit a scheduler retries after
+//! a worker died is either done or redone whole. The stage's `run` then takes each finished unit's
+//! files ([`StageContext::take_unit`]) instead of computing them, and computes the rest itself:
+//! the files are the same bytes either way, written by the same code.
 
 use std::collections::BTreeSet;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use handheld_core::Progress;
 use serde::{Deserialize, Serialize};
 
 use handheld_io::atomic::write_bytes_atomic;
+use handheld_io::IoError;
 
 use crate::error::{PipelineError, Result};
 use crate::manifest::{
@@ -25,10 +34,16 @@ use crate::warning::Warning;
 /// Every stage folder's `summary.json` (written by the runner, see [`SummaryFile`]).
 pub const SUMMARY_FILE: &str = "summary.json";
 
+/// `WS/.units/`: the files of work units run apart, by stage and input hash (see the module notes).
+pub const UNITS_DIR: &str = ".units";
+
 /// What a stage body runs with.
 pub struct StageContext<'a> {
     pub ws: &'a Workspace,
     pub progress: &'a dyn Progress,
+    /// Where this stage's units run apart left their files (`WS/.units/<stage>/<input hash>/`),
+    /// set by the runner; `None` for a stage body called outside the graph.
+    pub units: Option<PathBuf>,
 }
 
 impl StageContext<'_> {
@@ -36,6 +51,43 @@ impl StageContext<'_> {
     pub fn has(&self, name: &str) -> bool {
         self.ws.manifest(name).is_some()
     }
+
+    /// The result of unit `k` when it ran apart, after moving its `files` (relative paths) into
+    /// the stage folder `dir`; `None` when it did not run (or left a file missing), and the stage
+    /// computes it itself.
+    pub fn take_unit(
+        &self,
+        k: usize,
+        files: &[String],
+        dir: &Path,
+    ) -> Result<Option<serde_json::Value>> {
+        let Some(units) = &self.units else {
+            return Ok(None);
+        };
+        let marker = units.join(unit_marker(k));
+        let Ok(text) = std::fs::read(&marker) else {
+            return Ok(None);
+        };
+        let Ok(result) = serde_json::from_slice(&text) else {
+            return Ok(None);
+        };
+        if !files.iter().all(|f| units.join(f).is_file()) {
+            return Ok(None);
+        }
+        for f in files {
+            let to = dir.join(f);
+            if let Some(parent) = to.parent() {
+                std::fs::create_dir_all(parent).map_err(|e| IoError::io(parent, e))?;
+            }
+            std::fs::rename(units.join(f), &to).map_err(|e| IoError::io(&to, e))?;
+        }
+        Ok(Some(result))
+    }
+}
+
+/// The marker of unit `k`: its result, written after its files.
+fn unit_marker(k: usize) -> String {
+    format!("unit-{k}.json")
 }
 
 /// What the runner writes as the stage's `summary.json`.
@@ -143,6 +195,25 @@ pub trait Stage: Send + Sync {
     }
     /// Runs the stage, writing into `dir` (its folder, emptied of its manifest).
     fn run(&self, ctx: &StageContext, dir: &Path) -> Result<Produced<Self::Summary>>;
+    /// How many work units this run splits into, to run apart before `run` (see the module
+    /// notes); 0, the default, for a stage that does not split.
+    fn units(&self, _ctx: &StageContext) -> Result<usize> {
+        Ok(0)
+    }
+    /// Runs unit `k` of [`Stage::units`], writing its files into `dir` (a fresh folder) under
+    /// the names they have in the stage folder; returns those names and the unit's result, which
+    /// `run` gets back from [`StageContext::take_unit`].
+    fn run_unit(
+        &self,
+        _ctx: &StageContext,
+        _dir: &Path,
+        k: usize,
+    ) -> Result<(Vec<String>, serde_json::Value)> {
+        Err(PipelineError::Graph(format!(
+            "stage `{}` has no work units (unit {k} asked for)",
+            Self::NAME
+        )))
+    }
 }
 
 /// Whether a stage ran or was skipped.
@@ -182,6 +253,12 @@ pub trait AnyStage: Send + Sync {
     fn validate(&self) -> Result<()>;
     /// Runs the stage unless its manifest is up to date.
     fn run_or_skip(&self, ctx: &StageContext, force: bool) -> Result<StageReport>;
+    /// The fingerprint of the stage's inputs and options (fails when a stage it reads has not run).
+    fn input_hash(&self, ws: &Workspace) -> Result<String>;
+    /// The number of work units the stage splits into (0: none, or up to date unless `force`).
+    fn units(&self, ctx: &StageContext, force: bool) -> Result<usize>;
+    /// Runs unit `k` apart (nothing when it is done already).
+    fn run_unit(&self, ctx: &StageContext, k: usize) -> Result<()>;
 }
 
 impl<T: Stage> AnyStage for T {
@@ -205,9 +282,8 @@ impl<T: Stage> AnyStage for T {
         Stage::validate(self)
     }
 
-    fn run_or_skip(&self, ctx: &StageContext, force: bool) -> Result<StageReport> {
+    fn input_hash(&self, ws: &Workspace) -> Result<String> {
         let name = T::NAME;
-        let ws = ctx.ws;
         let options = serde_json::to_value(self.options())
             .map_err(|e| PipelineError::Graph(format!("{name}: options do not serialise: {e}")))?;
         let mut fp = Fingerprint::new();
@@ -224,7 +300,70 @@ impl<T: Stage> AnyStage for T {
             let hash = ws.manifest(up).map(|m| m.input_hash);
             fp.add_str(up, hash.as_deref().unwrap_or("absent"));
         }
-        let hash = fp.hex();
+        Ok(fp.hex())
+    }
+
+    fn units(&self, ctx: &StageContext, force: bool) -> Result<usize> {
+        let hash = self.input_hash(ctx.ws)?;
+        if !force && ctx.ws.is_up_to_date(T::NAME, &hash) {
+            return Ok(0);
+        }
+        let units = ctx.ws.root.join(UNITS_DIR).join(T::NAME).join(&hash);
+        std::fs::create_dir_all(&units).map_err(|e| IoError::io(&units, e))?;
+        let ctx = StageContext {
+            ws: ctx.ws,
+            progress: ctx.progress,
+            units: Some(units),
+        };
+        Stage::units(self, &ctx)
+    }
+
+    fn run_unit(&self, ctx: &StageContext, k: usize) -> Result<()> {
+        let hash = self.input_hash(ctx.ws)?;
+        let units = ctx.ws.root.join(UNITS_DIR).join(T::NAME).join(&hash);
+        let marker = units.join(unit_marker(k));
+        if marker.is_file() {
+            return Ok(());
+        }
+        // A fresh folder per attempt: two workers on the same unit never share a file.
+        let nanos = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map(|d| d.as_nanos())
+            .unwrap_or(0);
+        let tmp = units.join(format!("tmp-{k}-{}-{nanos}", std::process::id()));
+        std::fs::create_dir_all(&tmp).map_err(|e| IoError::io(&tmp, e))?;
+        let ctx = StageContext {
+            ws: ctx.ws,
+            progress: ctx.progress,
+            units: Some(units.clone()),
+        };
+        let done = Stage::run_unit(self, &ctx, &tmp, k).and_then(|(files, result)| {
+            for f in &files {
+                let to = units.join(f);
+                if let Some(parent) = to.parent() {
+                    std::fs::create_dir_all(parent).map_err(|e| IoError::io(parent, e))?;
+                }
+                std::fs::rename(tmp.join(f), &to).map_err(|e| IoError::io(&to, e))?;
+            }
+            let bytes = serde_json::to_vec(&result).map_err(|e| {
+                PipelineError::Graph(format!(
+                    "{}: unit {k}'s result does not serialise: {e}",
+                    T::NAME
+                ))
+            })?;
+            write_bytes_atomic(&marker, &bytes)?;
+            Ok(())
+        });
+        let _ = std::fs::remove_dir_all(&tmp);
+        done
+    }
+
+    fn run_or_skip(&self, ctx: &StageContext, force: bool) -> Result<StageReport> {
+        let name = T::NAME;
+        let ws = ctx.ws;
+        let options = serde_json::to_value(self.options())
+            .map_err(|e| PipelineError::Graph(format!("{name}: options do not serialise: {e}")))?;
+        let hash = self.input_hash(ws)?;
         if !force && ws.is_up_to_date(name, &hash) {
             if let Some(m) = ws.manifest(name) {
                 tracing::info!("{name}: up to date, skipped (use --force to redo)");
@@ -249,7 +388,13 @@ impl<T: Stage> AnyStage for T {
         let started = now_unix_s();
         let t0 = Instant::now();
         let dir = ws.begin(name)?;
-        let mut out = self.run(ctx, &dir)?;
+        let units_root = ws.root.join(UNITS_DIR).join(name);
+        let ctx = StageContext {
+            ws,
+            progress: ctx.progress,
+            units: Some(units_root.join(&hash)),
+        };
+        let mut out = self.run(&ctx, &dir)?;
         let summary = serde_json::to_value(&out.summary).map_err(|e| {
             PipelineError::Graph(format!("{name}: summary does not serialise: {e}"))
         })?;
@@ -273,6 +418,11 @@ impl<T: Stage> AnyStage for T {
             summary: summary.clone(),
             warnings: out.warnings.clone(),
         })?;
+        // The units' files have moved into the stage folder; what is left is stale.
+        if units_root.exists() {
+            let _ = std::fs::remove_dir_all(&units_root);
+            let _ = std::fs::remove_dir(ws.root.join(UNITS_DIR)); // when no other stage's are left
+        }
         tracing::info!("{name}: done in {seconds:.2} s");
         Ok(StageReport {
             stage: name.into(),
@@ -339,6 +489,80 @@ impl Pipeline {
             .collect())
     }
 
+    fn stage(&self, name: &str) -> Result<&dyn AnyStage> {
+        self.get(name).ok_or_else(|| {
+            PipelineError::option(
+                "stage",
+                format!(
+                    "no stage `{name}`; the stages are {}",
+                    self.names().join(", ")
+                ),
+            )
+        })
+    }
+
+    /// How many work units stage `name` splits into in this workspace (0: it does not split, or
+    /// it is up to date and `force` is false); the stages it reads must have run.
+    pub fn units(&self, ws: &Workspace, name: &str, force: bool) -> Result<usize> {
+        let ctx = StageContext {
+            ws,
+            progress: &handheld_core::NoProgress,
+            units: None,
+        };
+        self.stage(name)?.units(&ctx, force)
+    }
+
+    /// Runs unit `k` of stage `name` apart (see the module notes); nothing when it is done.
+    pub fn run_unit(
+        &self,
+        ws: &Workspace,
+        name: &str,
+        k: usize,
+        progress: &dyn Progress,
+    ) -> Result<()> {
+        let ctx = StageContext {
+            ws,
+            progress,
+            units: None,
+        };
+        self.stage(name)?.run_unit(&ctx, k)
+    }
+
+    /// Runs one stage (taking the files of its units run apart), unless it is up to date; the
+    /// stages it reads must have run.
+    pub fn run_stage(
+        &self,
+        ws: &Workspace,
+        name: &str,
+        force: bool,
+        progress: &dyn Progress,
+    ) -> Result<StageReport> {
+        let ctx = StageContext {
+            ws,
+            progress,
+            units: None,
+        };
+        self.stage(name)?.run_or_skip(&ctx, force)
+    }
+
+    /// The stages `target` cannot do without (what it reads, transitively; not what it only
+    /// uses when present), in run order.
+    pub fn required(&self, target: &str) -> Result<Vec<&'static str>> {
+        let needed = self.closure(target, false)?;
+        Ok(self
+            .names()
+            .into_iter()
+            .filter(|n| needed.contains(n))
+            .collect())
+    }
+
+    /// The stages `name` reads (needs); empty for an unknown stage.
+    pub fn reads(&self, name: &str) -> Vec<&'static str> {
+        self.get(name)
+            .map(|s| s.reads().to_vec())
+            .unwrap_or_default()
+    }
+
     /// `target` and what it reads, transitively; with `optional`, also what it reads when present.
     fn closure(&self, target: &str, optional: bool) -> Result<BTreeSet<&'static str>> {
         let Some(t) = self.get(target) else {
@@ -380,7 +604,11 @@ impl Pipeline {
             Some(t) => (self.plan(t)?, self.closure(t, false)?),
             None => (self.names(), self.names().into_iter().collect()),
         };
-        let ctx = StageContext { ws, progress };
+        let ctx = StageContext {
+            ws,
+            progress,
+            units: None,
+        };
         let mut reports = Vec::new();
         let mut failed: Vec<&'static str> = Vec::new();
         let mut first_error = None;

@@ -39,7 +39,8 @@ pub(crate) fn message(e: impl Into<anyhow::Error>) -> String {
 }
 
 /// A pipeline error as the Python exception of its kind.
-pub(crate) fn to_py(e: handheld_pipeline::PipelineError) -> PyErr {
+pub(crate) fn to_py(e: impl Into<handheld_pipeline::PipelineError>) -> PyErr {
+    let e = e.into();
     if e.invalid_option().is_some() {
         OptionsError::new_err(message(e))
     } else {
@@ -70,14 +71,7 @@ fn reconstruct<'py>(
     validate(&input, &options)?;
     let bar = progress::PyProgress::new(progress);
     let result = py.detach(|| {
-        handheld_pipeline::reconstruct(
-            &input,
-            &workspace,
-            &options,
-            until.as_deref(),
-            force,
-            &bar,
-        )
+        handheld_pipeline::reconstruct(&input, &workspace, &options, until.as_deref(), force, &bar)
     });
     bar.raise_callback_error()?;
     let reports = result.map_err(to_py)?;
@@ -111,6 +105,117 @@ fn validate(input: &std::path::Path, o: &handheld_pipeline::PipelineOptions) -> 
         .map_err(|e| OptionsError::new_err(message(e)))
 }
 
+/// The standard graph for `input` with these options (checked).
+fn pipeline(
+    input: &std::path::Path,
+    options: Option<&Bound<'_, PyAny>>,
+) -> PyResult<handheld_pipeline::Pipeline> {
+    let o = options::from_py(options)?;
+    handheld_pipeline::Pipeline::standard(input, &o).map_err(|e| OptionsError::new_err(message(e)))
+}
+
+/// The graph (as `pipeline`) and the workspace it runs in.
+fn graph_and_workspace(
+    input: &std::path::Path,
+    workspace: &std::path::Path,
+    options: Option<&Bound<'_, PyAny>>,
+) -> PyResult<(handheld_pipeline::Pipeline, handheld_pipeline::Workspace)> {
+    let p = pipeline(input, options)?;
+    let ws = handheld_pipeline::Workspace::open(workspace).map_err(to_py)?;
+    Ok((p, ws))
+}
+
+/// The stages a run up to `until` runs, in order: `(name, reads, required)`, where `reads` are
+/// the stages it needs and `required` is false for a stage the target only uses when present.
+/// (The distributed driver's plan; `handheld.distributed`.)
+#[pyfunction]
+#[pyo3(signature = (input, options=None, until=None))]
+fn plan(
+    input: PathBuf,
+    options: Option<&Bound<'_, PyAny>>,
+    until: Option<String>,
+) -> PyResult<Vec<(String, Vec<String>, bool)>> {
+    let p = pipeline(&input, options)?;
+    let (names, required): (Vec<&str>, Vec<&str>) = match &until {
+        Some(t) => (p.plan(t).map_err(to_py)?, p.required(t).map_err(to_py)?),
+        None => (p.names(), p.names()),
+    };
+    Ok(names
+        .into_iter()
+        .map(|n| {
+            (
+                n.to_string(),
+                p.reads(n).into_iter().map(String::from).collect(),
+                required.contains(&n),
+            )
+        })
+        .collect())
+}
+
+/// The number of work units `stage` splits into in `workspace` (0: it does not split, or it is
+/// up to date and `force` is false). The stages it reads must have run.
+#[pyfunction]
+#[pyo3(signature = (input, workspace, stage, options=None, force=false))]
+fn stage_units(
+    py: Python<'_>,
+    input: PathBuf,
+    workspace: PathBuf,
+    stage: String,
+    options: Option<&Bound<'_, PyAny>>,
+    force: bool,
+) -> PyResult<usize> {
+    let (p, ws) = graph_and_workspace(&input, &workspace, options)?;
+    py.detach(|| p.units(&ws, &stage, force)).map_err(to_py)
+}
+
+/// Runs unit `k` of `stage` (files written atomically, the unit's marker last; nothing when the
+/// unit is done already, so a retried task is harmless).
+#[pyfunction]
+#[pyo3(signature = (input, workspace, stage, k, options=None))]
+fn run_unit(
+    py: Python<'_>,
+    input: PathBuf,
+    workspace: PathBuf,
+    stage: String,
+    k: usize,
+    options: Option<&Bound<'_, PyAny>>,
+) -> PyResult<()> {
+    let (p, ws) = graph_and_workspace(&input, &workspace, options)?;
+    py.detach(|| p.run_unit(&ws, &stage, k, &handheld_core::NoProgress))
+        .map_err(to_py)
+}
+
+/// Runs one stage unless it is up to date, taking the files of its units that ran apart; returns
+/// its report (as `reconstruct` returns them).
+#[pyfunction]
+#[pyo3(signature = (input, workspace, stage, options=None, force=false, progress=None))]
+fn run_stage<'py>(
+    py: Python<'py>,
+    input: PathBuf,
+    workspace: PathBuf,
+    stage: String,
+    options: Option<&Bound<'py, PyAny>>,
+    force: bool,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<Bound<'py, PyAny>> {
+    let (p, ws) = graph_and_workspace(&input, &workspace, options)?;
+    let bar = progress::PyProgress::new(progress);
+    let report = py.detach(|| p.run_stage(&ws, &stage, force, &bar));
+    bar.raise_callback_error()?;
+    pythonize::pythonize(py, &report.map_err(to_py)?)
+        .map_err(|e| HandheldError::new_err(e.to_string()))
+}
+
+/// Writes `workspace/report.html` from whatever stages exist (as `reconstruct` does at its end);
+/// returns its path.
+#[pyfunction]
+fn write_report(py: Python<'_>, workspace: PathBuf) -> PyResult<PathBuf> {
+    let ws = handheld_pipeline::Workspace::open(&workspace).map_err(to_py)?;
+    py.detach(|| handheld_pipeline::write_report(&ws))
+        .map(|r| r.html)
+        .map_err(to_py)
+}
+
 #[pymodule]
 fn _handheld(m: &Bound<'_, PyModule>) -> PyResult<()> {
     let py = m.py();
@@ -129,6 +234,11 @@ fn _handheld(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(reconstruct, m)?)?;
     m.add_function(wrap_pyfunction!(default_options, m)?)?;
     m.add_function(wrap_pyfunction!(check_options, m)?)?;
+    m.add_function(wrap_pyfunction!(plan, m)?)?;
+    m.add_function(wrap_pyfunction!(stage_units, m)?)?;
+    m.add_function(wrap_pyfunction!(run_unit, m)?)?;
+    m.add_function(wrap_pyfunction!(run_stage, m)?)?;
+    m.add_function(wrap_pyfunction!(write_report, m)?)?;
     m.add_class::<workspace::Workspace>()?;
     m.add_class::<workspace::SparseModel>()?;
     Ok(())

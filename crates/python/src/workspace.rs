@@ -27,7 +27,10 @@ fn json_to_py<'py>(py: Python<'py>, v: &impl serde::Serialize) -> PyResult<Bound
 }
 
 /// `(n, k)` array from rows (moved, not copied, into numpy).
-fn rows<T: numpy::Element + Copy, const K: usize>(py: Python<'_>, r: Vec<[T; K]>) -> Bound<'_, PyArray2<T>> {
+fn rows<T: numpy::Element + Copy, const K: usize>(
+    py: Python<'_>,
+    r: Vec<[T; K]>,
+) -> Bound<'_, PyArray2<T>> {
     let n = r.len();
     let flat: Vec<T> = r.into_iter().flatten().collect();
     Array2::from_shape_vec((n, K), flat)
@@ -149,7 +152,11 @@ impl Workspace {
 
     /// The warnings a finished stage recorded (a list of dicts with `code`, `message`, `advice`).
     fn warnings<'py>(&self, py: Python<'py>, stage: &str) -> PyResult<Bound<'py, PyAny>> {
-        let w = self.ws().manifest(stage).map(|m| m.warnings).unwrap_or_default();
+        let w = self
+            .ws()
+            .manifest(stage)
+            .map(|m| m.warnings)
+            .unwrap_or_default();
         json_to_py(py, &w)
     }
 
@@ -163,7 +170,13 @@ impl Workspace {
         let dir = self.root.join(stage::SPARSE);
         let model = py
             .detach(|| handheld_io::colmap::read_model(&dir))
-            .map_err(|e| HandheldError::new_err(format!("{}: {} (run the sparse stage)", dir.display(), message(e))))?;
+            .map_err(|e| {
+                HandheldError::new_err(format!(
+                    "{}: {} (run the sparse stage)",
+                    dir.display(),
+                    message(e)
+                ))
+            })?;
         SparseModel::from_colmap(py, &model)
     }
 
@@ -195,7 +208,9 @@ impl Workspace {
             if kind != MapKind::Depth && !path.exists() {
                 continue;
             }
-            let map = py.detach(|| handheld_io::pfm::read_pfm(&path)).map_err(io_err)?;
+            let map = py
+                .detach(|| handheld_io::pfm::read_pfm(&path))
+                .map_err(io_err)?;
             let shape = if map.channels == 1 {
                 vec![map.height, map.width]
             } else {
@@ -210,7 +225,12 @@ impl Workspace {
         d.set_item("camera", camera_dict(py, &cam)?)?;
         let q = e.cam_from_world.rotation;
         let r = rotation([q.w, q.i, q.j, q.k]);
-        d.set_item("R", Array2::from_shape_vec((3, 3), r.to_vec()).expect("3x3").into_pyarray(py))?;
+        d.set_item(
+            "R",
+            Array2::from_shape_vec((3, 3), r.to_vec())
+                .expect("3x3")
+                .into_pyarray(py),
+        )?;
         let t = e.cam_from_world.translation.vector;
         d.set_item("t", vec![t.x, t.y, t.z].into_pyarray(py))?;
         Ok(d)
@@ -229,7 +249,9 @@ impl Workspace {
                 ply.display()
             )));
         }
-        let mesh = py.detach(|| handheld_io::ply::read_mesh(&ply)).map_err(io_err)?;
+        let mesh = py
+            .detach(|| handheld_io::ply::read_mesh(&ply))
+            .map_err(io_err)?;
         let d = PyDict::new(py);
         d.set_item("vertices", rows(py, mesh.vertices.positions))?;
         d.set_item("faces", rows(py, mesh.faces))?;
@@ -240,7 +262,12 @@ impl Workspace {
             Some(p) => {
                 let img = py
                     .detach(|| image::open(&p))
-                    .map_err(|err| HandheldError::new_err(format!("{}: cannot read the texture ({err}); rerun the mesh stage", p.display())))?
+                    .map_err(|err| {
+                        HandheldError::new_err(format!(
+                            "{}: cannot read the texture ({err}); rerun the mesh stage",
+                            p.display()
+                        ))
+                    })?
                     .into_rgb8();
                 let (w, h) = (img.width() as usize, img.height() as usize);
                 let a = Array3::from_shape_vec((h, w, 3), img.into_raw()).expect("h×w×3");
@@ -257,6 +284,9 @@ fn texture_path(dir: &Path) -> Option<PathBuf> {
     let p = dir.join(files::MODEL_OBJ).with_extension("png");
     p.exists().then_some(p)
 }
+
+/// An image's keypoint positions and the ids of the points they observe.
+type Keypoints<'py> = (Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<i64>>);
 
 /// A sparse model as numpy arrays, one row per image and per point, in increasing id order.
 #[pyclass(frozen, get_all, module = "handheld")]
@@ -328,20 +358,50 @@ impl SparseModel {
         }
         let points = m.points3d.values();
         Ok(Self {
-            image_ids: m.images.keys().copied().collect::<Vec<_>>().into_pyarray(py).unbind(),
+            image_ids: m
+                .images
+                .keys()
+                .copied()
+                .collect::<Vec<_>>()
+                .into_pyarray(py)
+                .unbind(),
             image_names: PyList::new(py, m.images.values().map(|i| i.name.as_str()))?.unbind(),
-            camera_ids: m.images.values().map(|i| i.camera_id).collect::<Vec<_>>().into_pyarray(py).unbind(),
-            rotations: Array3::from_shape_vec((n, 3, 3), rot).expect("n×3×3").into_pyarray(py).unbind(),
+            camera_ids: m
+                .images
+                .values()
+                .map(|i| i.camera_id)
+                .collect::<Vec<_>>()
+                .into_pyarray(py)
+                .unbind(),
+            rotations: Array3::from_shape_vec((n, 3, 3), rot)
+                .expect("n×3×3")
+                .into_pyarray(py)
+                .unbind(),
             translations: rows(py, trans).unbind(),
             quaternions: rows(py, quat).unbind(),
             centers: rows(py, cen).unbind(),
-            intrinsics: Array3::from_shape_vec((n, 3, 3), kmat).expect("n×3×3").into_pyarray(py).unbind(),
+            intrinsics: Array3::from_shape_vec((n, 3, 3), kmat)
+                .expect("n×3×3")
+                .into_pyarray(py)
+                .unbind(),
             cameras: cameras.unbind(),
-            point_ids: points.clone().map(|p| p.id).collect::<Vec<_>>().into_pyarray(py).unbind(),
+            point_ids: points
+                .clone()
+                .map(|p| p.id)
+                .collect::<Vec<_>>()
+                .into_pyarray(py)
+                .unbind(),
             xyz: rows(py, points.clone().map(|p| p.xyz).collect()).unbind(),
             rgb: rows(py, points.clone().map(|p| p.rgb).collect()).unbind(),
-            errors: points.clone().map(|p| p.error).collect::<Vec<_>>().into_pyarray(py).unbind(),
-            track_lengths: Array1::from_iter(points.map(|p| p.track.len() as u32)).into_pyarray(py).unbind(),
+            errors: points
+                .clone()
+                .map(|p| p.error)
+                .collect::<Vec<_>>()
+                .into_pyarray(py)
+                .unbind(),
+            track_lengths: Array1::from_iter(points.map(|p| p.track.len() as u32))
+                .into_pyarray(py)
+                .unbind(),
             keypoints,
         })
     }
@@ -364,11 +424,7 @@ impl SparseModel {
 
     /// The keypoints of the image at row `index` (in `image_ids` order): `(K, 2)` positions in
     /// COLMAP's pixel convention and `(K,)` int64 ids of the 3D point each one observes (-1: none).
-    fn keypoints<'py>(
-        &self,
-        py: Python<'py>,
-        index: usize,
-    ) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<i64>>)> {
+    fn keypoints<'py>(&self, py: Python<'py>, index: usize) -> PyResult<Keypoints<'py>> {
         let Some((xy, ids)) = self.keypoints.get(index) else {
             return Err(pyo3::exceptions::PyIndexError::new_err(format!(
                 "image row {index}: the model has {} images",

@@ -90,7 +90,7 @@ pub enum TwoViewConfiguration {
 }
 
 /// The verified relation of a pair.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct TwoViewGeometry {
     pub configuration: TwoViewConfiguration,
     /// Refined fundamental matrix (`x2ᵀ F x1 = 0`), when one was found.

@@ -120,6 +120,41 @@ impl Stage for Features {
         self.options.validate()
     }
 
+    fn units(&self, ctx: &StageContext) -> Result<usize> {
+        let ingest = ctx.ws.read_ingest()?;
+        Ok(if self.splits(&ingest) {
+            ingest.images.len()
+        } else {
+            0
+        })
+    }
+
+    fn run_unit(
+        &self,
+        ctx: &StageContext,
+        dir: &Path,
+        k: usize,
+    ) -> Result<(Vec<String>, serde_json::Value)> {
+        let ingest = ctx.ws.read_ingest()?;
+        let img = ingest
+            .images
+            .get(k)
+            .filter(|_| self.splits(&ingest))
+            .ok_or_else(|| {
+                PipelineError::Graph(format!(
+                    "features: no unit {k} ({} images{})",
+                    ingest.images.len(),
+                    if self.splits(&ingest) {
+                        ""
+                    } else {
+                        ", tracked with KLT: no units"
+                    }
+                ))
+            })?;
+        let r = extract_one(img, k, &self.options.extraction, dir)?;
+        Ok((unit_files(k), serde_json::json!(r)))
+    }
+
     fn run(&self, ctx: &StageContext, dir: &Path) -> Result<Produced<FeaturesSummary>> {
         let ingest = ctx.ws.read_ingest()?;
         let mut warnings = Vec::new();
@@ -149,30 +184,22 @@ impl Stage for Features {
         let opts = &self.options.extraction;
         let bars = ctx.progress;
         bars.start("features", ingest.images.len() as u64);
-        let load_opts = ImageIngestOptions {
-            min_dimension: 1,
-            ..Default::default()
-        };
         let results: Vec<Result<(usize, f64)>> = ingest
             .images
             .par_iter()
             .enumerate()
             .map(|(k, img)| {
-                let loaded = load_image(&img.info.path, &load_opts)?;
-                let t0 = Instant::now();
-                let f = extract_features(&loaded.image, opts);
-                let secs = t0.elapsed().as_secs_f64();
-                let mut file = to_file(f);
-                file.colors = keypoint_colors(&loaded.image, &file.keypoints);
-                write_thumbnail(
-                    &dir.join(THUMBS_DIR).join(thumbnail_file_name(k)),
-                    &loaded.image,
-                )
-                .with_context(|| format!("thumbnail of {}", img.info.name))?;
-                write_features(&dir.join(feature_file_name(k)), &file)
-                    .with_context(|| format!("features of {}", img.info.name))?;
+                // Done apart (a work unit on another machine): its files, moved in.
+                let r = match ctx.take_unit(k, &unit_files(k), dir)? {
+                    Some(v) => serde_json::from_value::<(usize, f64)>(v).ok(),
+                    None => None,
+                };
+                let r = match r {
+                    Some(r) => r,
+                    None => extract_one(img, k, opts, dir)?,
+                };
                 bars.inc(1);
-                Ok((file.keypoints.len(), secs))
+                Ok(r)
             })
             .collect();
         bars.finish();
@@ -198,6 +225,50 @@ impl Stage for Features {
         )
         .warn(warnings))
     }
+}
+
+/// A work unit (see [`crate::stage`]): one photo's features and thumbnail. A video tracked with
+/// KLT does not split (the tracker runs through the frames in order).
+impl Features {
+    fn splits(&self, ingest: &handheld_io::ingest::IngestResult) -> bool {
+        !self.options.uses_klt(ingest.kind)
+    }
+}
+
+/// The files of image `k`'s unit, relative to the stage folder.
+fn unit_files(k: usize) -> Vec<String> {
+    vec![
+        feature_file_name(k),
+        format!("{THUMBS_DIR}/{}", thumbnail_file_name(k)),
+    ]
+}
+
+/// Extracts image `k`'s features, writes its feature file and thumbnail into `dir`; returns the
+/// number of features and the extraction's seconds.
+fn extract_one(
+    img: &handheld_io::ingest::IngestedImage,
+    k: usize,
+    opts: &ExtractionOptions,
+    dir: &Path,
+) -> Result<(usize, f64)> {
+    let load_opts = ImageIngestOptions {
+        min_dimension: 1,
+        ..Default::default()
+    };
+    let loaded = load_image(&img.info.path, &load_opts)?;
+    let t0 = Instant::now();
+    let f = extract_features(&loaded.image, opts);
+    let secs = t0.elapsed().as_secs_f64();
+    let mut file = to_file(f);
+    file.colors = keypoint_colors(&loaded.image, &file.keypoints);
+    write_thumbnail(
+        &dir.join(THUMBS_DIR).join(thumbnail_file_name(k)),
+        &loaded.image,
+    )
+    .with_context(|| format!("thumbnail of {}", img.info.name))?;
+    write_features(&dir.join(feature_file_name(k)), &file)
+        .with_context(|| format!("features of {}", img.info.name))?;
+    Ok((file.keypoints.len(), secs))
 }
 
 /// Writes the report's thumbnail of `image` (at most [`THUMB`] pixels on a side,

@@ -121,14 +121,71 @@ impl Stage for Matches {
         self.options.validate()
     }
 
+    fn units(&self, ctx: &StageContext) -> Result<usize> {
+        let ws = ctx.ws;
+        if ws.read_tracks()?.is_some() {
+            return Ok(0);
+        }
+        let ingest = ws.read_ingest()?;
+        let features = read_all_features(ctx, ingest.images.len())?;
+        let plan = self.pair_list(&ingest, &features)?;
+        let n = plan.pairs.len().div_ceil(PAIRS_PER_UNIT);
+        // The pair list is written once, so that the units and the stage need no retrieval again.
+        if let Some(units) = &ctx.units {
+            let bytes = postcard::to_stdvec(&plan).map_err(|e| {
+                PipelineError::Graph(format!("matches: the pair plan does not serialise: {e}"))
+            })?;
+            handheld_io::atomic::write_bytes_atomic(&units.join(PLAN_FILE), &bytes)?;
+        }
+        Ok(n)
+    }
+
+    fn run_unit(
+        &self,
+        ctx: &StageContext,
+        dir: &Path,
+        k: usize,
+    ) -> Result<(Vec<String>, serde_json::Value)> {
+        let ws = ctx.ws;
+        let ingest = ws.read_ingest()?;
+        let n = ingest.images.len();
+        let plan = match read_plan(ctx) {
+            Some(p) => p,
+            None => self.pair_list(&ingest, &read_all_features(ctx, n)?)?,
+        };
+        let Some(block) = plan.pairs.chunks(PAIRS_PER_UNIT).nth(k) else {
+            return Err(PipelineError::Graph(format!(
+                "matches: no unit {k} ({} pairs in units of {PAIRS_PER_UNIT})",
+                plan.pairs.len()
+            )));
+        };
+        // Only the images of this block's pairs are read; the others stay empty.
+        let mut needed = vec![false; n];
+        for &(i, j) in block {
+            needed[i] = true;
+            needed[j] = true;
+        }
+        let features: Vec<Features> = (0..n)
+            .map(|i| {
+                if needed[i] {
+                    ws.read_features(i).map(from_file)
+                } else {
+                    Ok(Features::default())
+                }
+            })
+            .collect::<Result<_>>()?;
+        let verified = verify_pairs(&features, block, &self.options.verification, ctx.progress);
+        let name = block_file(k);
+        write_block(&dir.join(&name), &verified)?;
+        Ok((vec![name], serde_json::json!({ "pairs": verified.len() })))
+    }
+
     fn run(&self, ctx: &StageContext, dir: &Path) -> Result<Produced<MatchesSummary>> {
         let opts = &self.options;
         let ws = ctx.ws;
         let ingest = ws.read_ingest()?;
         let n = ingest.images.len();
-        let features: Vec<Features> = (0..n)
-            .map(|k| ws.read_features(k).map(from_file))
-            .collect::<Result<_>>()?;
+        let features = read_all_features(ctx, n)?;
         if let Some(tracks) = ws.read_tracks()? {
             // Video: key-frame pairs from the KLT tracks (§3.1).
             let verified = keyframe_pairs(
@@ -139,12 +196,75 @@ impl Stage for Matches {
             );
             return finish(dir, &ingest, &features, &verified, verified.len(), 0, opts);
         }
+        let plan = match read_plan(ctx) {
+            Some(p) => p,
+            None => self.pair_list(&ingest, &features)?,
+        };
+        // Blocks verified apart (work units) are taken; the rest is verified here, in one call.
+        let mut blocks: Vec<Option<Vec<VerifiedPair>>> = Vec::new();
+        for (k, _) in plan.pairs.chunks(PAIRS_PER_UNIT).enumerate() {
+            let name = block_file(k);
+            blocks.push(match ctx.take_unit(k, std::slice::from_ref(&name), dir)? {
+                Some(_) => {
+                    let path = dir.join(&name);
+                    let block = read_block(&path);
+                    let _ = std::fs::remove_file(&path);
+                    block
+                }
+                None => None,
+            });
+        }
+        let missing: Vec<(usize, usize)> = plan
+            .pairs
+            .chunks(PAIRS_PER_UNIT)
+            .zip(&blocks)
+            .filter(|(_, b)| b.is_none())
+            .flat_map(|(p, _)| p.iter().copied())
+            .collect();
+        let mut computed =
+            verify_pairs(&features, &missing, &opts.verification, ctx.progress).into_iter();
+        let mut verified = Vec::with_capacity(plan.pairs.len());
+        for (pairs, block) in plan.pairs.chunks(PAIRS_PER_UNIT).zip(blocks) {
+            match block {
+                Some(b) => verified.extend(b),
+                None => verified.extend(computed.by_ref().take(pairs.len())),
+            }
+        }
+        finish(
+            dir,
+            &ingest,
+            &features,
+            &verified,
+            plan.pairs.len(),
+            plan.proposed,
+            opts,
+        )
+    }
+}
+
+/// Pairs per work unit of a distributed run.
+pub const PAIRS_PER_UNIT: usize = 16;
+/// The pair list, in the stage's unit folder.
+const PLAN_FILE: &str = "pairs.plan";
+
+/// The pairs to verify, and how many of them are §3.2's proposed close views.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+struct PairList {
+    pairs: Vec<(usize, usize)>,
+    proposed: usize,
+}
+
+impl Matches {
+    /// The pairs to verify ([`PairMode`]): a pure function of the options and the features.
+    fn pair_list(&self, ingest: &IngestResult, features: &[Features]) -> Result<PairList> {
+        let opts = &self.options;
+        let n = ingest.images.len();
         let plan = opts.pairs.plan(ingest.kind, n);
         let mut pairs = match plan {
             PairPlan::Sequential => sequential_pairs(n, opts.window),
             PairPlan::Exhaustive => exhaustive_pairs(n),
             PairPlan::Unordered => {
-                let p = unordered_pairs(&features, opts.window, &opts.retrieval)
+                let p = unordered_pairs(features, opts.window, &opts.retrieval)
                     .map_err(|e| PipelineError::invalid(stage::MATCHES, e))?;
                 tracing::info!(
                     "{} pairs of {} photos: a window of {} over the order their content gives, and the {} most similar images of each",
@@ -156,7 +276,7 @@ impl Stage for Matches {
                 p
             }
             PairPlan::Retrieval => {
-                let p = retrieval_pairs(&features, &opts.retrieval)
+                let p = retrieval_pairs(features, &opts.retrieval)
                     .map_err(|e| PipelineError::invalid(stage::MATCHES, e))?;
                 tracing::info!(
                     "retrieval: {} pairs of {} images ({} most similar each)",
@@ -169,21 +289,41 @@ impl Stage for Matches {
         };
         let mut proposed = 0;
         if plan == PairPlan::Sequential && opts.close_views {
-            let extra = propose_close_views(&features, opts.window, &CloseViewOptions::default());
+            let extra = propose_close_views(features, opts.window, &CloseViewOptions::default());
             proposed = extra.len();
             pairs.extend(extra);
         }
-        let verified = verify_pairs(&features, &pairs, &opts.verification, ctx.progress);
-        finish(
-            dir,
-            &ingest,
-            &features,
-            &verified,
-            pairs.len(),
-            proposed,
-            opts,
-        )
+        Ok(PairList { pairs, proposed })
     }
+}
+
+fn read_all_features(ctx: &StageContext, n: usize) -> Result<Vec<Features>> {
+    (0..n)
+        .map(|k| ctx.ws.read_features(k).map(from_file))
+        .collect()
+}
+
+/// The pair list the driver wrote into the unit folder, if any.
+fn read_plan(ctx: &StageContext) -> Option<PairList> {
+    let bytes = std::fs::read(ctx.units.as_ref()?.join(PLAN_FILE)).ok()?;
+    postcard::from_bytes(&bytes).ok()
+}
+
+fn block_file(k: usize) -> String {
+    format!("block-{k}.bin")
+}
+
+/// A block of verified pairs, in an exact binary form (postcard: infinities and NaN survive).
+fn write_block(path: &Path, verified: &[VerifiedPair]) -> Result<()> {
+    let bytes = postcard::to_stdvec(verified).map_err(|e| {
+        PipelineError::workspace(path, format!("cannot encode verified pairs: {e}"))
+    })?;
+    handheld_io::atomic::write_bytes_atomic(path, &bytes)?;
+    Ok(())
+}
+
+fn read_block(path: &Path) -> Option<Vec<VerifiedPair>> {
+    postcard::from_bytes(&std::fs::read(path).ok()?).ok()
 }
 
 /// Writes the database and `pairs.json`, and summarises the verified pairs.

@@ -1,0 +1,138 @@
+"""The pipeline on Dask distributed (a LocalCluster of worker processes), against the same run on
+one machine: bundler-ET (9 photos: 9 feature units, 36 pairs in 3 units of matching).
+"""
+
+import hashlib
+import json
+import os
+import pathlib
+import subprocess
+import sys
+
+import pytest
+
+import handheld
+from handheld import _handheld
+
+distributed = pytest.importorskip("dask.distributed")
+import handheld.distributed  # noqa: E402
+
+from test_handheld import DATASETS, need  # noqa: E402
+
+ET = DATASETS / "bundler-ET"
+
+
+@pytest.fixture(scope="module")
+def client():
+    cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None)
+    with distributed.Client(cluster) as c:
+        yield c
+    cluster.close()
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory, client):
+    """bundler-ET up to the sparse model, on one machine and on the cluster."""
+    need(ET)
+    root = tmp_path_factory.mktemp("et")
+    single = handheld.reconstruct(ET / "images", root / "single", until="sparse")
+    calls = []
+    dist = handheld.distributed.reconstruct(ET / "images", root / "dist", client, until="sparse",
+                                            progress=lambda *a: calls.append(a))
+    return root, single, dist, calls
+
+
+def digest(path):
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def without_timing(summary):
+    """A summary without its clock readings (`*seconds*`, `timings_s`), at any depth."""
+    def strip(v):
+        if isinstance(v, dict):
+            return {k: strip(x) for k, x in v.items() if "seconds" not in k and k != "timings_s"}
+        if isinstance(v, list):
+            return [strip(x) for x in v]
+        return v
+    return strip(json.loads(summary.read_text()))
+
+
+def test_same_files_as_one_machine(runs):
+    root, single, dist, calls = runs
+    assert [r["stage"] for r in dist] == [r["stage"] for r in single] == ["ingest", "features", "matches", "sparse"]
+    assert all(r["status"] == "ran" for r in dist)
+    assert ("features units", 9, 9) in calls and ("matches units", 3, 3) in calls
+    compared = 0
+    for stage in ["features", "matches", "sparse"]:
+        for a in sorted((root / "single" / stage).rglob("*")):
+            if a.is_dir() or a.name == "manifest.json":
+                continue
+            b = root / "dist" / a.relative_to(root / "single")
+            assert b.is_file(), b
+            if a.name == "summary.json":
+                # The only difference a run on other machines can make: how long it took.
+                assert without_timing(a) == without_timing(b), a
+            else:
+                assert digest(a) == digest(b), a
+            compared += 1
+    assert compared >= 9 + 9 + 2 + 6  # feature files, thumbnails, database + pairs, the COLMAP model
+    assert not (root / "dist" / ".units").exists()
+    # The manifests agree on everything but the clock.
+    for stage in ["features", "matches", "sparse"]:
+        m1, m2 = (json.loads((root / w / stage / "manifest.json").read_text()) for w in ("single", "dist"))
+        assert m1["input_hash"] == m2["input_hash"] and m1["outputs"] == m2["outputs"]
+    # A distributed workspace is a workspace: the single-machine run finds it up to date.
+    again = handheld.reconstruct(ET / "images", root / "dist", until="sparse")
+    assert {r["status"] for r in again} == {"up_to_date"}
+
+
+def test_a_retried_unit_is_harmless(tmp_path):
+    need(ET)
+    ws = tmp_path / "ws"
+    handheld.reconstruct(ET / "images", ws, until="ingest")
+    images = str(ET / "images")
+    assert _handheld.stage_units(images, str(ws), "features") == 9
+    _handheld.run_unit(images, str(ws), "features", 3)
+    done = list((ws / ".units" / "features").rglob("000003.feat"))
+    assert len(done) == 1
+    mtime = done[0].stat().st_mtime_ns
+    _handheld.run_unit(images, str(ws), "features", 3)  # a retry after the unit finished: nothing
+    assert done[0].stat().st_mtime_ns == mtime
+    # A worker that died half-way leaves only its own temporary folder, which nothing reads.
+    (done[0].parent / "tmp-5-1-1").mkdir()
+    (done[0].parent / "tmp-5-1-1" / "000005.feat").write_bytes(b"half")
+    report = _handheld.run_stage(images, str(ws), "features")
+    assert report["status"] == "ran" and report["summary"]["images"] == 9
+    assert handheld.Workspace(ws).stages() == ["ingest", "features"]
+    with pytest.raises(handheld.HandheldError, match="no unit 9"):
+        _handheld.run_unit(images, str(ws), "features", 9)
+
+
+def test_errors_come_back_from_the_workers(tmp_path, client):
+    need(ET)
+    one = tmp_path / "one"
+    one.mkdir()
+    (one / "a.jpg").write_bytes((ET / "images" / "et000.jpg").read_bytes())
+    with pytest.raises(handheld.HandheldError) as local:
+        handheld.reconstruct(one, tmp_path / "ws1", until="features")
+    with pytest.raises(handheld.HandheldError) as remote:
+        handheld.distributed.reconstruct(one, tmp_path / "ws2", client, until="features")
+    assert str(remote.value) == str(local.value).replace("ws1", "ws2")
+    with pytest.raises(handheld.OptionsError, match="sparse.sfm.sede"):
+        handheld.distributed.reconstruct(one, tmp_path / "ws3", client, options={"sparse": {"sfm": {"sede": 1}}})
+
+
+def test_python_m_handheld_on_a_scheduler(runs, client, tmp_path):
+    root, _, _, _ = runs
+    ws = tmp_path / "ws"
+    run = subprocess.run([sys.executable, "-m", "handheld", "reconstruct", str(ET / "images"), "-o", str(ws),
+                          "--until", "features", "--scheduler", client.scheduler.address, "--json"],
+                         capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    out = json.loads(run.stdout)
+    assert [s["stage"] for s in out["stages"]] == ["ingest", "features"]
+    for f in (root / "single" / "features").glob("*.feat"):
+        assert digest(f) == digest(ws / "features" / f.name)
+    bad = subprocess.run([sys.executable, "-m", "handheld", "reconstruct", str(tmp_path / "nothing"), "-o",
+                          str(tmp_path / "ws2"), "--quiet"], capture_output=True, text=True)
+    assert bad.returncode == 1 and "nothing" in bad.stderr
