@@ -10,7 +10,7 @@ use crate::error::{DenseError, Result};
 /// value was measured and passed every check (left–right consistency, speckle filter); pixels
 /// whose value came from hole filling have a finite `data` but `valid == false`, so multi-view
 /// linking can ignore them.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Disparity {
     pub width: usize,
     pub height: usize,

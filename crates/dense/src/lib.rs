@@ -79,5 +79,8 @@ pub use pair::{
     grey_image, match_pair, match_pair_with, match_sequence_pairs, PairDisparity, PairOptions,
 };
 pub use rectify::{rectify_pair, Rectification, RectifyMethod, RectifyOptions};
-pub use stage::{dense_reconstruct, DenseOptions, DenseSummary, DenseViewResult, FailedPair};
+pub use stage::{
+    dense_reconstruct, dense_reconstruct_with, DenseOptions, DenseSummary, DenseViewResult,
+    FailedPair,
+};
 pub use stereo::{match_rectified, StereoMatcher, SGM_BAND_OVERLAP};

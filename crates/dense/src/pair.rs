@@ -46,7 +46,8 @@ impl Default for PairOptions {
 }
 
 /// A matched pair: the rectification and the disparity in its frame (left = first view).
-#[derive(Clone, Debug)]
+/// Serialisable for the work units of a distributed run (use an exact binary format: maps hold NaN).
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct PairDisparity {
     pub rectification: Rectification,
     pub disparity: Disparity,

@@ -107,6 +107,21 @@ pub fn dense_reconstruct(
     points: &[Point3<f64>],
     opts: &DenseOptions,
     progress: &dyn Progress,
+    on_view: impl FnMut(DenseViewResult) -> Result<()>,
+) -> Result<(PointCloud, DenseSummary)> {
+    dense_reconstruct_with(views, points, opts, progress, |_| None, on_view)
+}
+
+/// [`dense_reconstruct`], with the pairs matched elsewhere: `matched(p)` gives the outcome of the
+/// pair `(p, p + 1)` when it was matched already (by [`crate::match_pair`] with `opts.pair`, on another
+/// machine: a failure as its message), and `None` to match it here. The result is the same
+/// either way.
+pub fn dense_reconstruct_with(
+    views: &[PosedView],
+    points: &[Point3<f64>],
+    opts: &DenseOptions,
+    progress: &dyn Progress,
+    matched: impl Fn(usize) -> Option<std::result::Result<PairDisparity, String>>,
     mut on_view: impl FnMut(DenseViewResult) -> Result<()>,
 ) -> Result<(PointCloud, DenseSummary)> {
     opts.validate()?;
@@ -146,7 +161,10 @@ pub fn dense_reconstruct(
             computed[p] = true;
             let (a, b) = (&views[p], &views[p + 1]);
             let tp = Instant::now();
-            match match_pair_with(&mut matcher, a, b, points, &opts.pair) {
+            let outcome = matched(p).unwrap_or_else(|| {
+                match_pair_with(&mut matcher, a, b, points, &opts.pair).map_err(|e| e.to_string())
+            });
+            match outcome {
                 Ok(pd) => {
                     summary.pairs_matched += 1;
                     summary.polar_pairs += usize::from(pd.rectification.is_polar());
@@ -156,7 +174,7 @@ pub fn dense_reconstruct(
                     tracing::warn!("dense: pair {} – {} skipped: {e}", a.name, b.name);
                     summary.pairs_failed.push(FailedPair {
                         first: p,
-                        reason: e.to_string(),
+                        reason: e,
                     });
                 }
             }

@@ -1,7 +1,8 @@
 //! Work units (the distributed pipeline's tasks) against the single-machine run: a seeded
-//! synthetic sequence goes up to the matches once through `reconstruct`, and once stage by stage
-//! with the units of the features and matches stages run apart (out of order, one twice, and one
-//! of the matching units left for the stage itself). The files must be the same bytes.
+//! synthetic sequence goes up to the dense depth maps once through `reconstruct`, and once stage by
+//! stage with the units of the features, matches and dense stages run apart (out of order, one
+//! twice, and one unit of matching and of dense left for the stage itself). The files must be the
+//! same bytes.
 
 use std::path::Path;
 
@@ -45,7 +46,7 @@ fn units_run_apart_give_the_same_files() {
         &input,
         &one,
         &options,
-        Some(stage::MATCHES),
+        Some(stage::DENSE),
         false,
         &NoProgress,
     )
@@ -91,7 +92,22 @@ fn units_run_apart_give_the_same_files() {
         .expect("skip");
     assert_eq!(again.status, StageStatus::UpToDate);
 
-    for s in [stage::FEATURES, stage::MATCHES] {
+    // The sparse model, then the dense stage: 7 consecutive pairs, all but pair 2 matched apart.
+    p.run_stage(&ws, stage::SPARSE, false, &NoProgress)
+        .expect("sparse");
+    let d = p.units(&ws, stage::DENSE, false).expect("dense units");
+    assert_eq!(d, 7);
+    for k in (0..d).filter(|&k| k != 2) {
+        p.run_unit(&ws, stage::DENSE, k, &NoProgress)
+            .expect("pair unit");
+    }
+    let r = p
+        .run_stage(&ws, stage::DENSE, false, &NoProgress)
+        .expect("dense");
+    assert_eq!(r.status, StageStatus::Ran);
+    assert!(!ws.root.join(UNITS_DIR).exists());
+
+    for s in [stage::FEATURES, stage::MATCHES, stage::SPARSE, stage::DENSE] {
         let (a, b) = (files(&one.join(s)), files(&ws.root.join(s)));
         let rel = |v: &[std::path::PathBuf], root: &Path| -> Vec<std::path::PathBuf> {
             v.iter()

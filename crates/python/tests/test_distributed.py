@@ -1,5 +1,5 @@
 """The pipeline on Dask distributed (a LocalCluster of worker processes), against the same run on
-one machine: bundler-ET (9 photos: 9 feature units, 36 pairs in 3 units of matching).
+one machine: bundler-ET (9 photos: 9 feature units, 36 pairs in 3 units of matching, 8 dense pairs).
 """
 
 import hashlib
@@ -32,12 +32,12 @@ def client():
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory, client):
-    """bundler-ET up to the sparse model, on one machine and on the cluster."""
+    """bundler-ET up to the depth maps, on one machine and on the cluster."""
     need(ET)
     root = tmp_path_factory.mktemp("et")
-    single = handheld.reconstruct(ET / "images", root / "single", until="sparse")
+    single = handheld.reconstruct(ET / "images", root / "single", until="dense")
     calls = []
-    dist = handheld.distributed.reconstruct(ET / "images", root / "dist", client, until="sparse",
+    dist = handheld.distributed.reconstruct(ET / "images", root / "dist", client, until="dense",
                                             progress=lambda *a: calls.append(a))
     return root, single, dist, calls
 
@@ -59,11 +59,12 @@ def without_timing(summary):
 
 def test_same_files_as_one_machine(runs):
     root, single, dist, calls = runs
-    assert [r["stage"] for r in dist] == [r["stage"] for r in single] == ["ingest", "features", "matches", "sparse"]
+    stages = ["ingest", "features", "matches", "sparse", "dense"]
+    assert [r["stage"] for r in dist] == [r["stage"] for r in single] == stages
     assert all(r["status"] == "ran" for r in dist)
-    assert ("features units", 9, 9) in calls and ("matches units", 3, 3) in calls
+    assert ("features units", 9, 9) in calls and ("matches units", 3, 3) in calls and ("dense units", 8, 8) in calls
     compared = 0
-    for stage in ["features", "matches", "sparse"]:
+    for stage in ["features", "matches", "sparse", "dense"]:
         for a in sorted((root / "single" / stage).rglob("*")):
             if a.is_dir() or a.name == "manifest.json":
                 continue
@@ -75,14 +76,15 @@ def test_same_files_as_one_machine(runs):
             else:
                 assert digest(a) == digest(b), a
             compared += 1
-    assert compared >= 9 + 9 + 2 + 6  # feature files, thumbnails, database + pairs, the COLMAP model
+    # feature files, thumbnails, database + pairs, the COLMAP model, 4 maps and 2 previews per view
+    assert compared >= 9 + 9 + 2 + 6 + 9 * 6
     assert not (root / "dist" / ".units").exists()
     # The manifests agree on everything but the clock.
-    for stage in ["features", "matches", "sparse"]:
+    for stage in ["features", "matches", "sparse", "dense"]:
         m1, m2 = (json.loads((root / w / stage / "manifest.json").read_text()) for w in ("single", "dist"))
         assert m1["input_hash"] == m2["input_hash"] and m1["outputs"] == m2["outputs"]
     # A distributed workspace is a workspace: the single-machine run finds it up to date.
-    again = handheld.reconstruct(ET / "images", root / "dist", until="sparse")
+    again = handheld.reconstruct(ET / "images", root / "dist", until="dense")
     assert {r["status"] for r in again} == {"up_to_date"}
 
 

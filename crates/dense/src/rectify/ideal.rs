@@ -7,7 +7,7 @@ use nalgebra::{Matrix3, Point3, Vector2, Vector3};
 
 /// One calibrated view seen through its ideal (undistorted) pixel coordinates: the camera in its
 /// pose plus what rectification reads over and over (`K`, its inverse, the image border).
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct IdealView {
     pub posed: PosedCamera,
     pub k: Matrix3<f64>,

@@ -73,7 +73,7 @@ impl RectifyOptions {
     }
 }
 
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 enum Kind {
     Planar(PlanarRect),
     Polar(PolarRect),
@@ -81,7 +81,7 @@ enum Kind {
 
 /// A rectified pair: the two views and the rectifying maps. Side 0 is the left (first) view,
 /// side 1 the right one; a left rectified `(x, y)` matches the right `(x − d, y)`.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct Rectification {
     views: [IdealView; 2],
     kind: Kind,

@@ -12,7 +12,7 @@ use super::ideal::IdealView;
 use crate::error::{DenseError, Result};
 
 /// A planar rectification: one homography per view, from ideal pixels to rectified pixels.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct PlanarRect {
     pub(crate) h: [Matrix3<f64>; 2],
     pub(crate) h_inv: [Matrix3<f64>; 2],

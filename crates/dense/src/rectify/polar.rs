@@ -18,7 +18,7 @@ use crate::error::{DenseError, Result};
 const MAX_ROWS: usize = 40_000;
 
 /// A polar rectification of a pair: per-row angles around both epipoles.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct PolarRect {
     pub(crate) epipoles: [Vector2<f64>; 2],
     /// Per-row angles around each epipole (image 1 increasing; image 2 monotone either way).

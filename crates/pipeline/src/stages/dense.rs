@@ -16,7 +16,9 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
 use handheld_core::{ImageId, MetricReconstruction, PosedView, Progress};
-use handheld_dense::{dense_reconstruct, DenseOptions, StereoMethod, StereoOptions};
+use handheld_dense::{
+    dense_reconstruct_with, DenseOptions, PairDisparity, StereoMethod, StereoOptions,
+};
 use handheld_io::dense_folder::{write_cameras, write_view, MapKind, CAMERAS_FILE};
 use handheld_io::images::{load_image, ImageIngestOptions};
 use rayon::prelude::*;
@@ -160,12 +162,74 @@ impl Stage for Dense {
         self.options.validate()
     }
 
+    /// One unit per consecutive pair: its rectification and stereo (most of the stage's time);
+    /// the linking and the fused cloud stay with the stage.
+    fn units(&self, ctx: &StageContext) -> Result<usize> {
+        let rec = ctx.ws.read_sparse_model()?;
+        Ok(key_views(ctx.ws, &rec)?.len().saturating_sub(1))
+    }
+
+    fn run_unit(
+        &self,
+        ctx: &StageContext,
+        dir: &Path,
+        k: usize,
+    ) -> Result<(Vec<String>, serde_json::Value)> {
+        let rec = ctx.ws.read_sparse_model()?;
+        let ids = key_views(ctx.ws, &rec)?;
+        let Some(pair) = ids.get(k..k + 2) else {
+            return Err(PipelineError::Graph(format!(
+                "dense: no unit {k} ({} views, {} pairs)",
+                ids.len(),
+                ids.len().saturating_sub(1)
+            )));
+        };
+        let views = load_views(&ctx.ws.image_paths()?, &rec, pair, self.options.max_size)?;
+        let points: Vec<_> = rec.points.values().map(|p| p.xyz).collect();
+        let outcome =
+            handheld_dense::match_pair(&views[0], &views[1], &points, &self.options.dense.pair)
+                .map_err(|e| e.to_string());
+        let name = pair_file(k);
+        let bytes = postcard::to_stdvec(&outcome).map_err(|e| {
+            PipelineError::workspace(dir.join(&name), format!("cannot encode the pair: {e}"))
+        })?;
+        handheld_io::atomic::write_bytes_atomic(&dir.join(&name), &bytes)?;
+        Ok((
+            vec![name],
+            serde_json::json!({ "matched": outcome.is_ok() }),
+        ))
+    }
+
     fn run(&self, ctx: &StageContext, dir: &Path) -> Result<Produced<DenseStageSummary>> {
         let rec = ctx.ws.read_sparse_model()?;
         let ids = key_views(ctx.ws, &rec)?;
         let paths = ctx.ws.image_paths()?;
-        densify(&rec, &paths, &ids, &self.options, dir, ctx.progress)
+        // Pairs matched apart (work units): read when the sliding window reaches them.
+        let matched = |p: usize| -> Option<std::result::Result<PairDisparity, String>> {
+            let name = pair_file(p);
+            ctx.take_unit(p, std::slice::from_ref(&name), dir).ok()??;
+            let path = dir.join(&name);
+            let outcome = std::fs::read(&path)
+                .ok()
+                .and_then(|b| postcard::from_bytes(&b).ok());
+            let _ = std::fs::remove_file(&path);
+            outcome
+        };
+        densify_with(
+            &rec,
+            &paths,
+            &ids,
+            &self.options,
+            dir,
+            ctx.progress,
+            matched,
+        )
     }
+}
+
+/// The file of pair unit `p` (pairs `(p, p + 1)` of the views densified).
+fn pair_file(p: usize) -> String {
+    format!("pair-{p}.bin")
 }
 
 /// The views to densify, in sequence order: every registered view, or the key-frames of a video.
@@ -251,6 +315,19 @@ pub fn densify(
     dir: &Path,
     progress: &dyn Progress,
 ) -> Result<Produced<DenseStageSummary>> {
+    densify_with(rec, paths, ids, opts, dir, progress, |_| None)
+}
+
+/// [`densify`], with pairs matched elsewhere (`handheld_dense::dense_reconstruct_with`).
+fn densify_with(
+    rec: &MetricReconstruction,
+    paths: &BTreeMap<String, PathBuf>,
+    ids: &[ImageId],
+    opts: &DenseStageOptions,
+    dir: &Path,
+    progress: &dyn Progress,
+    matched: impl Fn(usize) -> Option<std::result::Result<PairDisparity, String>>,
+) -> Result<Produced<DenseStageSummary>> {
     let views = load_views(paths, rec, ids, opts.max_size)?;
     let points: Vec<_> = rec.points.values().map(|p| p.xyz).collect();
     for sub in MapKind::ALL
@@ -263,38 +340,39 @@ pub fn densify(
     }
     let mut per_view = Vec::new();
     let mut outputs = Vec::new();
-    let (cloud, summary) = dense_reconstruct(&views, &points, &opts.dense, progress, |r| {
-        let v = &r.view;
-        let name = &v.name;
-        let write = || -> Result<Vec<String>> {
-            let written = write_view(dir, v)?;
-            let pdir = dir.join(PREVIEW_DIR);
-            for (map, kind) in [(&v.depth, "depth"), (&v.visibility, "visibility")] {
-                if let Some(map) = map {
-                    write_preview(map, &pdir.join(format!("{name}.{kind}.png")))?;
+    let (cloud, summary) =
+        dense_reconstruct_with(&views, &points, &opts.dense, progress, matched, |r| {
+            let v = &r.view;
+            let name = &v.name;
+            let write = || -> Result<Vec<String>> {
+                let written = write_view(dir, v)?;
+                let pdir = dir.join(PREVIEW_DIR);
+                for (map, kind) in [(&v.depth, "depth"), (&v.visibility, "visibility")] {
+                    if let Some(map) = map {
+                        write_preview(map, &pdir.join(format!("{name}.{kind}.png")))?;
+                    }
                 }
-            }
-            Ok(written)
-        };
-        let written = write().map_err(|e| handheld_dense::DenseError::Linking {
-            reason: format!("{name}: cannot write the maps: {e}"),
-        })?;
-        outputs.extend(written);
-        tracing::info!(
-            "dense: {name}: {:.1} % filled in {:.2} s",
-            v.fill() * 100.0,
-            r.seconds
-        );
-        per_view.push(ViewFill {
-            image: name.clone(),
-            width: v.posed.camera.width,
-            height: v.posed.camera.height,
-            fill: v.fill(),
-            seconds: r.seconds,
-        });
-        Ok(())
-    })
-    .context("dense matching")?;
+                Ok(written)
+            };
+            let written = write().map_err(|e| handheld_dense::DenseError::Linking {
+                reason: format!("{name}: cannot write the maps: {e}"),
+            })?;
+            outputs.extend(written);
+            tracing::info!(
+                "dense: {name}: {:.1} % filled in {:.2} s",
+                v.fill() * 100.0,
+                r.seconds
+            );
+            per_view.push(ViewFill {
+                image: name.clone(),
+                width: v.posed.camera.width,
+                height: v.posed.camera.height,
+                fill: v.fill(),
+                seconds: r.seconds,
+            });
+            Ok(())
+        })
+        .context("dense matching")?;
     handheld_io::ply::write_point_cloud(&dir.join(FUSED_PLY), &cloud, Default::default())?;
     write_cameras(dir, &views)?;
     let mut s = DenseStageSummary {

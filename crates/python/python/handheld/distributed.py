@@ -7,8 +7,9 @@
 
 The workspace (and the input) must be on a file system that every worker sees, at the same path.
 Each stage that splits into work units (features: one per photo; matches: one per block of
-pairs) runs them as Dask tasks; then the stage itself runs as one task, takes the units' files
-and writes what is left (the database, the summaries, the manifest). The other stages run as one
+pairs; dense: one per consecutive pair of views) runs them as Dask tasks; then the stage itself
+runs as one task, takes the units' files and writes what is left (the database, the depth maps
+after linking, the summaries, the manifest). The other stages run as one
 task each. The files of the split stages are byte-identical to a single-machine run's: the same
 code writes them. A unit writes its files under temporary names and its marker last, so a task
 that Dask retries after a worker died redoes it whole or finds it done.
