@@ -24,7 +24,7 @@ ET = DATASETS / "bundler-ET"
 
 @pytest.fixture(scope="module")
 def client():
-    cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None)
+    cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0")
     with distributed.Client(cluster) as c:
         yield c
     cluster.close()
@@ -138,3 +138,34 @@ def test_python_m_handheld_on_a_scheduler(runs, client, tmp_path):
     bad = subprocess.run([sys.executable, "-m", "handheld", "reconstruct", str(tmp_path / "nothing"), "-o",
                           str(tmp_path / "ws2"), "--quiet"], capture_output=True, text=True)
     assert bad.returncode == 1 and "nothing" in bad.stderr
+
+
+def test_a_killed_worker_changes_nothing(runs, tmp_path):
+    """A worker process killed while it holds units: Dask runs its tasks again elsewhere, the
+    units it left half-done are redone whole, and the files are those of the single run."""
+    import signal
+    import threading
+
+    root, _, _, _ = runs
+    cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0")
+    try:
+        with distributed.Client(cluster) as c:
+            pids = c.run(os.getpid)
+            killed = threading.Event()
+
+            def kill_once(step, done, total):
+                # After the first few feature units, while the others are running or queued.
+                if step == "features units" and done == 2 and not killed.is_set():
+                    killed.set()
+                    os.kill(next(iter(pids.values())), signal.SIGKILL)
+
+            ws = tmp_path / "ws"
+            handheld.distributed.reconstruct(ET / "images", ws, c, until="matches", progress=kill_once)
+            assert killed.is_set()
+    finally:
+        cluster.close()
+    for stage in ["features", "matches"]:
+        for a in sorted((root / "single" / stage).rglob("*")):
+            if a.is_file() and a.name not in ("manifest.json", "summary.json"):
+                assert digest(a) == digest(ws / a.relative_to(root / "single")), a
+    assert not (ws / ".units").exists()

@@ -51,7 +51,7 @@ def main(argv=None):
             else:
                 if a.local_workers < 1:
                     raise handheld.OptionsError(f"--local-workers: must be at least 1, got {a.local_workers}")
-                client = Client(LocalCluster(n_workers=a.local_workers, threads_per_worker=1, dashboard_address=None))
+                client = Client(LocalCluster(n_workers=a.local_workers, threads_per_worker=1))
             with client:
                 reports = reconstruct_on(a.input, a.output, client, options, a.until, a.force, progress)
         else:
