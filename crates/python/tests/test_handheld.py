@@ -18,7 +18,10 @@ import pytest
 
 import handheld
 
-REPO = pathlib.Path(__file__).resolve().parents[3]
+HERE = pathlib.Path(__file__).resolve()
+# crates/python/tests/ in the repository; anywhere else (tests run against an installed wheel), set
+# HANDHELD_DATASETS, HANDHELD_EVAL_SFM and HANDHELD_BIN.
+REPO = HERE.parents[3] if len(HERE.parents) > 3 else HERE.parent
 DATASETS = pathlib.Path(os.environ.get("HANDHELD_DATASETS", REPO.parent / "shared" / "datasets"))
 EVAL_SFM = pathlib.Path(os.environ.get("HANDHELD_EVAL_SFM", DATASETS.parent / "tools" / "eval_sfm.py"))
 ICL = DATASETS / "iclnuim-5"
