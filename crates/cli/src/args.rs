@@ -68,6 +68,8 @@ pub enum BenchCommand {
     Specular(crate::bench::BenchSpecularArgs),
     /// Augmented video: compositing + encoding speed at 1280×720 (SfM not counted).
     Augment(crate::bench::BenchAugmentArgs),
+    /// SfM on large synthetic walks (250–2000 views): monolithic against split-and-merge.
+    Scale(crate::bench::BenchScaleArgs),
 }
 
 /// The demo's defaults, from the library.

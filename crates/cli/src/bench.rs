@@ -435,3 +435,69 @@ pub fn augment(a: &BenchAugmentArgs, g: &GlobalArgs) -> Result<()> {
     };
     print(g, &bench::bench_augment(&o)?, pretty)
 }
+
+fn scale_defaults() -> bench::ScaleBenchOptions {
+    bench::ScaleBenchOptions::default()
+}
+
+#[derive(Debug, Args)]
+pub struct BenchScaleArgs {
+    /// The sizes, in views, comma-separated.
+    #[arg(long, value_delimiter = ',', default_values_t = scale_defaults().views)]
+    pub views: Vec<usize>,
+    /// Skip the monolithic run above this many views.
+    #[arg(long, default_value_t = scale_defaults().monolithic_max)]
+    pub monolithic_max: usize,
+    /// Split-and-merge's largest cluster, in views.
+    #[arg(long, default_value_t = scale_defaults().cluster_views)]
+    pub cluster_views: usize,
+    /// Views a cluster borrows from its neighbours, as a fraction of its own.
+    #[arg(long, default_value_t = scale_defaults().overlap)]
+    pub overlap: f64,
+    /// About how many points a view sees.
+    #[arg(long, default_value_t = scale_defaults().points_per_view)]
+    pub points_per_view: usize,
+    /// Threads both modes run on.
+    #[arg(long, default_value_t = scale_defaults().workers)]
+    pub workers: usize,
+    #[arg(long, default_value_t = scale_defaults().seed)]
+    pub seed: u64,
+}
+
+pub fn scale(a: &BenchScaleArgs, g: &GlobalArgs, bars: &Bars) -> Result<()> {
+    let o = bench::ScaleBenchOptions {
+        views: a.views.clone(),
+        monolithic_max: a.monolithic_max,
+        cluster_views: a.cluster_views,
+        overlap: a.overlap,
+        points_per_view: a.points_per_view,
+        workers: a.workers,
+        seed: a.seed,
+    };
+    let r = bench::bench_scale(&o, bars)?;
+    print(g, &r, |_| {
+        let mut s = String::from(
+            "views  mode        seconds  peak MB  registered  AUC@1  AUC@5  f err %\n",
+        );
+        for x in &r.runs {
+            s += &format!(
+                "{:>5}  {:<10}  {:>7.1}  {:>7.0}  {:>10}  {:>5.2}  {:>5.2}  {}\n",
+                x.views,
+                x.mode,
+                x.seconds,
+                x.peak_rss_mb.unwrap_or(f64::NAN),
+                x.registered,
+                x.auc1,
+                x.auc5,
+                x.focal_error_pct.map_or("-".into(), |f| format!("{f:.2}")),
+            );
+        }
+        s += &format!(
+            "time ~ views^b: monolithic b = {}, split b = {}",
+            r.exponent_monolithic
+                .map_or("-".into(), |b| format!("{b:.2}")),
+            r.exponent_split.map_or("-".into(), |b| format!("{b:.2}"))
+        );
+        s
+    })
+}

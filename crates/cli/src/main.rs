@@ -100,6 +100,7 @@ fn run(cmd: &Command, g: &GlobalArgs) -> anyhow::Result<()> {
             BenchCommand::Render(a) => bench::render(a, g, &bars),
             BenchCommand::Specular(a) => bench::specular(a, g),
             BenchCommand::Augment(a) => bench::augment(a, g),
+            BenchCommand::Scale(a) => bench::scale(a, g, &bars),
         },
         Command::Stereo(a) => bench::stereo(a, g),
         Command::Render(a) => render::run(a, g, &bars),

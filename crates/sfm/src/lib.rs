@@ -13,6 +13,7 @@
 //! | §3.4 metric | `metric/` | metric BA with radial distortion (eq. 3) and its noise-scaled loss, calibrated registration, predicted matches (§3.2), view consistency, the principal point's test, uncertainty |
 //! | safety net | `calibrated.rs`, `duplicates.rs` | the calibrated incremental candidate (a focal length assumed from the start, E from F, P3P growth, f and k1 adjusted as the model grows; COLMAP's way) when the first stratified start fails, when none is sound or the one kept is a fall-back; duplicate shots (an identical copy makes no point with its original alone) |
 //! | pieces | `merge/` | models of a broken sequence merged where they share points (3D–3D or 2D–3D) |
+//! | scale | `split/` | split-and-merge for large sets: the view graph cut by normalised cuts into overlapping clusters, each reconstructed on its own, merged through their shared views, one global adjustment |
 //! | video | `video.rs` | in-between frames posed from their KLT tracks (Table 2's "for every frame") |
 //! | steps | `pipeline/` | [`reconstruct`]: the models one after the other, each by named steps that fail with a [`StepError`] |
 //!
@@ -38,6 +39,7 @@ pub mod metric;
 pub mod options;
 mod pipeline;
 pub(crate) mod projective;
+pub mod split;
 mod summary;
 #[cfg(test)]
 mod test_scene;
@@ -54,6 +56,7 @@ pub use metric::uncertainty::{IntrinsicsSigma, UncertaintyReport};
 pub use options::{Distortion, KnownIntrinsics, SfmOptions};
 pub use pipeline::reconstruct;
 pub use projective::model::ProjectiveBaRecord;
+pub use split::{SplitOptions, SplitReport};
 pub use summary::{DuplicateShot, GroupSummary, ModelSummary, SfmModel, SfmResult};
 pub use upgrade::guard::CandidateRecord;
 pub use upgrade::transform::{RejectedStart, SelfCalibrationReport};

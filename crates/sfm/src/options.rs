@@ -3,6 +3,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::error::SfmError;
+use crate::split::SplitOptions;
 use crate::upgrade::selfcal::{SelfCalibrationError, SelfCalibrationOptions};
 
 /// Which radial distortion coefficients metric BA estimates (eq. 3).
@@ -82,6 +83,9 @@ pub struct SfmOptions {
     /// Compute per-point uncertainty (covariance) statistics. Default true.
     pub uncertainty: bool,
     pub self_calibration: SelfCalibrationOptions,
+    /// Split-and-merge for large sets (`split/`).
+    #[serde(default)]
+    pub split: SplitOptions,
 }
 
 impl Default for SfmOptions {
@@ -109,6 +113,7 @@ impl Default for SfmOptions {
             seed: 0,
             uncertainty: true,
             self_calibration: SelfCalibrationOptions::default(),
+            split: SplitOptions::default(),
         }
     }
 }
@@ -173,6 +178,9 @@ impl SfmOptions {
                     format!("need positive focal lengths and a finite principal point, got {k:?}"),
                 );
             }
+        }
+        if let Some((option, reason)) = self.split.invalid() {
+            return bad(option, reason);
         }
         self.self_calibration.validate().map_err(|e| match e {
             SelfCalibrationError::InvalidOption { option, reason } => SfmError::InvalidOption {

@@ -18,7 +18,7 @@ use crate::projective::model::{ProjectiveBaRecord, ProjectiveModel};
 use crate::upgrade::transform::SelfCalibrationReport;
 
 /// Per-group intrinsics of a model, in pixels.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
 pub struct GroupSummary {
     pub camera_id: u32,
     pub views: usize,
@@ -33,7 +33,7 @@ pub struct GroupSummary {
 }
 
 /// Everything measured about one model.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
 pub struct ModelSummary {
     pub registered: usize,
     pub total_images: usize,
@@ -75,10 +75,12 @@ pub struct SfmResult {
     /// Duplicate shots (`duplicates.rs`): no point is made from an identical copy and its original
     /// alone.
     pub duplicates: Vec<DuplicateShot>,
+    /// What split-and-merge did, when the input was split (`split/`).
+    pub split: Option<crate::split::SplitReport>,
 }
 
 /// A photo that repeats another one (the same shot twice, a burst).
-#[derive(Clone, Debug, Serialize, PartialEq)]
+#[derive(Clone, Debug, Serialize, serde::Deserialize, PartialEq)]
 pub struct DuplicateShot {
     pub image: String,
     /// The photo it repeats.

@@ -29,6 +29,7 @@ pub mod render;
 pub mod ring;
 pub mod scene;
 pub mod sequence;
+pub mod street;
 pub mod texture;
 mod util;
 
@@ -45,4 +46,5 @@ pub use render::{
 };
 pub use ring::{ring_set, RingOptions, RingSet};
 pub use scene::{FaceRect, Hit, Landmark, Primitive, Scene};
+pub use street::{street_set, StreetOptions, StreetPair, StreetSet};
 pub use texture::{FaceTexture, LANDMARK_HALF_SQUARE, LANDMARK_RADIUS};

@@ -8,6 +8,7 @@ pub mod dense;
 pub mod matching;
 pub mod pycolmap;
 pub mod render;
+pub mod scale;
 pub mod sparse;
 pub mod specular;
 pub mod stereo;
@@ -21,6 +22,7 @@ pub use dense::{bench_dense, DenseBenchOptions, DenseBenchReport};
 pub use matching::{bench_matching, MatchingBenchOptions, MatchingBenchReport};
 pub use pycolmap::{pycolmap_version, run_pycolmap_sparse, PycolmapSparseRun};
 pub use render::{bench_render, RenderBenchOptions, RenderBenchReport};
+pub use scale::{bench_scale, ScaleBenchOptions, ScaleBenchReport, ScaleRun};
 pub use sparse::{
     bench_sparse, ColmapSparseRun, HandheldSparseRun, SparseBenchOptions, SparseBenchReport,
     SparseRatios, SparseRound, TARGET_TOTAL_RATIO,

@@ -25,7 +25,7 @@ const MERGE_SAMPLES: usize = 400;
 
 /// A correspondence: a point of A, a point of B, and one observation of it in A (the view and
 /// its keypoint position) where the mapped B point is checked.
-pub(super) struct Correspondence {
+pub(crate) struct Correspondence {
     pub a: PointId,
     pub b: PointId,
     pub view: ImageId,
@@ -74,7 +74,7 @@ pub(super) fn matches_between<'a>(
 }
 
 /// 3D–3D correspondences between the points of `a` and `b` through the verified pairs.
-pub(super) fn correspondences(
+pub(crate) fn correspondences(
     ctx: &Context,
     a: &MetricReconstruction,
     b: &MetricReconstruction,
@@ -115,7 +115,7 @@ pub(super) fn explains(
 
 /// The similarity `a_from_b` by RANSAC over the correspondences, refined on its inliers; `None`
 /// with fewer than [`MIN_MERGE_INLIERS`] inliers or under [`MIN_MERGE_INLIER_FRACTION`] of them.
-pub(super) fn similarity(
+pub(crate) fn similarity(
     ctx: &Context,
     a: &MetricReconstruction,
     b: &MetricReconstruction,

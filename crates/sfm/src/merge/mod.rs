@@ -29,11 +29,11 @@ use crate::metric::principal_point::principal_point_test;
 use crate::metric::uncertainty::uncertainty_step;
 use crate::summary::SfmModel;
 
-mod correspondences;
+pub(crate) mod correspondences;
 mod pair;
 mod record;
 mod sightings;
-mod union;
+pub(crate) mod union;
 
 pub use correspondences::{MIN_MERGE_INLIERS, MIN_MERGE_INLIER_FRACTION};
 pub(crate) use pair::merge;

@@ -4,7 +4,7 @@
 use serde::Serialize;
 
 /// One merge, for the summary.
-#[derive(Clone, Debug, Default, Serialize)]
+#[derive(Clone, Debug, Default, Serialize, serde::Deserialize)]
 pub struct MergeRecord {
     /// Views of the model merged into this one.
     pub views_added: usize,

@@ -15,7 +15,7 @@ use crate::upgrade::guard;
 /// with B's views' keypoints joining A's points (`to_a`) and A's views' keypoints joining B's
 /// points (`to_b`, B's ids).
 #[derive(Default)]
-pub(super) struct Attachments {
+pub(crate) struct Attachments {
     pub to_a: Vec<(ImageId, u32, PointId)>,
     pub to_b: Vec<(ImageId, u32, PointId)>,
 }
@@ -24,7 +24,7 @@ pub(super) struct Attachments {
 /// `a`'s groups of the same camera key (new groups otherwise), its points get fresh ids, and the
 /// corresponding points are fused (the B point's observations join the A point's track, unless
 /// the A point already has an observation in that view).
-fn union(
+pub(crate) fn union(
     ctx: &Context,
     a: &MetricReconstruction,
     b: &MetricReconstruction,
@@ -95,7 +95,18 @@ fn union(
             }
         }
     }
+    // Views registered in both models (the overlap of split-and-merge, `split/`) keep A's pose;
+    // B's points claim their keypoints there below.
+    let shared: BTreeSet<ImageId> = b
+        .views
+        .keys()
+        .filter(|v| a.views.contains_key(v))
+        .copied()
+        .collect();
     for (vid, v) in &b.views {
+        if shared.contains(vid) {
+            continue;
+        }
         let mut v = v.clone();
         v.camera_id = camera_map.get(&v.camera_id).copied().unwrap_or(v.camera_id);
         for o in v.observations.iter_mut() {
@@ -127,6 +138,9 @@ fn union(
             o.point_id = Some(p);
         }
     }
+    if !shared.is_empty() {
+        claim_shared(&mut out, &shared);
+    }
     // A fused B point whose observation in some view duplicated the A point's was left out of
     // the track: its observation there is detached.
     for v in out.views.values_mut() {
@@ -145,6 +159,51 @@ fn union(
         }
     }
     out
+}
+
+/// The track elements of B's points in the views both models registered: each keypoint there
+/// belongs to the point that first claims it (A's points own theirs already); an element whose
+/// keypoint another point owns is dropped, and a point left with fewer than two views is removed.
+fn claim_shared(out: &mut MetricReconstruction, shared: &BTreeSet<ImageId>) {
+    let MetricReconstruction { views, points, .. } = out;
+    let mut orphans = Vec::new();
+    for (pid, p) in points.iter_mut() {
+        p.track.elements.retain(|e| {
+            if !shared.contains(&e.image_id) {
+                return true;
+            }
+            let Some(o) = views
+                .get_mut(&e.image_id)
+                .and_then(|v| v.observations.get_mut(e.point2d_idx as usize))
+            else {
+                return false;
+            };
+            match o.point_id {
+                None => {
+                    o.point_id = Some(*pid);
+                    true
+                }
+                Some(q) => q == *pid,
+            }
+        });
+        if p.track.elements.len() < 2 {
+            orphans.push(*pid);
+        }
+    }
+    for pid in orphans {
+        if let Some(p) = points.remove(&pid) {
+            for e in p.track.elements {
+                if let Some(o) = views
+                    .get_mut(&e.image_id)
+                    .and_then(|v| v.observations.get_mut(e.point2d_idx as usize))
+                {
+                    if o.point_id == Some(pid) {
+                        o.point_id = None;
+                    }
+                }
+            }
+        }
+    }
 }
 
 /// The merged, adjusted model, its adjustment records and the check across the pieces

@@ -19,7 +19,7 @@ use crate::metric::noise::{noise_scaled_loss, scaled_priors, Noise, HUBER_95};
 use crate::options::Distortion;
 
 /// One metric bundle adjustment, for the summary.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
 pub struct MetricBaRecord {
     pub step: String,
     pub iterations: usize,

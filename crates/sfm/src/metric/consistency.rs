@@ -45,7 +45,7 @@ pub const MAX_DISAGREEMENT_DEG: f64 = 5.0;
 pub const MIN_PAIR_INLIERS: usize = 30;
 
 /// One view's agreement with its verified pairs.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
 pub struct ViewDisagreement {
     pub image: String,
     /// Weighted median over its partners, degrees.
@@ -58,7 +58,7 @@ pub struct ViewDisagreement {
 }
 
 /// The check's result for the summary.
-#[derive(Clone, Debug, Default, Serialize)]
+#[derive(Clone, Debug, Default, Serialize, serde::Deserialize)]
 pub struct ConsistencyReport {
     /// The largest weighted-median disagreement among the views kept, degrees.
     pub max_kept_deg: Option<f64>,

@@ -150,7 +150,7 @@ pub(crate) fn principal_point_spread(
 }
 
 /// One intrinsics group's principal point against its spread ([`principal_point_spread`]).
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
 pub struct PrincipalPointSpread {
     pub camera_id: u32,
     /// The freely adjusted principal point minus the image centre, pixels.

@@ -13,7 +13,7 @@ use crate::context::Context;
 use crate::options::Distortion;
 
 /// Per-point uncertainty statistics from the BA engine's covariance (§3.3).
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
 pub struct UncertaintyReport {
     pub points: usize,
     /// Median and 90th percentile of the largest standard deviation of each point (model units).
@@ -40,7 +40,7 @@ impl UncertaintyReport {
 }
 
 /// [`UncertaintyReport::intrinsics_sigma`] of one intrinsics group.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
 pub struct IntrinsicsSigma {
     pub camera_id: u32,
     pub f: Option<f64>,

@@ -60,6 +60,9 @@ pub fn reconstruct(
     if usable < 2 {
         return Err(SfmError::TooFewImages(usable));
     }
+    if options.split.applies(input) {
+        return crate::split::reconstruct_split(input, options, progress);
+    }
     let canonical = Canonical::new(input);
     let input = canonical.as_ref().map_or(input, |c| &c.input);
     let graph = CorrespondenceGraph::build(input, 8);
@@ -116,6 +119,7 @@ pub fn reconstruct(
         models,
         unregistered,
         duplicates,
+        split: None,
     })
 }
 

@@ -13,7 +13,7 @@ use crate::context::Context;
 pub(crate) const NONE: u32 = u32::MAX;
 
 /// One projective bundle adjustment, for the summary.
-#[derive(Clone, Debug, serde::Serialize)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct ProjectiveBaRecord {
     pub registered: usize,
     pub points: usize,

@@ -26,7 +26,7 @@ use crate::upgrade::hypotheses::RANGE;
 use crate::upgrade::selfcal::{decompose_camera, self_calibrate, SelfCalibration};
 
 /// Self-calibration diagnostics for the summary.
-#[derive(Clone, Debug, Default, Serialize)]
+#[derive(Clone, Debug, Default, Serialize, serde::Deserialize)]
 pub struct SelfCalibrationReport {
     /// Why the motion is critical, when it is (the DAQ is then not determined by the images alone).
     pub degenerate: Option<String>,
@@ -69,7 +69,7 @@ pub struct SelfCalibrationReport {
 }
 
 /// A start of the model that was abandoned: its initial pair and why.
-#[derive(Clone, Debug, Default, Serialize)]
+#[derive(Clone, Debug, Default, Serialize, serde::Deserialize)]
 pub struct RejectedStart {
     pub initial_pair: [String; 2],
     pub reason: String,

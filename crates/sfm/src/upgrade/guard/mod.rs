@@ -46,7 +46,7 @@ pub const RMS_SLACK_PX: f64 = 1.0;
 pub const MIN_IN_FRONT: f64 = 0.5;
 
 /// One metric frame that was tried, for the summary.
-#[derive(Clone, Debug, Default, Serialize)]
+#[derive(Clone, Debug, Default, Serialize, serde::Deserialize)]
 pub struct CandidateRecord {
     /// `self-calibration`, `known calibration`, `priors` or `focal hypothesis`.
     pub source: String,

@@ -183,7 +183,7 @@ impl SelfCalibrationOptions {
 /// ```
 ///
 /// Pixel values follow from `K_N K`: focal `f (w+h)`, principal point `(u (w+h) + w/2, v (w+h) + h/2)`.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, serde::Deserialize)]
 pub struct NormalizedIntrinsics {
     /// Focal length `f = K₁₁`.
     pub f: f64,
@@ -227,20 +227,29 @@ impl NormalizedIntrinsics {
 }
 
 /// Result of [`self_calibrate`].
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, serde::Deserialize)]
 pub struct SelfCalibration {
     /// The upgrade `T` (metric from projective) with `diag(1, 1, 1, 0) = T Ω* Tᵀ`:
     /// `P_M = P T⁻¹`, `M_M = T M` (eq. 27). Its fourth row is the plane at infinity of the
     /// projective frame. Serialized as row-major nested arrays.
-    #[serde(serialize_with = "serialize_matrix4")]
+    #[serde(
+        serialize_with = "serialize_matrix4",
+        deserialize_with = "deserialize_matrix4"
+    )]
     pub t: Matrix4<f64>,
     /// `T⁻¹` (computed directly from the eigen-decomposition, not by inversion). Serialized as
     /// row-major nested arrays.
-    #[serde(serialize_with = "serialize_matrix4")]
+    #[serde(
+        serialize_with = "serialize_matrix4",
+        deserialize_with = "deserialize_matrix4"
+    )]
     pub t_inv: Matrix4<f64>,
     /// `Ω*` after the rank-3 enforcement, scaled to unit Frobenius norm, in the projective frame
     /// of the input cameras each scaled to unit Frobenius norm. Serialized as row-major nested arrays.
-    #[serde(serialize_with = "serialize_matrix4")]
+    #[serde(
+        serialize_with = "serialize_matrix4",
+        deserialize_with = "deserialize_matrix4"
+    )]
     pub omega: Matrix4<f64>,
     /// Number of linear solves performed (≤ `options.iterations`).
     pub iterations: usize,
@@ -283,4 +292,9 @@ impl SelfCalibration {
 fn serialize_matrix4<S: serde::Serializer>(m: &Matrix4<f64>, s: S) -> Result<S::Ok, S::Error> {
     let rows: [[f64; 4]; 4] = std::array::from_fn(|i| std::array::from_fn(|j| m[(i, j)]));
     rows.serialize(s)
+}
+
+fn deserialize_matrix4<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Matrix4<f64>, D::Error> {
+    let rows = <[[f64; 4]; 4] as serde::Deserialize>::deserialize(d)?;
+    Ok(Matrix4::from_fn(|i, j| rows[i][j]))
 }

@@ -1,0 +1,358 @@
+//! The clusters' models merged into one, then adjusted as a whole.
+//!
+//! Two neighbouring clusters share the views of their overlap. A keypoint of such a view that is
+//! a point in both models gives a 3D–3D correspondence without any matching; the similarity
+//! between the two frames is estimated from them by the seeded RANSAC of `merge/` (Umeyama fits
+//! of three, inliers judged by reprojection in the first model's view), and from the
+//! correspondences through the verified pairs when the overlap registered too few. The union
+//! keeps the first model's pose of a shared view, fuses the corresponding points, and gives the
+//! other model's points the keypoints that are still free there (`merge/union.rs`).
+//!
+//! Each merge is checked before it is kept: the verified pairs between the merged model's views
+//! and the newcomer's must agree with the poses they are given (`consistency::across`, the test a
+//! merge of two pieces of one reconstruction passes). A model that fails stays apart and is
+//! tried again once the merged model has grown.
+//!
+//! Models are merged in the order of their shared views with the merged model (the most first),
+//! so each merge rests on the largest overlap available; no adjustment runs in between. One
+//! global bundle adjustment (the full metric schedule of `metric/ba.rs`, one intrinsics group per
+//! camera key) then pulls the whole together, and the views are judged against their pairs.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::time::Instant;
+
+use handheld_core::{ImageId, MetricReconstruction, Progress};
+use serde::{Deserialize, Serialize};
+
+use super::Cluster;
+use crate::context::Context;
+use crate::error::SfmError;
+use crate::graph::CorrespondenceGraph;
+use crate::input::SfmInput;
+use crate::merge::correspondences::{correspondences, similarity, Correspondence};
+use crate::merge::union::{union, Attachments};
+use crate::merge::{MergeRecord, MIN_MERGE_INLIERS};
+use crate::metric::ba as metric_ba;
+use crate::metric::consistency;
+use crate::metric::uncertainty::uncertainty_step;
+use crate::options::SfmOptions;
+use crate::summary::{DuplicateShot, ModelSummary, SfmModel, SfmResult};
+
+/// What one cluster's reconstruction gave: serialisable, so that a cluster can run as a task on
+/// another machine.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct ClusterOutcome {
+    pub models: Vec<(MetricReconstruction, ModelSummary)>,
+    pub unregistered: Vec<(String, String)>,
+    pub duplicates: Vec<DuplicateShot>,
+    /// Why no model could be built.
+    pub error: Option<String>,
+    pub time_s: f64,
+}
+
+impl ClusterOutcome {
+    pub fn new(result: Result<SfmResult, String>, time_s: f64) -> Self {
+        match result {
+            Ok(r) => Self {
+                models: r
+                    .models
+                    .into_iter()
+                    .map(|m| (m.reconstruction, m.summary))
+                    .collect(),
+                unregistered: r.unregistered,
+                duplicates: r.duplicates,
+                error: None,
+                time_s,
+            },
+            Err(e) => Self {
+                models: Vec::new(),
+                unregistered: Vec::new(),
+                duplicates: Vec::new(),
+                error: Some(e),
+                time_s,
+            },
+        }
+    }
+}
+
+/// One cluster in the report.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct ClusterReport {
+    /// Its views, overlap included, and its own.
+    pub views: usize,
+    pub core: usize,
+    /// Views in its largest model, and its models.
+    pub registered: usize,
+    pub models: usize,
+    /// Focal length of its largest model's first camera group, pixels.
+    pub focal_px: Option<f64>,
+    pub error: Option<String>,
+    pub time_s: f64,
+}
+
+/// What split-and-merge did (`sparse/summary.json`, `split`).
+#[derive(Clone, Debug, Default, Serialize, Deserialize, PartialEq)]
+pub struct SplitReport {
+    pub clusters: Vec<ClusterReport>,
+    /// Models merged into the first model, and those left apart with the reason.
+    pub merged: usize,
+    pub apart: Vec<String>,
+    /// Views the global adjustment found disagreeing with their verified pairs.
+    pub inconsistent_views: Vec<String>,
+    pub merge_s: f64,
+    pub global_adjustment_s: f64,
+}
+
+/// One model waiting to be merged: the cluster it came from and its reconstruction.
+struct Piece {
+    cluster: usize,
+    rec: MetricReconstruction,
+    summary: ModelSummary,
+}
+
+/// Merges the clusters' models (see the module's text) into an [`SfmResult`] over the whole input.
+pub fn merge_clusters(
+    input: &SfmInput,
+    options: &SfmOptions,
+    clusters: &[Cluster],
+    outcomes: Vec<ClusterOutcome>,
+    progress: &dyn Progress,
+) -> Result<SfmResult, SfmError> {
+    let t = Instant::now();
+    let mut report = SplitReport {
+        clusters: clusters
+            .iter()
+            .zip(&outcomes)
+            .map(|(c, o)| ClusterReport {
+                views: c.views.len(),
+                core: c.core.len(),
+                registered: o.models.first().map_or(0, |m| m.0.views.len()),
+                models: o.models.len(),
+                focal_px: o
+                    .models
+                    .first()
+                    .and_then(|m| m.0.cameras.values().next().map(|c| c.intrinsics.f)),
+                error: o.error.clone(),
+                time_s: o.time_s,
+            })
+            .collect(),
+        ..Default::default()
+    };
+    let mut unregistered_why: BTreeMap<String, String> = BTreeMap::new();
+    let mut duplicates: BTreeMap<String, DuplicateShot> = BTreeMap::new();
+    let mut pieces = Vec::new();
+    for (k, o) in outcomes.into_iter().enumerate() {
+        for (name, why) in o.unregistered {
+            unregistered_why.entry(name).or_insert(why);
+        }
+        for d in o.duplicates {
+            duplicates.entry(d.image.clone()).or_insert(d);
+        }
+        if let Some(e) = o.error {
+            tracing::warn!("cluster {k} gave no model: {e}");
+        }
+        for (rec, summary) in o.models {
+            if rec.views.len() >= 2 {
+                pieces.push(Piece {
+                    cluster: k,
+                    rec,
+                    summary,
+                });
+            }
+        }
+    }
+    if pieces.is_empty() {
+        return Err(SfmError::NoModel(crate::error::StepError::Projective(
+            "split-and-merge: no cluster gave a model".into(),
+        )));
+    }
+    let graph = CorrespondenceGraph::build(input, 8);
+    let ctx = Context::new(input, &graph, options);
+    let estimate_aspect = options.estimate_aspect.unwrap_or(input.video);
+    pieces.sort_by_key(|p| std::cmp::Reverse(p.rec.views.len()));
+    let mut models: Vec<SfmModel> = Vec::new();
+    progress.start("merging clusters", pieces.len() as u64);
+    while !pieces.is_empty() {
+        let seed = pieces.remove(0);
+        progress.inc(1);
+        let mut rec = seed.rec;
+        let mut summary = seed.summary;
+        let mut members = vec![seed.cluster];
+        // Pieces refused since the merged model last grew.
+        let mut refused: BTreeSet<usize> = BTreeSet::new();
+        loop {
+            let views: BTreeSet<ImageId> = rec.views.keys().copied().collect();
+            let mut order: Vec<(usize, usize)> = pieces
+                .iter()
+                .enumerate()
+                .filter(|(k, _)| !refused.contains(k))
+                .map(|(k, p)| (k, p.rec.views.keys().filter(|v| views.contains(v)).count()))
+                .filter(|&(_, shared)| shared > 0)
+                .collect();
+            order.sort_by_key(|&(k, shared)| (std::cmp::Reverse(shared), k));
+            let Some(&(k, _)) = order.first() else {
+                break;
+            };
+            match merge_one(&ctx, &rec, &pieces[k].rec) {
+                Ok((merged, record)) => {
+                    let p = pieces.remove(k);
+                    tracing::debug!(
+                        "cluster {} merged: {} views added, {} of {} correspondences",
+                        p.cluster,
+                        record.views_added,
+                        record.inliers,
+                        record.correspondences
+                    );
+                    members.push(p.cluster);
+                    rec = merged;
+                    summary.merged.push(record);
+                    refused.clear();
+                    progress.inc(1);
+                }
+                Err(why) => {
+                    report
+                        .apart
+                        .push(format!("a model of cluster {}: {why}", pieces[k].cluster));
+                    refused.insert(k);
+                }
+            }
+        }
+        report.merged += members.len() - 1;
+        models.push(finish(&ctx, rec, summary, estimate_aspect, &mut report)?);
+        if models.len() >= options.max_models {
+            break;
+        }
+    }
+    progress.finish();
+    report.merge_s = t.elapsed().as_secs_f64() - report.global_adjustment_s;
+    models.sort_by_key(|m| std::cmp::Reverse(m.summary.registered));
+    let registered: BTreeSet<ImageId> = models
+        .iter()
+        .flat_map(|m| m.reconstruction.views.keys().copied())
+        .collect();
+    let unregistered = input
+        .images
+        .iter()
+        .filter(|im| !registered.contains(&im.id))
+        .map(|im| {
+            let why = unregistered_why
+                .get(&im.name)
+                .cloned()
+                .unwrap_or_else(|| "not registered in a cluster that was merged".into());
+            (im.name.clone(), why)
+        })
+        .collect();
+    Ok(SfmResult {
+        models,
+        unregistered,
+        duplicates: duplicates.into_values().collect(),
+        split: Some(report),
+    })
+}
+
+/// The 3D–3D correspondences through the keypoints both models made points of, in the views both
+/// registered.
+fn shared_keypoints(a: &MetricReconstruction, b: &MetricReconstruction) -> Vec<Correspondence> {
+    let mut out = Vec::new();
+    for (id, va) in &a.views {
+        let Some(vb) = b.views.get(id) else {
+            continue;
+        };
+        for (oa, ob) in va.observations.iter().zip(&vb.observations) {
+            if let (Some(pa), Some(pb)) = (oa.point_id, ob.point_id) {
+                out.push(Correspondence {
+                    a: pa,
+                    b: pb,
+                    view: *id,
+                    xy: oa.xy,
+                });
+            }
+        }
+    }
+    out
+}
+
+/// `b` merged into `a` without adjustment, or why not.
+fn merge_one(
+    ctx: &Context,
+    a: &MetricReconstruction,
+    b: &MetricReconstruction,
+) -> Result<(MetricReconstruction, MergeRecord), String> {
+    let mut corr = shared_keypoints(a, b);
+    if corr.len() < MIN_MERGE_INLIERS {
+        corr = correspondences(ctx, a, b);
+    }
+    let (sim, inliers) = similarity(ctx, a, b, &corr).ok_or_else(|| {
+        format!(
+            "{} 3D–3D correspondences, too few (or under half) explained by one similarity",
+            corr.len()
+        )
+    })?;
+    let (mut used_a, mut used_b) = (BTreeSet::new(), BTreeSet::new());
+    let fused: Vec<_> = inliers
+        .iter()
+        .map(|&k| (corr[k].a, corr[k].b))
+        .filter(|(x, y)| used_a.insert(*x) && used_b.insert(*y))
+        .collect();
+    let merged = union(ctx, a, b, &sim, &fused, &Attachments::default());
+    let va: BTreeSet<ImageId> = a.views.keys().copied().collect();
+    let vb: BTreeSet<ImageId> = b
+        .views
+        .keys()
+        .filter(|v| !va.contains(v))
+        .copied()
+        .collect();
+    let across = consistency::across(ctx, &merged, &va, &vb);
+    if let Some((d, n)) = across {
+        if d > consistency::MAX_DISAGREEMENT_DEG {
+            return Err(format!(
+                "the merged model disagrees with the {n} verified pairs across the cut by {d:.1}°"
+            ));
+        }
+    }
+    let record = MergeRecord {
+        views_added: vb.len(),
+        correspondences: corr.len(),
+        inliers: inliers.len(),
+        sightings: 0,
+        sighting_inliers: 0,
+        cross_pairs: across.map_or(0, |x| x.1),
+        cross_disagreement_deg: across.map(|x| x.0),
+        scale: sim.scale,
+    };
+    Ok((merged, record))
+}
+
+/// The global adjustment of a merged model, its views judged against their pairs, and its
+/// summary brought up to date.
+fn finish(
+    ctx: &Context,
+    mut rec: MetricReconstruction,
+    mut summary: ModelSummary,
+    estimate_aspect: bool,
+    report: &mut SplitReport,
+) -> Result<SfmModel, SfmError> {
+    let t = Instant::now();
+    if !summary.merged.is_empty() {
+        let records = metric_ba::refine_metric(ctx, &mut rec, estimate_aspect).map_err(|e| {
+            SfmError::NoModel(crate::error::StepError::MetricAdjustment(format!(
+                "global adjustment of the merged clusters: {e}"
+            )))
+        })?;
+        summary.metric_ba.extend(records);
+        let (flagged, _) = consistency::inconsistent_views(ctx, &rec);
+        report
+            .inconsistent_views
+            .extend(flagged.into_iter().map(|(_, d)| d.image));
+        summary.recount(&rec);
+        let (u, note) = uncertainty_step(ctx, &rec);
+        summary.uncertainty = u;
+        summary.uncertainty_note = note;
+    }
+    summary.total_images = ctx.input.images.len();
+    report.global_adjustment_s += t.elapsed().as_secs_f64();
+    Ok(SfmModel {
+        reconstruction: rec,
+        summary,
+    })
+}
