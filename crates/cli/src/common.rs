@@ -147,6 +147,14 @@ pub struct InputArgs {
     /// of width + height (eq. 25's u ≈ v ≈ 0 in K_N units).
     #[arg(long, default_value_t = defaults().sparse.sfm.principal_point_prior)]
     pub principal_point_prior: f64,
+    /// Sparse: split-and-merge with clusters of at most N views (overlap included), each
+    /// reconstructed on its own and merged. By default sets of more than
+    /// `split.above` (1000) linked photos are split into clusters of 200.
+    #[arg(long, value_name = "N")]
+    pub cluster_views: Option<usize>,
+    /// Sparse: never split, however large the set.
+    #[arg(long, conflicts_with = "cluster_views")]
+    pub no_split: bool,
     #[command(flatten)]
     pub dense: DenseArgs,
     #[command(flatten)]
@@ -208,6 +216,13 @@ impl InputArgs {
             AspectArg::Fixed => Some(false),
             AspectArg::Free => Some(true),
         };
+        if let Some(n) = self.cluster_views {
+            sfm.split.cluster_views = n;
+            sfm.split.above = n;
+        }
+        if self.no_split {
+            sfm.split.above = 0;
+        }
         o.sparse.refine_keypoints = self.refine_keypoints.then(Default::default);
         o.dense = self.dense.options()?;
         o.mesh = self.mesh.options();

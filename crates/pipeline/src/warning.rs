@@ -37,6 +37,9 @@ pub mod code {
     pub const SEPARATE_MODELS: &str = "separate_models";
     /// A merge of two pieces that no verified pair between them confirms.
     pub const UNCONFIRMED_MERGE: &str = "unconfirmed_merge";
+    /// Split-and-merge: the clusters' own focal lengths disagree, or views of the merged model
+    /// disagree with their verified pairs.
+    pub const SPLIT_DISAGREEMENT: &str = "split_disagreement";
     /// The preferred metric frame failed its checks; another one was kept.
     pub const METRIC_FRAME_REJECTED: &str = "metric_frame_rejected";
     /// The data do not fix the focal length.

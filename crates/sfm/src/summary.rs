@@ -47,7 +47,7 @@ pub struct ModelSummary {
     pub projective_ba: Vec<ProjectiveBaRecord>,
     /// Views whose projective resection inliers lay on one plane, completed by the matches off it
     /// (`projective/planar.rs`).
-    #[serde(skip_serializing_if = "Vec::is_empty")]
+    #[serde(default)]
     pub planar_resections: Vec<String>,
     pub metric_ba: Vec<MetricBaRecord>,
     pub uncertainty: Option<UncertaintyReport>,

@@ -68,6 +68,9 @@ pub struct ScaleRun {
     pub focal_error_pct: Option<f64>,
     /// Why the run gave no model.
     pub error: Option<String>,
+    /// The largest model's step timings (`ModelSummary::timings_s`), and split-and-merge's
+    /// merge and global adjustment.
+    pub timings_s: std::collections::BTreeMap<String, f64>,
 }
 
 /// The report: every run, and the growth of each mode.
@@ -129,6 +132,13 @@ pub fn bench_scale(o: &ScaleBenchOptions, progress: &dyn Progress) -> Result<Sca
             let run = match result {
                 Ok(r) => {
                     let best = &r.models[0].reconstruction;
+                    let mut timings_s = r.models[0].summary.timings_s.clone();
+                    if let Some(sp) = &r.split {
+                        timings_s.insert("split_merge".into(), sp.merge_s);
+                        timings_s.insert("split_global_adjustment".into(), sp.global_adjustment_s);
+                        let c: f64 = sp.clusters.iter().map(|c| c.time_s).sum();
+                        timings_s.insert("split_clusters_cpu".into(), c);
+                    }
                     let (auc1, auc5) = auc(best, &truth);
                     let f_true = truth.cameras.values().next().map(|c| c.intrinsics.f);
                     let f = best.cameras.values().next().map(|c| c.intrinsics.f);
@@ -144,6 +154,7 @@ pub fn bench_scale(o: &ScaleBenchOptions, progress: &dyn Progress) -> Result<Sca
                         auc5,
                         focal_error_pct: f.zip(f_true).map(|(f, t)| 100.0 * (f / t - 1.0).abs()),
                         error: None,
+                        timings_s,
                     }
                 }
                 Err(e) => ScaleRun {
@@ -158,6 +169,7 @@ pub fn bench_scale(o: &ScaleBenchOptions, progress: &dyn Progress) -> Result<Sca
                     auc5: 0.0,
                     focal_error_pct: None,
                     error: Some(e.to_string()),
+                    timings_s: Default::default(),
                 },
             };
             tracing::info!(

@@ -17,7 +17,7 @@ use handheld_io::images::{load_image, ImageIngestOptions};
 use handheld_io::ingest::InputKind;
 use handheld_robust::TwoViewConfiguration;
 use handheld_sfm::{
-    reconstruct, DuplicateShot, ModelSummary, SfmImage, SfmInput, SfmOptions, SfmPair,
+    reconstruct, split, DuplicateShot, ModelSummary, SfmImage, SfmInput, SfmOptions, SfmPair,
 };
 use nalgebra::Vector2;
 use rayon::prelude::*;
@@ -50,6 +50,97 @@ impl SparseStageOptions {
                 .map_err(|e| PipelineError::invalid("keypoint refinement", e))?;
         }
         Ok(())
+    }
+}
+
+/// The clusters of split-and-merge, in the stage's unit folder, and one cluster's outcome.
+const CLUSTERS_FILE: &str = "clusters.plan";
+
+fn cluster_file(k: usize) -> String {
+    format!("cluster-{k}.bin")
+}
+
+/// One cluster reconstructed, timed, as a serialisable outcome.
+fn run_cluster(
+    input: &SfmInput,
+    cluster: &split::Cluster,
+    options: &SfmOptions,
+    progress: &dyn Progress,
+) -> split::ClusterOutcome {
+    let t = std::time::Instant::now();
+    let r = split::reconstruct_cluster(input, cluster, options, progress);
+    split::ClusterOutcome::new(r.map_err(|e| e.to_string()), t.elapsed().as_secs_f64())
+}
+
+impl Sparse {
+    /// Whether the input is split into clusters (never with keypoint refinement, which needs
+    /// every image at once).
+    fn splits(&self, input: &SfmInput) -> bool {
+        self.options.refine_keypoints.is_none() && self.options.sfm.split.applies(input)
+    }
+
+    /// The clusters, from the unit folder when a distributed run wrote them.
+    fn clusters(&self, ctx: &StageContext, input: &SfmInput) -> Vec<split::Cluster> {
+        let planned = ctx
+            .units
+            .as_ref()
+            .and_then(|u| std::fs::read(u.join(CLUSTERS_FILE)).ok())
+            .and_then(|b| postcard::from_bytes(&b).ok());
+        planned.unwrap_or_else(|| {
+            let s = &self.options.sfm.split;
+            split::partition(input, s.cluster_views, s.overlap)
+        })
+    }
+
+    /// The clusters (those reconstructed apart taken from their units, the others here, in
+    /// parallel), merged.
+    fn split_and_merge(
+        &self,
+        ctx: &StageContext,
+        dir: &Path,
+        input: &SfmInput,
+    ) -> Result<handheld_sfm::SfmResult> {
+        let opts = &self.options.sfm;
+        opts.validate()
+            .map_err(|e| PipelineError::invalid(stage::SPARSE, e))?;
+        let clusters = self.clusters(ctx, input);
+        let mut outcomes: Vec<Option<split::ClusterOutcome>> = Vec::new();
+        for k in 0..clusters.len() {
+            let name = cluster_file(k);
+            outcomes.push(match ctx.take_unit(k, std::slice::from_ref(&name), dir)? {
+                Some(_) => {
+                    let path = dir.join(&name);
+                    let o = std::fs::read(&path)
+                        .ok()
+                        .and_then(|b| postcard::from_bytes(&b).ok());
+                    let _ = std::fs::remove_file(&path);
+                    o
+                }
+                None => None,
+            });
+        }
+        let missing = outcomes.iter().filter(|o| o.is_none()).count() as u64;
+        tracing::info!(
+            "split-and-merge: {} clusters of at most {} views, {} reconstructed here",
+            clusters.len(),
+            opts.split.cluster_views,
+            missing
+        );
+        ctx.progress.start("clusters", missing);
+        let outcomes: Vec<split::ClusterOutcome> = outcomes
+            .into_par_iter()
+            .zip(clusters.par_iter())
+            .map(|(o, c)| {
+                o.unwrap_or_else(|| {
+                    let o = run_cluster(input, c, opts, &handheld_core::NoProgress);
+                    ctx.progress.inc(1);
+                    o
+                })
+            })
+            .collect();
+        ctx.progress.finish();
+        split::merge_clusters(input, opts, &clusters, outcomes, ctx.progress)
+            .context("structure from motion (split-and-merge)")
     }
 }
 
@@ -89,6 +180,9 @@ pub struct SparseModelReport<'a> {
     /// alone).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub duplicates: Option<&'a [DuplicateShot]>,
+    /// The largest model only: what split-and-merge did, when the input was split.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub split: Option<&'a split::SplitReport>,
 }
 
 /// What keypoint refinement did, and in how long.
@@ -121,6 +215,53 @@ impl Stage for Sparse {
         self.options.validate()
     }
 
+    /// Split-and-merge: one unit per cluster (`handheld_sfm::split`), when the input is split.
+    fn units(&self, ctx: &StageContext) -> Result<usize> {
+        let input = load_input(ctx.ws)?;
+        if !self.splits(&input) {
+            return Ok(0);
+        }
+        let s = &self.options.sfm.split;
+        let clusters = split::partition(&input, s.cluster_views, s.overlap);
+        if let Some(units) = &ctx.units {
+            let bytes = postcard::to_stdvec(&clusters).map_err(|e| {
+                PipelineError::Graph(format!("sparse: the clusters do not serialise: {e}"))
+            })?;
+            handheld_io::atomic::write_bytes_atomic(&units.join(CLUSTERS_FILE), &bytes)?;
+        }
+        Ok(clusters.len())
+    }
+
+    fn run_unit(
+        &self,
+        ctx: &StageContext,
+        dir: &Path,
+        k: usize,
+    ) -> Result<(Vec<String>, serde_json::Value)> {
+        let input = load_input(ctx.ws)?;
+        let clusters = self.clusters(ctx, &input);
+        let Some(cluster) = clusters.get(k) else {
+            return Err(PipelineError::Graph(format!(
+                "sparse: no cluster {k} ({} clusters)",
+                clusters.len()
+            )));
+        };
+        let outcome = run_cluster(&input, cluster, &self.options.sfm, ctx.progress);
+        let summary = serde_json::json!({
+            "views": cluster.views.len(),
+            "registered": outcome.models.first().map_or(0, |m| m.0.views.len()),
+            "error": outcome.error,
+        });
+        let name = cluster_file(k);
+        let bytes = postcard::to_stdvec(&outcome).map_err(|e| {
+            PipelineError::Graph(format!(
+                "sparse: cluster {k}'s model does not serialise: {e}"
+            ))
+        })?;
+        handheld_io::atomic::write_bytes_atomic(&dir.join(&name), &bytes)?;
+        Ok((vec![name], summary))
+    }
+
     fn run(&self, ctx: &StageContext, dir: &Path) -> Result<Produced<SparseSummary>> {
         let ws = ctx.ws;
         let opts = &self.options.sfm;
@@ -143,8 +284,11 @@ impl Stage for Sparse {
             }
             _ => None,
         };
-        let mut result =
-            reconstruct(&input, opts, ctx.progress).context("structure from motion")?;
+        let mut result = if self.splits(&input) {
+            self.split_and_merge(ctx, dir, &input)?
+        } else {
+            reconstruct(&input, opts, ctx.progress).context("structure from motion")?
+        };
         for m in result.models.iter_mut() {
             colorize(ws, &mut m.reconstruction, &colours)?;
         }
@@ -167,6 +311,7 @@ impl Stage for Sparse {
                     .then(|| result.models[1..].iter().map(|m| &m.summary).collect()),
                 duplicates: (k == 0 && !result.duplicates.is_empty())
                     .then_some(result.duplicates.as_slice()),
+                split: if k == 0 { result.split.as_ref() } else { None },
             };
             if k == 0 {
                 write_model(dir, &m.reconstruction, &report)?;
@@ -216,6 +361,34 @@ impl Stage for Sparse {
                 .advice("remove one of each pair from the input folder")
                 .details(copies.join("; ")),
             );
+        }
+        if let Some(r) = &result.split {
+            let f: Vec<f64> = r.clusters.iter().filter_map(|c| c.focal_px).collect();
+            let (lo, hi) = f
+                .iter()
+                .fold((f64::INFINITY, 0.0f64), |(a, b), &x| (a.min(x), b.max(x)));
+            if f.len() >= 2 && hi > 1.1 * lo {
+                warnings.push(
+                    Warning::new(
+                        code::SPLIT_DISAGREEMENT,
+                        format!("the clusters' own self-calibrations disagree on the focal length ({lo:.0}–{hi:.0} px): the merged model's focal length rests on the global adjustment"),
+                    )
+                    .advice("give the calibration with --intrinsics if it is known, or larger clusters (--cluster-views)")
+                    .details("sparse/summary.json, split.clusters"),
+                );
+            }
+            if !r.inconsistent_views.is_empty() {
+                warnings.push(
+                    Warning::new(
+                        code::SPLIT_DISAGREEMENT,
+                        format!(
+                            "{} views of the merged model disagree with their verified pairs",
+                            r.inconsistent_views.len()
+                        ),
+                    )
+                    .details(r.inconsistent_views.join(", ")),
+                );
+            }
         }
         let best = &result.models[0].summary;
         for m in best.merged.iter().filter(|m| m.cross_pairs == 0) {
