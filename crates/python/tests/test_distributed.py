@@ -6,6 +6,7 @@ import hashlib
 import json
 import os
 import pathlib
+import shutil
 import subprocess
 import sys
 
@@ -169,3 +170,28 @@ def test_a_killed_worker_changes_nothing(runs, tmp_path):
             if a.is_file() and a.name not in ("manifest.json", "summary.json"):
                 assert digest(a) == digest(ws / a.relative_to(root / "single")), a
     assert not (ws / ".units").exists()
+
+
+SPLIT = {"sparse": {"sfm": {"split": {"above": 4, "cluster_views": 8, "overlap": 0.3}}}}
+
+
+def test_split_and_merge_runs_a_cluster_per_task(runs, client):
+    """bundler-ET cut into clusters of at most 8 views: each cluster is a task on the cluster, and the
+    merged model is the one the same options give on one machine, byte for byte."""
+    root = runs[0]
+    for name in ["split-single", "split-dist"]:
+        for stage in ["ingest", "features", "matches"]:
+            shutil.copytree(root / "single" / stage, root / name / stage)
+    handheld.reconstruct(ET / "images", root / "split-single", options=SPLIT, until="sparse")
+    calls = []
+    handheld.distributed.reconstruct(ET / "images", root / "split-dist", client, options=SPLIT,
+                                     until="sparse", progress=lambda *a: calls.append(a))
+    summary = json.loads((root / "split-single" / "sparse" / "summary.json").read_text())
+    clusters = len(summary["split"]["clusters"])
+    assert clusters >= 2, summary["split"]
+    assert ("sparse units", clusters, clusters) in calls, calls
+    for f in ["cameras.bin", "images.bin", "points3D.bin"]:
+        a, b = (root / n / "sparse" / f for n in ["split-single", "split-dist"])
+        assert digest(a) == digest(b), f
+    a, b = (root / n / "sparse" / "summary.json" for n in ["split-single", "split-dist"])
+    assert without_timing(a) == without_timing(b)

@@ -90,9 +90,7 @@ def test_error_is_the_cli_message(tmp_path):
     with pytest.raises(handheld.HandheldError) as py_error:
         handheld.reconstruct(missing, tmp_path / "ws")
     assert str(missing) in str(py_error.value)
-    cli = pathlib.Path(os.environ.get("HANDHELD_BIN", REPO / "target" / "debug" / "handheld"))
-    if not cli.exists():
-        pytest.skip(f"{cli} is not built (cargo build -p handheld, or set HANDHELD_BIN)")
+    cli = cli_or_skip()
     run = subprocess.run([str(cli), "--quiet", "reconstruct", str(missing), "-o", str(tmp_path / "ws2")],
                          capture_output=True, text=True)
     assert run.returncode == 1
@@ -175,6 +173,55 @@ def test_sparse_model_is_accurate(icl_ws):
     assert score["focal_err_pct_median"] < 1.0
     assert score["rot_err_deg_median"] < 0.6  # the ground truth itself is ~0.4° from the images
     assert score["auc@5"] > 80
+
+
+def cli_or_skip():
+    cli = pathlib.Path(os.environ.get("HANDHELD_BIN", REPO / "target" / "debug" / "handheld"))
+    if not cli.exists():
+        if os.environ.get("CI"):
+            pytest.fail(f"{cli} is not built")
+        pytest.skip(f"{cli} is not built (cargo build -p handheld, or set HANDHELD_BIN)")
+    return cli
+
+
+def read_colmap_images_txt(path):
+    """name -> (R, t) from a COLMAP images.txt (cam_from_world, quaternion w x y z)."""
+    out = {}
+    lines = [l for l in path.read_text().splitlines() if l and not l.startswith("#")]
+    for line in lines[0::2]:
+        v = line.split()
+        w, x, y, z = map(float, v[1:5])
+        R = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                      [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                      [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+        out[v[9]] = (R, np.array(list(map(float, v[5:8]))))
+    return out
+
+
+def test_reconstruct_the_demo_sequence(tmp_path):
+    """`handheld demo`'s synthetic hand-held orbit (exact ground truth, rendered by the CLI),
+    reconstructed through the package: every frame, the focal length and the relative rotations."""
+    cli = cli_or_skip()
+    subprocess.run([str(cli), "--quiet", "demo", "-o", str(tmp_path / "demo"), "--until", "ingest",
+                    "--frames", "12"], check=True)
+    ws = tmp_path / "ws"
+    handheld.reconstruct(tmp_path / "demo" / "images", ws, until="sparse")
+    m = handheld.Workspace(ws).sparse()
+    truth = read_colmap_images_txt(tmp_path / "demo" / "ground_truth" / "sparse" / "images.txt")
+    assert sorted(m.image_names) == sorted(truth)
+    f_true = float((tmp_path / "demo" / "ground_truth" / "sparse" / "cameras.txt").read_text()
+                   .splitlines()[-1].split()[4])
+    f = m.cameras[int(m.camera_ids[0])]["params"][0]
+    assert abs(f / f_true - 1) < 0.02, (f, f_true)
+    R = dict(zip(m.image_names, m.rotations))
+    worst = 0.0
+    for a in m.image_names:
+        for b in m.image_names:
+            Re = R[b] @ R[a].T
+            Rg = truth[b][0] @ truth[a][0].T
+            c = (np.trace(Rg.T @ Re) - 1) / 2
+            worst = max(worst, np.degrees(np.arccos(np.clip(c, -1, 1))))
+    assert worst < 1.0, worst
 
 
 def test_long_calls_release_the_gil(tmp_path):

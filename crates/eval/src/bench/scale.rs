@@ -134,9 +134,12 @@ pub fn bench_scale(o: &ScaleBenchOptions, progress: &dyn Progress) -> Result<Sca
                     let best = &r.models[0].reconstruction;
                     let mut timings_s = r.models[0].summary.timings_s.clone();
                     if let Some(sp) = &r.split {
-                        timings_s.insert("split_merge".into(), sp.merge_s);
-                        timings_s.insert("split_global_adjustment".into(), sp.global_adjustment_s);
-                        let c: f64 = sp.clusters.iter().map(|c| c.time_s).sum();
+                        timings_s.insert("split_merge".into(), sp.merge_seconds);
+                        timings_s.insert(
+                            "split_global_adjustment".into(),
+                            sp.global_adjustment_seconds,
+                        );
+                        let c: f64 = sp.clusters.iter().map(|c| c.seconds).sum();
                         timings_s.insert("split_clusters_cpu".into(), c);
                     }
                     let (auc1, auc5) = auc(best, &truth);

@@ -48,11 +48,11 @@ pub struct ClusterOutcome {
     pub duplicates: Vec<DuplicateShot>,
     /// Why no model could be built.
     pub error: Option<String>,
-    pub time_s: f64,
+    pub seconds: f64,
 }
 
 impl ClusterOutcome {
-    pub fn new(result: Result<SfmResult, String>, time_s: f64) -> Self {
+    pub fn new(result: Result<SfmResult, String>, seconds: f64) -> Self {
         match result {
             Ok(r) => Self {
                 models: r
@@ -63,14 +63,14 @@ impl ClusterOutcome {
                 unregistered: r.unregistered,
                 duplicates: r.duplicates,
                 error: None,
-                time_s,
+                seconds,
             },
             Err(e) => Self {
                 models: Vec::new(),
                 unregistered: Vec::new(),
                 duplicates: Vec::new(),
                 error: Some(e),
-                time_s,
+                seconds,
             },
         }
     }
@@ -88,7 +88,7 @@ pub struct ClusterReport {
     /// Focal length of its largest model's first camera group, pixels.
     pub focal_px: Option<f64>,
     pub error: Option<String>,
-    pub time_s: f64,
+    pub seconds: f64,
 }
 
 /// What split-and-merge did (`sparse/summary.json`, `split`).
@@ -103,8 +103,8 @@ pub struct SplitReport {
     /// The focal length the clusters' models were brought to before the merge, when they
     /// disagreed (`consensus`).
     pub consensus_focal_px: Option<f64>,
-    pub merge_s: f64,
-    pub global_adjustment_s: f64,
+    pub merge_seconds: f64,
+    pub global_adjustment_seconds: f64,
 }
 
 /// One model waiting to be merged: the cluster it came from and its reconstruction.
@@ -137,7 +137,7 @@ pub fn merge_clusters(
                     .first()
                     .and_then(|m| m.0.cameras.values().next().map(|c| c.intrinsics.f)),
                 error: o.error.clone(),
-                time_s: o.time_s,
+                seconds: o.seconds,
             })
             .collect(),
         ..Default::default()
@@ -229,7 +229,7 @@ pub fn merge_clusters(
         }
     }
     progress.finish();
-    report.merge_s = t.elapsed().as_secs_f64() - report.global_adjustment_s;
+    report.merge_seconds = t.elapsed().as_secs_f64() - report.global_adjustment_seconds;
     models.sort_by_key(|m| std::cmp::Reverse(m.summary.registered));
     let registered: BTreeSet<ImageId> = models
         .iter()
@@ -456,7 +456,7 @@ fn finish(
         summary.uncertainty_note = note;
     }
     summary.total_images = ctx.input.images.len();
-    report.global_adjustment_s += t.elapsed().as_secs_f64();
+    report.global_adjustment_seconds += t.elapsed().as_secs_f64();
     Ok(SfmModel {
         reconstruction: rec,
         summary,
