@@ -16,6 +16,7 @@ use pyo3::create_exception;
 use pyo3::exceptions::PyException;
 use pyo3::prelude::*;
 
+mod bench;
 mod options;
 mod progress;
 mod workspace;
@@ -238,6 +239,9 @@ fn _handheld(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(stage_units, m)?)?;
     m.add_function(wrap_pyfunction!(run_unit, m)?)?;
     m.add_function(wrap_pyfunction!(run_stage, m)?)?;
+    m.add_function(wrap_pyfunction!(bench::scale_clusters, m)?)?;
+    m.add_function(wrap_pyfunction!(bench::scale_cluster, m)?)?;
+    m.add_function(wrap_pyfunction!(bench::scale_merge, m)?)?;
     m.add_function(wrap_pyfunction!(write_report, m)?)?;
     m.add_class::<workspace::Workspace>()?;
     m.add_class::<workspace::SparseModel>()?;

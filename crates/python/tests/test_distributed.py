@@ -195,3 +195,13 @@ def test_split_and_merge_runs_a_cluster_per_task(runs, client):
         assert digest(a) == digest(b), f
     a, b = (root / n / "sparse" / "summary.json" for n in ["split-single", "split-dist"])
     assert without_timing(a) == without_timing(b)
+
+
+def test_bench_scale_runs_the_clusters_as_tasks(client):
+    """The scale benchmark's split-and-merge on the cluster: a short walk (exact truth) cut into
+    clusters of at most 24 views, one task each, merged, scored."""
+    out = handheld.distributed.bench_scale(client, views=[60], points_per_view=200, cluster_views=24)
+    (run,) = out["runs"]
+    assert run["error"] is None and run["mode"] == "split-dask"
+    assert run["clusters"] >= 3 and run["registered"] == 60 and not run["split"]["apart"], run["split"]
+    assert run["auc5"] > 90 and run["focal_error_pct"] < 1.0, run

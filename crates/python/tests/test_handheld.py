@@ -160,6 +160,11 @@ def test_sparse_model_arrays_and_conventions(icl_ws):
         assert np.median(np.linalg.norm(proj - xy[seen], axis=1)) < 0.5
     with pytest.raises(IndexError):
         m.keypoints(n)
+    # The same poses as the COLMAP text model of the workspace (cam_from_world, w x y z).
+    text = read_colmap_images_txt(ws / "sparse" / "images.txt")
+    assert sorted(text) == sorted(m.image_names)
+    for name, R, t in zip(m.image_names, m.rotations, m.translations):
+        assert np.allclose(R, text[name][0], atol=1e-6) and np.allclose(t, text[name][1], atol=1e-6)
 
 
 def test_sparse_model_is_accurate(icl_ws):

@@ -12,7 +12,7 @@ use std::time::Instant;
 
 use handheld_core::{ImageId, MetricReconstruction, NoProgress, Progress};
 use handheld_robust::TwoViewConfiguration;
-use handheld_sfm::{reconstruct, SfmImage, SfmInput, SfmOptions, SfmPair, SplitOptions};
+use handheld_sfm::{reconstruct, split, SfmImage, SfmInput, SfmOptions, SfmPair, SplitOptions};
 use handheld_testkit::street::{street_set, StreetOptions};
 use serde::{Deserialize, Serialize};
 
@@ -71,6 +71,8 @@ pub struct ScaleRun {
     /// The largest model's step timings (`ModelSummary::timings_s`), and split-and-merge's
     /// merge and global adjustment.
     pub timings_s: std::collections::BTreeMap<String, f64>,
+    /// Split-and-merge's report (clusters, merges, what stayed apart and why).
+    pub split: Option<split::SplitReport>,
 }
 
 /// The report: every run, and the growth of each mode.
@@ -129,52 +131,14 @@ pub fn bench_scale(o: &ScaleBenchOptions, progress: &dyn Progress) -> Result<Sca
             let result = pool.install(|| reconstruct(&input, &options, &NoProgress));
             let seconds = t.elapsed().as_secs_f64();
             let peak_rss_mb = peak_rss_mb();
-            let run = match result {
-                Ok(r) => {
-                    let best = &r.models[0].reconstruction;
-                    let mut timings_s = r.models[0].summary.timings_s.clone();
-                    if let Some(sp) = &r.split {
-                        timings_s.insert("split_merge".into(), sp.merge_seconds);
-                        timings_s.insert(
-                            "split_global_adjustment".into(),
-                            sp.global_adjustment_seconds,
-                        );
-                        let c: f64 = sp.clusters.iter().map(|c| c.seconds).sum();
-                        timings_s.insert("split_clusters_cpu".into(), c);
-                    }
-                    let (auc1, auc5) = auc(best, &truth);
-                    let f_true = truth.cameras.values().next().map(|c| c.intrinsics.f);
-                    let f = best.cameras.values().next().map(|c| c.intrinsics.f);
-                    ScaleRun {
-                        views: n,
-                        mode: mode.into(),
-                        seconds,
-                        peak_rss_mb,
-                        registered: best.views.len(),
-                        models: r.models.len(),
-                        clusters: r.split.as_ref().map(|s| s.clusters.len()),
-                        auc1,
-                        auc5,
-                        focal_error_pct: f.zip(f_true).map(|(f, t)| 100.0 * (f / t - 1.0).abs()),
-                        error: None,
-                        timings_s,
-                    }
-                }
-                Err(e) => ScaleRun {
-                    views: n,
-                    mode: mode.into(),
-                    seconds,
-                    peak_rss_mb,
-                    registered: 0,
-                    models: 0,
-                    clusters: None,
-                    auc1: 0.0,
-                    auc5: 0.0,
-                    focal_error_pct: None,
-                    error: Some(e.to_string()),
-                    timings_s: Default::default(),
-                },
-            };
+            let run = scored(
+                n,
+                mode,
+                seconds,
+                peak_rss_mb,
+                result.map_err(|e| e.to_string()),
+                &truth,
+            );
             tracing::info!(
                 "{n} views, {mode}: {:.1} s, AUC@1 {:.2}, {} registered",
                 run.seconds,
@@ -208,6 +172,147 @@ pub fn bench_scale(o: &ScaleBenchOptions, progress: &dyn Progress) -> Result<Sca
         runs,
         workers: o.workers,
     })
+}
+
+/// A run scored against the truth.
+fn scored(
+    views: usize,
+    mode: &str,
+    seconds: f64,
+    peak_rss_mb: Option<f64>,
+    result: std::result::Result<handheld_sfm::SfmResult, String>,
+    truth: &MetricReconstruction,
+) -> ScaleRun {
+    match result {
+        Ok(r) => {
+            let best = &r.models[0].reconstruction;
+            let mut timings_s = r.models[0].summary.timings_s.clone();
+            if let Some(sp) = &r.split {
+                timings_s.insert("split_merge".into(), sp.merge_seconds);
+                timings_s.insert(
+                    "split_global_adjustment".into(),
+                    sp.global_adjustment_seconds,
+                );
+                let c: f64 = sp.clusters.iter().map(|c| c.seconds).sum();
+                timings_s.insert("split_clusters_cpu".into(), c);
+            }
+            let (auc1, auc5) = auc(best, truth);
+            let f_true = truth.cameras.values().next().map(|c| c.intrinsics.f);
+            let f = best.cameras.values().next().map(|c| c.intrinsics.f);
+            ScaleRun {
+                views,
+                mode: mode.into(),
+                seconds,
+                peak_rss_mb,
+                registered: best.views.len(),
+                models: r.models.len(),
+                clusters: r.split.as_ref().map(|s| s.clusters.len()),
+                auc1,
+                auc5,
+                focal_error_pct: f.zip(f_true).map(|(f, t)| 100.0 * (f / t - 1.0).abs()),
+                error: None,
+                timings_s,
+                split: r.split.clone(),
+            }
+        }
+        Err(e) => ScaleRun {
+            views,
+            mode: mode.into(),
+            seconds,
+            peak_rss_mb,
+            registered: 0,
+            models: 0,
+            clusters: None,
+            auc1: 0.0,
+            auc5: 0.0,
+            focal_error_pct: None,
+            error: Some(e),
+            timings_s: Default::default(),
+            split: None,
+        },
+    }
+}
+
+/// One size of the benchmark cut into its clusters, for a driver that runs the clusters
+/// elsewhere (the Python package's `handheld.distributed.bench_scale`, on Dask). Every task
+/// builds it again from the same options: the walk and the partition are deterministic.
+pub struct ScaleProblem {
+    pub views: usize,
+    pub input: SfmInput,
+    pub truth: MetricReconstruction,
+    pub options: SfmOptions,
+    pub clusters: Vec<split::Cluster>,
+}
+
+impl ScaleProblem {
+    pub fn new(views: usize, o: &ScaleBenchOptions) -> Result<Self> {
+        let (input, truth) = street_input(&StreetOptions {
+            num_views: views,
+            points_per_view: o.points_per_view,
+            seed: o.seed,
+            ..Default::default()
+        })
+        .map_err(|e| EvalError::option("views", e))?;
+        let options = SfmOptions {
+            seed: o.seed,
+            split: SplitOptions {
+                above: 1,
+                cluster_views: o.cluster_views,
+                overlap: o.overlap,
+            },
+            ..Default::default()
+        };
+        options
+            .validate()
+            .map_err(|e| EvalError::option("cluster_views", e.to_string()))?;
+        let clusters = split::partition(&input, o.cluster_views, o.overlap);
+        Ok(Self {
+            views,
+            input,
+            truth,
+            options,
+            clusters,
+        })
+    }
+
+    /// Cluster `k` reconstructed (one task).
+    pub fn run_cluster(&self, k: usize) -> Result<split::ClusterOutcome> {
+        let c = self.clusters.get(k).ok_or_else(|| {
+            EvalError::option("k", format!("no cluster {k} of {}", self.clusters.len()))
+        })?;
+        let t = Instant::now();
+        let r = split::reconstruct_cluster(&self.input, c, &self.options, &NoProgress);
+        Ok(split::ClusterOutcome::new(
+            r.map_err(|e| e.to_string()),
+            t.elapsed().as_secs_f64(),
+        ))
+    }
+
+    /// The clusters' outcomes merged and scored; `seconds` is the time the driver measured.
+    pub fn merge(
+        &self,
+        outcomes: Vec<split::ClusterOutcome>,
+        seconds: f64,
+        mode: &str,
+    ) -> ScaleRun {
+        let t = Instant::now();
+        let r = split::merge_clusters(
+            &self.input,
+            &self.options,
+            &self.clusters,
+            outcomes,
+            &NoProgress,
+        );
+        let seconds = seconds + t.elapsed().as_secs_f64();
+        scored(
+            self.views,
+            mode,
+            seconds,
+            peak_rss_mb(),
+            r.map_err(|e| e.to_string()),
+            &self.truth,
+        )
+    }
 }
 
 /// The walk as the SfM input: keypoints are the noisy observations, pairs the window's.

@@ -26,7 +26,17 @@ def main(argv=None):
     where.add_argument("--local-workers", type=int, metavar="N", help="run on a LocalCluster of N processes")
     r.add_argument("--quiet", action="store_true", help="print nothing but errors")
     r.add_argument("--json", action="store_true", help="print the stage reports as one JSON object")
+    b = sub.add_parser("bench-scale", help="split-and-merge on synthetic walks, one Dask task per cluster")
+    b.add_argument("--views", default="250,500,1000,2000", help="sizes, comma-separated")
+    b.add_argument("--cluster-views", type=int, default=200)
+    b.add_argument("--points-per-view", type=int, default=300)
+    b.add_argument("--seed", type=int, default=0)
+    bw = b.add_mutually_exclusive_group()
+    bw.add_argument("--scheduler", help="a Dask scheduler's address")
+    bw.add_argument("--local-workers", type=int, default=2, metavar="N", help="a LocalCluster of N processes")
     a = parser.parse_args(argv)
+    if a.command == "bench-scale":
+        return bench_scale_main(a)
 
     try:
         options = None
@@ -67,6 +77,24 @@ def main(argv=None):
         print(file=sys.stderr)
         for rep in reports:
             print(f"  {rep['stage']:<10} {rep['status']:<10} {rep['seconds']:7.2f} s")
+    return 0
+
+
+def bench_scale_main(a):
+    from dask.distributed import Client, LocalCluster
+
+    from handheld.distributed import bench_scale
+
+    try:
+        views = [int(v) for v in a.views.split(",")]
+        client = (Client(a.scheduler) if a.scheduler
+                  else Client(LocalCluster(n_workers=a.local_workers, threads_per_worker=1)))
+        with client:
+            out = bench_scale(client, views, a.points_per_view, a.cluster_views, seed=a.seed)
+    except (ValueError, handheld.HandheldError) as e:
+        print(json.dumps({"error": str(e)}))
+        return 1
+    print(json.dumps(out, indent=1))
     return 0
 
 

@@ -7,7 +7,8 @@
 
 The workspace (and the input) must be on a file system that every worker sees, at the same path.
 Each stage that splits into work units (features: one per photo; matches: one per block of
-pairs; dense: one per consecutive pair of views) runs them as Dask tasks; then the stage itself
+pairs; sparse, when split-and-merge applies: one per cluster; dense: one per consecutive pair of
+views) runs them as Dask tasks; then the stage itself
 runs as one task, takes the units' files and writes what is left (the database, the depth maps
 after linking, the summaries, the manifest). The other stages run as one
 task each. The files of the split stages are byte-identical to a single-machine run's: the same
@@ -21,7 +22,7 @@ import uuid
 from . import _handheld
 from ._handheld import HandheldError
 
-__all__ = ["reconstruct"]
+__all__ = ["reconstruct", "bench_scale"]
 
 
 def _unit(input, workspace, stage, k, options):
@@ -85,3 +86,50 @@ def reconstruct(input, workspace, client, options=None, until=None, force=False,
     if first_error is not None:
         raise first_error
     return reports
+
+
+def _worker_peak_rss_mb():
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def bench_scale(client, views=(250, 500, 1000, 2000), points_per_view=300, cluster_views=200, overlap=0.3,
+                seed=0, progress=None):
+    """`handheld bench scale`'s split-and-merge on a Dask cluster: for each size of testkit's walk
+    round a block (exact truth, synthetic correspondences), one task per cluster, then the merge
+    and the global adjustment here. Returns one run per size (as the Rust benchmark's `runs`, mode
+    `split-dask`; `peak_rss_mb` is the largest worker's peak, the driver's merge included), and
+    `exponent`, the slope of log(seconds) against log(views)."""
+    import math
+    import time
+
+    from dask.distributed import as_completed
+
+    runs = []
+    for n in views:
+        t = time.perf_counter()
+        k = _handheld.scale_clusters(n, points_per_view, cluster_views, overlap, seed)
+        futures = client.map(_handheld.scale_cluster, [n] * k, range(k), [points_per_view] * k,
+                             [cluster_views] * k, [overlap] * k, [seed] * k, pure=False)
+        outcomes = [None] * k
+        index = {f.key: i for i, f in enumerate(futures)}
+        for done, f in enumerate(as_completed(futures), 1):
+            outcomes[index[f.key]] = f.result()
+            if progress is not None:
+                progress(f"{n} views: clusters", done, k)
+        run = _handheld.scale_merge(n, outcomes, time.perf_counter() - t, points_per_view, cluster_views,
+                                    overlap, seed)
+        workers = client.run(_worker_peak_rss_mb)
+        run["peak_rss_mb"] = max([run.get("peak_rss_mb") or 0.0] + list(workers.values()))
+        run["workers"] = len(workers)
+        runs.append(run)
+    pts = [(math.log(r["views"]), math.log(max(r["seconds"], 1e-6))) for r in runs if r.get("error") is None]
+    exponent = None
+    if len(pts) >= 2:
+        mx = sum(p[0] for p in pts) / len(pts)
+        my = sum(p[1] for p in pts) / len(pts)
+        sxx = sum((p[0] - mx) ** 2 for p in pts)
+        if sxx > 0:
+            exponent = sum((p[0] - mx) * (p[1] - my) for p in pts) / sxx
+    return {"runs": runs, "exponent_split": exponent}

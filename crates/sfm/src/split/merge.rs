@@ -95,7 +95,8 @@ pub struct ClusterReport {
 #[derive(Clone, Debug, Default, Serialize, Deserialize, PartialEq)]
 pub struct SplitReport {
     pub clusters: Vec<ClusterReport>,
-    /// Models merged into the first model, and those left apart with the reason.
+    /// Models merged into the others, and the models of clusters left out of the first (largest)
+    /// model with the reason.
     pub merged: usize,
     pub apart: Vec<String>,
     /// Views the global adjustment found disagreeing with their verified pairs.
@@ -112,6 +113,8 @@ struct Piece {
     cluster: usize,
     rec: MetricReconstruction,
     summary: ModelSummary,
+    /// Why its last merge failed.
+    why: Option<String>,
 }
 
 /// Merges the clusters' models (see the module's text) into an [`SfmResult`] over the whole input.
@@ -161,6 +164,7 @@ pub fn merge_clusters(
                     cluster: k,
                     rec,
                     summary,
+                    why: None,
                 });
             }
         }
@@ -186,15 +190,17 @@ pub fn merge_clusters(
         // Pieces refused since the merged model last grew.
         let mut refused: BTreeSet<usize> = BTreeSet::new();
         loop {
+            // The piece with the most views in common, then the most verified pairs across
+            // (a piece whose overlap was not registered still merges through its pairs).
             let views: BTreeSet<ImageId> = rec.views.keys().copied().collect();
-            let mut order: Vec<(usize, usize)> = pieces
+            let mut order: Vec<(usize, (usize, usize))> = pieces
                 .iter()
                 .enumerate()
                 .filter(|(k, _)| !refused.contains(k))
-                .map(|(k, p)| (k, p.rec.views.keys().filter(|v| views.contains(v)).count()))
-                .filter(|&(_, shared)| shared > 0)
+                .map(|(k, p)| (k, links(input, &views, &p.rec)))
+                .filter(|&(_, (shared, pairs))| shared + pairs > 0)
                 .collect();
-            order.sort_by_key(|&(k, shared)| (std::cmp::Reverse(shared), k));
+            order.sort_by_key(|&(k, l)| (std::cmp::Reverse(l), k));
             let Some(&(k, _)) = order.first() else {
                 break;
             };
@@ -215,12 +221,26 @@ pub fn merge_clusters(
                     progress.inc(1);
                 }
                 Err(why) => {
-                    report
-                        .apart
-                        .push(format!("a model of cluster {}: {why}", pieces[k].cluster));
+                    pieces[k].why = Some(why);
                     refused.insert(k);
                 }
             }
+        }
+        if models.is_empty() {
+            // What stays out of the first (largest) model, and why.
+            report.apart = pieces
+                .iter()
+                .map(|p| {
+                    format!(
+                        "a model of {} views of cluster {}: {}",
+                        p.rec.views.len(),
+                        p.cluster,
+                        p.why
+                            .as_deref()
+                            .unwrap_or("no view or verified pair in common with the merged model")
+                    )
+                })
+                .collect();
         }
         report.merged += members.len() - 1;
         models.push(finish(&ctx, rec, summary, estimate_aspect, &mut report)?);
@@ -329,11 +349,19 @@ fn consensus(
         });
         let ctx = Context::new(input, graph, &o);
         let mut rec = p.rec.clone();
+        // Kept only when the held focal length explains the piece's images about as well: an
+        // adjustment that had to remove many observations says the piece cannot take it.
         match metric_ba::refine_metric(&ctx, &mut rec, estimate_aspect) {
-            Ok(records) => {
-                p.rec = rec;
-                p.summary.metric_ba.extend(records);
-            }
+            Ok(records) => match crate::upgrade::guard::collapsed(&rec, &records) {
+                None => {
+                    p.rec = rec;
+                    p.summary.metric_ba.extend(records);
+                }
+                Some(why) => tracing::debug!(
+                    "a model of cluster {} kept its focal length: at {fc:.0} px its adjustment {why}",
+                    p.cluster
+                ),
+            },
             Err(e) => tracing::debug!(
                 "a model of cluster {} kept its focal length: {e}",
                 p.cluster
@@ -341,6 +369,25 @@ fn consensus(
         }
     });
     Some(fc)
+}
+
+/// Views of `b` that `views` holds too, and verified pairs between a view of `views` and one of
+/// `b` alone.
+fn links(input: &SfmInput, views: &BTreeSet<ImageId>, b: &MetricReconstruction) -> (usize, usize) {
+    let shared = b.views.keys().filter(|v| views.contains(v)).count();
+    let id = |i: usize| input.images.get(i).map(|im| im.id);
+    let pairs = input
+        .pairs
+        .iter()
+        .filter(|p| {
+            let (Some(x), Some(y)) = (id(p.a), id(p.b)) else {
+                return false;
+            };
+            let only_b = |v: &ImageId| b.views.contains_key(v) && !views.contains(v);
+            (views.contains(&x) && only_b(&y)) || (views.contains(&y) && only_b(&x))
+        })
+        .count();
+    (shared, pairs)
 }
 
 /// The 3D–3D correspondences through the keypoints both models made points of, in the views both

@@ -125,7 +125,7 @@ fn bisect(g: &ViewGraph, nodes: Vec<usize>, core_max: usize, out: &mut Vec<Vec<u
     } else {
         bfs_order(g, &nodes)
     };
-    let k = best_split(g, &order);
+    let k = best_split(g, &order, core_max);
     let (mut a, mut b) = (order[..k].to_vec(), order[k..].to_vec());
     a.sort_unstable();
     b.sort_unstable();
@@ -205,8 +205,10 @@ fn bfs_order(g: &ViewGraph, nodes: &[usize]) -> Vec<usize> {
 }
 
 /// The split point `k` of `order` (the first `k` nodes against the rest) with the smallest
-/// normalised cut, each side at least a quarter of the nodes.
-fn best_split(g: &ViewGraph, order: &[usize]) -> usize {
+/// normalised cut, near the balanced split: the nodes need `m = ⌈n / core_max⌉` clusters, so the
+/// first side should hold `⌊m/2⌋/m` of them; the cut may move a quarter of a cluster either way
+/// (a free cut left 15 views as 11 + 4, and a cluster of 4 views barely overlaps its neighbours).
+fn best_split(g: &ViewGraph, order: &[usize], core_max: usize) -> usize {
     let n = order.len();
     let pos: BTreeMap<usize, usize> = order.iter().enumerate().map(|(k, &i)| (i, k)).collect();
     let deg = |i: usize| -> f64 {
@@ -217,7 +219,16 @@ fn best_split(g: &ViewGraph, order: &[usize]) -> usize {
             .sum()
     };
     let total: f64 = order.iter().map(|&i| deg(i)).sum();
-    let (lo, hi) = ((n / 4).max(1), (n - n / 4).min(n - 1).max(1));
+    let m = n.div_ceil(core_max.max(1)).max(2);
+    let target = n * (m / 2) / m;
+    let slack = (n / (4 * m)).max(1);
+    // Neither side may need more clusters than it is given (⌊m/2⌋ and ⌈m/2⌉).
+    let (left_max, right_max) = ((m / 2) * core_max, (m - m / 2) * core_max);
+    let lo = target
+        .saturating_sub(slack)
+        .max(n.saturating_sub(right_max))
+        .max(1);
+    let hi = (target + slack).min(left_max).min(n - 1).max(lo);
     let mut cut = 0.0;
     let mut assoc_a = 0.0;
     let mut best = (f64::INFINITY, n / 2);
@@ -276,22 +287,30 @@ fn grow(
         }
     }
     let total: f64 = cut.values().sum();
+    // Each neighbour's share: in proportion to its cut, at least MIN_SHARE; the strongest first.
     let mut shares: Vec<(usize, usize)> = cut
         .iter()
         .map(|(&n, &w)| {
             (
                 n,
-                ((want as f64 * w / total).round() as usize).max(MIN_SHARE.min(want)),
+                ((want as f64 * w / total).round() as usize).max(MIN_SHARE),
             )
         })
         .collect();
-    // The strongest neighbours first, while the budget lasts.
     shares.sort_by(|a, b| cut[&b.0].total_cmp(&cut[&a.0]).then(a.0.cmp(&b.0)));
-    let mut budget = want;
-    for (n, share) in shares {
-        let take = share.min(budget);
-        budget -= take;
-        for _ in 0..take {
+    // The views are handed out one round at a time, a view to each neighbour that still has a
+    // share, so that when the cluster's size limit runs short every neighbour still gets some.
+    let budget = want
+        .max(MIN_SHARE * shares.len())
+        .min(cluster_views.saturating_sub(core.len()));
+    let mut given = vec![0usize; shares.len()];
+    let mut left = budget;
+    while left > 0 {
+        let mut progressed = false;
+        for (s, &(n, share)) in shares.iter().enumerate() {
+            if left == 0 || given[s] >= share {
+                continue;
+            }
             // The neighbour's view with the most matches into the cluster as it is now.
             let best = inside
                 .iter()
@@ -303,12 +322,17 @@ fn grow(
                 })
                 .into_iter()
                 .max_by(|a, b| a.1.total_cmp(&b.1).then(b.0.cmp(&a.0)));
-            match best {
-                Some((v, _)) => {
-                    inside.insert(v);
-                }
-                None => break,
+            if let Some((v, _)) = best {
+                inside.insert(v);
+                given[s] += 1;
+                left -= 1;
+                progressed = true;
+            } else {
+                given[s] = share;
             }
+        }
+        if !progressed {
+            break;
         }
     }
     inside.into_iter().collect()
@@ -419,7 +443,7 @@ mod tests {
         assert_eq!(clusters[0].core, (0..40).collect::<Vec<_>>());
         let g = ViewGraph::new(&input);
         let nodes: Vec<usize> = (0..40).collect();
-        let k = best_split(&g, &bfs_order(&g, &nodes));
+        let k = best_split(&g, &bfs_order(&g, &nodes), 20);
         assert!((10..=30).contains(&k));
     }
 }
