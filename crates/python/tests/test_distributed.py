@@ -205,3 +205,23 @@ def test_bench_scale_runs_the_clusters_as_tasks(client):
     assert run["error"] is None and run["mode"] == "split-dask"
     assert run["clusters"] >= 3 and run["registered"] == 60 and not run["split"]["apart"], run["split"]
     assert run["auc5"] > 90 and run["focal_error_pct"] < 1.0, run
+
+
+def test_an_unreachable_scheduler_is_one_clear_error(tmp_path):
+    run = subprocess.run([sys.executable, "-m", "handheld", "reconstruct", str(tmp_path), "-o", str(tmp_path / "ws"),
+                          "--scheduler", "tcp://127.0.0.1:9"], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 1
+    assert "cannot reach the Dask scheduler at tcp://127.0.0.1:9" in run.stderr, run.stderr
+    assert "Traceback" not in run.stderr
+
+
+def test_a_worker_that_cannot_see_the_workspace_is_named(tmp_path):
+    """What a worker on a machine without the shared file system reports (a LocalCluster's workers
+    share this one's, so the worker's answer is given here)."""
+    class Blind:
+        def run(self, f, *args):
+            return {"tcp://10.0.0.7:40000": ("node7", True, False)}
+
+    with pytest.raises(handheld.HandheldError, match="tcp://10.0.0.7:40000 .on node7. cannot see the workspace"):
+        handheld.distributed.check_workers_see(Blind(), str(tmp_path), str(tmp_path / "ws"))
+    assert not list((tmp_path / "ws").glob(".handheld-probe-*"))

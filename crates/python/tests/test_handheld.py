@@ -229,6 +229,21 @@ def test_reconstruct_the_demo_sequence(tmp_path):
     assert worst < 1.0, worst
 
 
+def test_a_module_for_another_python_is_one_clear_error(tmp_path):
+    """The compiled module replaced by one that cannot load (as a wheel for another Python or
+    platform): importing the package says so, and what to do."""
+    pkg = pathlib.Path(handheld.__file__).parent
+    copy = tmp_path / "handheld"
+    copy.mkdir()
+    for f in pkg.glob("*.py"):
+        (copy / f.name).write_bytes(f.read_bytes())
+    (copy / "_handheld.abi3.so").write_bytes(b"not a shared object")
+    run = subprocess.run([sys.executable, "-c", "import handheld"], cwd=tmp_path, capture_output=True, text=True,
+                         env={**os.environ, "PYTHONPATH": str(tmp_path)})
+    assert run.returncode == 1
+    assert "its compiled module does not load in this Python" in run.stderr and "maturin" in run.stderr
+
+
 def test_long_calls_release_the_gil(tmp_path):
     need(ICL)
     done = threading.Event()

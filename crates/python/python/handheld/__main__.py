@@ -57,7 +57,7 @@ def main(argv=None):
             from handheld.distributed import reconstruct as reconstruct_on
 
             if a.scheduler:
-                client = Client(a.scheduler)
+                client = connect(a.scheduler)
             else:
                 if a.local_workers < 1:
                     raise handheld.OptionsError(f"--local-workers: must be at least 1, got {a.local_workers}")
@@ -80,6 +80,18 @@ def main(argv=None):
     return 0
 
 
+def connect(address, timeout="10s"):
+    """A client of the scheduler at `address`, or `HandheldError` saying it cannot be reached."""
+    from dask.distributed import Client
+
+    try:
+        return Client(address, timeout=timeout)
+    except (OSError, TimeoutError) as e:
+        raise handheld.HandheldError(
+            f"cannot reach the Dask scheduler at {address} ({e.__class__.__name__}: {e}): start it "
+            "(`dask scheduler`), or check the address and the port") from None
+
+
 def bench_scale_main(a):
     from dask.distributed import Client, LocalCluster
 
@@ -87,7 +99,7 @@ def bench_scale_main(a):
 
     try:
         views = [int(v) for v in a.views.split(",")]
-        client = (Client(a.scheduler) if a.scheduler
+        client = (connect(a.scheduler) if a.scheduler
                   else Client(LocalCluster(n_workers=a.local_workers, threads_per_worker=1)))
         with client:
             out = bench_scale(client, views, a.points_per_view, a.cluster_views, seed=a.seed)

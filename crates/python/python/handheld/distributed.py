@@ -34,6 +34,36 @@ def _stage(input, workspace, stage, options, force):
     return _handheld.run_stage(input, workspace, stage, options, force)
 
 
+def _sees(input, probe):
+    import socket
+
+    return socket.gethostname(), os.path.exists(input), os.path.exists(probe)
+
+
+def check_workers_see(client, input, workspace):
+    """Raises `HandheldError` naming the first worker that cannot see the input or the workspace
+    (a file written here must appear there: the workspace is shared, at the same path)."""
+    if not os.path.exists(input):
+        raise HandheldError(f"{input}: no such file or folder")
+    os.makedirs(workspace, exist_ok=True)
+    probe = os.path.join(workspace, f".handheld-probe-{uuid.uuid4().hex[:8]}")
+    with open(probe, "w") as f:
+        f.write("every worker must see this file\n")
+    try:
+        seen = client.run(_sees, input, probe)
+    finally:
+        os.remove(probe)
+    for worker, (host, has_input, has_workspace) in sorted(seen.items()):
+        if not has_input:
+            raise HandheldError(
+                f"the Dask worker {worker} (on {host}) cannot see the input {input}: put it on a file system every "
+                "worker mounts, at the same path")
+        if not has_workspace:
+            raise HandheldError(
+                f"the Dask worker {worker} (on {host}) cannot see the workspace {workspace}: put it on a file system "
+                "every worker mounts, at the same path")
+
+
 def _report(workspace):
     return str(_handheld.write_report(workspace))
 
@@ -51,6 +81,7 @@ def reconstruct(input, workspace, client, options=None, until=None, force=False,
     input = os.path.abspath(os.fspath(input))
     workspace = os.path.abspath(os.fspath(workspace))
     options = _handheld.check_options(options)
+    check_workers_see(client, input, workspace)
     plan = _handheld.plan(input, options, until)
     run_id = uuid.uuid4().hex[:8]
     reports, failed, first_error = [], set(), None
