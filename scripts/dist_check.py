@@ -4,7 +4,10 @@
 OUT/<set>-cli and OUT/<set>-dist, then every file of the stage folders compared byte for byte
 (`manifest.json` and `summary.json` hold clock readings and are left out). Prints one JSON object.
 
-    PYTHONPATH=crates/python/python python3 scripts/dist_check.py BIN ../shared/datasets/fountain-P11 mesh OUT [WORKERS]
+    PYTHONPATH=crates/python/python python3 scripts/dist_check.py BIN ../shared/datasets/fountain-P11 mesh OUT [WORKERS [OPTIONS_JSON CLI_ARG...]]
+
+OPTIONS_JSON (for the cluster run) and the CLI arguments after it must ask for the same options, e.g.
+`'{"mesh": {"fusion": {"tsdf": {"voxel_size": {"absolute": 0.1}}}}}' --voxel-size 0.1`.
 
 Build the CLI and the module together (`cargo build --release -p handheld -p handheld-python`) so
 that both have the same features, and put `target/release/lib_handheld.so` beside the package as
@@ -31,16 +34,19 @@ def digest(p):
 def main():
     cli, data, until, out = sys.argv[1], pathlib.Path(sys.argv[2]), sys.argv[3], pathlib.Path(sys.argv[4])
     workers = int(sys.argv[5]) if len(sys.argv) > 5 else 2
+    options = json.loads(sys.argv[6]) if len(sys.argv) > 6 else None
+    cli_args = sys.argv[7:]
     images = data / "images"
     cli_ws, dist_ws = out / f"{data.name}-cli", out / f"{data.name}-dist"
     t = time.time()
-    subprocess.run([cli, "--quiet", "reconstruct", str(images), "-o", str(cli_ws), "--until", until], check=False)
+    subprocess.run([cli, "--quiet", "reconstruct", str(images), "-o", str(cli_ws), "--until", until, *cli_args],
+                   check=False)
     t_cli = time.time() - t
     error = None
     with Client(LocalCluster(n_workers=workers, threads_per_worker=1, dashboard_address=":0")) as c:
         t = time.time()
         try:
-            handheld.distributed.reconstruct(images, dist_ws, c, until=until)
+            handheld.distributed.reconstruct(images, dist_ws, c, options=options, until=until)
         except handheld.HandheldError as e:
             error = str(e)
         t_dist = time.time() - t

@@ -52,6 +52,13 @@ pub fn from_json(given: Value) -> Result<PipelineOptions, String> {
 /// Writes `given` into `base`, recursively for objects on both sides; anything else replaces.
 fn merge(base: &mut Value, given: Value) {
     match (base, given) {
+        // An enum's variant (serde's one-key map, `{"pixel_footprint": 3}`) given as another
+        // variant (`{"absolute": 0.1}`) replaces it: the two cannot be merged.
+        (Value::Object(b), Value::Object(g))
+            if b.len() == 1 && g.len() == 1 && b.keys().next() != g.keys().next() =>
+        {
+            *b = g;
+        }
         (Value::Object(b), Value::Object(g)) => {
             for (k, v) in g {
                 match b.get_mut(&k) {

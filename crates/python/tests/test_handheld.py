@@ -76,6 +76,11 @@ def test_wrong_option_is_named(options, named):
         handheld.reconstruct("/nonexistent", "/nonexistent-ws", options=options)
 
 
+def test_an_enum_option_takes_another_variant():
+    o = handheld.check_options({"mesh": {"fusion": {"tsdf": {"voxel_size": {"absolute": 0.1}}}}})
+    assert o["mesh"]["fusion"]["tsdf"]["voxel_size"] == {"absolute": 0.1}
+
+
 def test_options_must_be_a_dict():
     with pytest.raises(handheld.OptionsError, match="dict"):
         handheld.check_options([1, 2])
