@@ -19,7 +19,7 @@ use crate::holes::{boundary_loops, fill_holes, remove_non_manifold, HoleFillOpti
 use crate::marching_cubes::{extract_mesh, ExtractOptions};
 use crate::simplify::{compact, simplify, SimplifyOptions};
 use crate::topology::{edge_report, face_components, remove_small_components};
-use crate::tsdf::{resolve_voxel_size, TsdfOptions, TsdfVolume, BLOCK_VOXELS};
+use crate::tsdf::{resolve_voxel_size, TsdfOptions, TsdfVolume, VoxelSize, BLOCK_VOXELS};
 use crate::view::Depth;
 
 /// Options of [`fuse_depth_maps`].
@@ -79,10 +79,17 @@ pub struct FusionSummary {
     /// The views left out because their depth map holds no valid pixel.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub views_without_depth: Vec<String>,
-    /// Voxel edge length used (world units).
+    /// Voxel edge length used (world units; of level 0 where the size follows the depth).
     pub voxel_size: f64,
-    /// Truncation distance (world units).
+    /// Truncation distance (world units; of level 0).
     pub truncation: f64,
+    /// Where the voxel size follows the depth: the blocks of each level (level `l` has voxels of
+    /// `2^l · voxel_size`), finest first. Empty with one voxel size.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub levels: Vec<LevelReport>,
+    /// The fraction of the depth samples left out of fusion because their uncertainty exceeds
+    /// `max_depth_std` truncations (far background, too little parallax).
+    pub uncertain_fraction: f64,
     /// Allocated voxel blocks and the voxels they hold.
     pub blocks: usize,
     pub voxels: usize,
@@ -114,6 +121,14 @@ pub struct FusionSummary {
     pub integrate_seconds: f64,
     pub extract_seconds: f64,
     pub simplify_seconds: f64,
+}
+
+/// The blocks of one resolution level.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct LevelReport {
+    pub level: i32,
+    pub voxel_size: f64,
+    pub blocks: usize,
 }
 
 /// Fuses the views' depth maps (weighted by their confidence maps where present; images are not
@@ -163,6 +178,10 @@ pub fn fuse_depth_maps(
     let t0 = Instant::now();
     let voxel_size = resolve_voxel_size(views, &opts.tsdf)?;
     let mut vol = TsdfVolume::new(voxel_size, &opts.tsdf)?;
+    if let (true, VoxelSize::PixelFootprint(factor)) = (opts.tsdf.adaptive, opts.tsdf.voxel_size) {
+        let used_views: Vec<PosedView> = used.iter().map(|&(_, v)| v.clone()).collect();
+        vol.set_levels(&used_views, voxel_size / factor, &opts.tsdf);
+    }
     progress.start("TSDF fusion", 2 * used.len() as u64);
     for &(i, v) in &used {
         vol.allocate(v, i)?;
@@ -196,6 +215,22 @@ pub fn fuse_depth_maps(
         voxels: vol.num_blocks() * BLOCK_VOXELS,
         observed_voxels: vol.observed_voxels(),
         volume_bytes: vol.memory_bytes(),
+        levels: if vol.levels().is_some() {
+            vol.blocks_per_level()
+                .into_iter()
+                .map(|(l, n)| LevelReport {
+                    level: l as i32,
+                    voxel_size: vol.level_voxel_size(l),
+                    blocks: n,
+                })
+                .collect()
+        } else {
+            Vec::new()
+        },
+        uncertain_fraction: {
+            let (n, bad) = vol.sample_counts();
+            bad as f64 / n.max(1) as f64
+        },
         min_observations: min_obs,
         integrate_seconds: t0.elapsed().as_secs_f64(),
         ..Default::default()

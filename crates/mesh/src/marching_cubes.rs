@@ -63,8 +63,8 @@ impl ExtractOptions {
     }
 }
 
-/// Global identity of a grid edge: lower voxel index and axis.
-type EdgeKey = (i32, i32, i32, u8);
+/// Global identity of a grid edge: lower voxel index, axis and level.
+type EdgeKey = (i32, i32, i32, u8, i8);
 
 /// Triangles of one block: vertices (edge key, world position) and faces indexing them.
 struct BlockMesh {
@@ -81,11 +81,14 @@ fn gather(vol: &TsdfVolume, b: &Block, opts: &ExtractOptions) -> Vec<f32> {
         if n == 0 {
             Some(b)
         } else {
-            vol.block([
-                b.key[0] + (n & 1) as i32,
-                b.key[1] + (n >> 1 & 1) as i32,
-                b.key[2] + (n >> 2 & 1) as i32,
-            ])
+            vol.block_at(
+                [
+                    b.key[0] + (n & 1) as i32,
+                    b.key[1] + (n >> 1 & 1) as i32,
+                    b.key[2] + (n >> 2 & 1) as i32,
+                ],
+                b.level,
+            )
         }
     });
     let min_w = opts.min_weight as f32;
@@ -110,7 +113,27 @@ fn gather(vol: &TsdfVolume, b: &Block, opts: &ExtractOptions) -> Vec<f32> {
 fn mesh_block(vol: &TsdfVolume, b: &Block, opts: &ExtractOptions) -> BlockMesh {
     let grid = gather(vol, b, opts);
     let table = triangle_table();
-    let vs = vol.voxel_size;
+    let vs = vol.level_voxel_size(b.level);
+    // Where the voxel size follows the depth, a cube is meshed only where its own level owns space
+    // ([`crate::levels`]); a block whose corners all lie in its level's space skips the test.
+    let side = vs * BLOCK as f64;
+    let origin = [
+        b.key[0] as f64 * side,
+        b.key[1] as f64 * side,
+        b.key[2] as f64 * side,
+    ];
+    let owned = |p: [f64; 3]| {
+        vol.level_at(&nalgebra::Point3::new(p[0], p[1], p[2]))
+            .is_none_or(|l| l == b.level)
+    };
+    let check_owner = vol.levels().is_some()
+        && !(0..8).all(|c| {
+            owned([
+                origin[0] + side * (c & 1) as f64,
+                origin[1] + side * (c >> 1 & 1) as f64,
+                origin[2] + side * (c >> 2 & 1) as f64,
+            ])
+        });
     let base = [
         b.key[0] * BLOCK as i32,
         b.key[1] * BLOCK as i32,
@@ -150,6 +173,15 @@ fn mesh_block(vol: &TsdfVolume, b: &Block, opts: &ExtractOptions) -> BlockMesh {
                 if jump {
                     continue;
                 }
+                if check_owner
+                    && !owned([
+                        origin[0] + vs * (x as f64 + 0.5),
+                        origin[1] + vs * (y as f64 + 0.5),
+                        origin[2] + vs * (z as f64 + 0.5),
+                    ])
+                {
+                    continue;
+                }
                 let mut id = [0u32; 12];
                 let mut have = 0u16;
                 for tri in &table[case] {
@@ -164,7 +196,7 @@ fn mesh_block(vol: &TsdfVolume, b: &Block, opts: &ExtractOptions) -> BlockMesh {
                                 base[1] + (y + (a >> 1 & 1)) as i32,
                                 base[2] + (z + (a >> 2 & 1)) as i32,
                             ];
-                            let key = (g[0], g[1], g[2], axis as u8);
+                            let key = (g[0], g[1], g[2], axis as u8, b.level);
                             id[e] = *local.entry(key).or_insert_with(|| {
                                 let (v0, v1) = (val[a] as f64, val[a | 1 << axis] as f64);
                                 let t = (v0 / (v0 - v1)).clamp(0.0, 1.0);

@@ -28,6 +28,7 @@ use nalgebra::{Point3, Vector2, Vector3};
 use rayon::prelude::*;
 
 use crate::error::{in_range, positive, MeshError, Result};
+use crate::levels::{scale, LevelField};
 use crate::view::{incidence_map, sample_depth, Depth, Projector};
 use handheld_core::PosedView;
 
@@ -35,8 +36,8 @@ use handheld_core::PosedView;
 pub const BLOCK: usize = 8;
 /// Voxels per block.
 pub const BLOCK_VOXELS: usize = BLOCK * BLOCK * BLOCK;
-/// Bytes per block (distance, weight, observation count per voxel, plus the key).
-pub const BLOCK_BYTES: usize = BLOCK_VOXELS * 9 + 12;
+/// Bytes per block (distance, weight, observation count per voxel, plus the key and level).
+pub const BLOCK_BYTES: usize = BLOCK_VOXELS * 9 + 16;
 
 /// How the voxel edge length is chosen.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -66,6 +67,18 @@ pub struct TsdfOptions {
     /// Default 300 000 (about 1.4 GB of voxels; with the extracted mesh the stage stays near 4 GB
     /// at that size).
     pub max_blocks: usize,
+    /// The voxel size follows the depth ([`crate::levels`]): space seen at twice the median
+    /// footprint gets voxels twice the size, and so on. Only with [`VoxelSize::PixelFootprint`]; an
+    /// absolute voxel size is one size everywhere. Default true.
+    pub adaptive: bool,
+    /// The finest and coarsest levels (voxels of `2^level` times the base size). Default 0 and 6.
+    pub finest_level: i32,
+    pub coarsest_level: i32,
+    /// Depth samples whose standard deviation (from the variance maps, where present) exceeds this
+    /// many truncation half-widths of their voxel size are left out: far background and surfaces
+    /// seen with too little parallax, whose noise is wider than the band that could hold them.
+    /// 0 keeps every sample. Default 1.
+    pub max_depth_std: f64,
 }
 
 impl Default for TsdfOptions {
@@ -76,6 +89,10 @@ impl Default for TsdfOptions {
             min_confidence: 0.0,
             max_weight: 1e4,
             max_blocks: 300_000,
+            adaptive: true,
+            finest_level: 0,
+            coarsest_level: 6,
+            max_depth_std: 1.0,
         }
     }
 }
@@ -94,6 +111,16 @@ impl TsdfOptions {
                 reason: "must be finite".into(),
             });
         }
+        in_range("max_depth_std", self.max_depth_std, 0.0, 1e6)?;
+        if !(-8..=0).contains(&self.finest_level) || !(0..=16).contains(&self.coarsest_level) {
+            return Err(MeshError::InvalidOption {
+                option: "finest_level",
+                reason: format!(
+                    "levels must satisfy -8 <= finest_level <= 0 <= coarsest_level <= 16, got {} and {}",
+                    self.finest_level, self.coarsest_level
+                ),
+            });
+        }
         if self.max_blocks == 0 {
             return Err(MeshError::InvalidOption {
                 option: "max_blocks",
@@ -107,6 +134,8 @@ impl TsdfOptions {
 /// One block of voxels, x fastest: local index `x + BLOCK·(y + BLOCK·z)`.
 pub struct Block {
     pub key: [i32; 3],
+    /// The block's level: its voxels are `2^level` times the base size ([`crate::levels`]).
+    pub level: i8,
     /// Signed distance divided by the truncation, in `[−1, 1]`.
     pub tsdf: [f32; BLOCK_VOXELS],
     pub weight: [f32; BLOCK_VOXELS],
@@ -115,9 +144,10 @@ pub struct Block {
 }
 
 impl Block {
-    fn new(key: [i32; 3]) -> Self {
+    fn new(key: [i32; 3], level: i8) -> Self {
         Self {
             key,
+            level,
             tsdf: [1.0; BLOCK_VOXELS],
             weight: [0.0; BLOCK_VOXELS],
             observations: [0; BLOCK_VOXELS],
@@ -127,14 +157,21 @@ impl Block {
 
 /// A sparse TSDF volume.
 pub struct TsdfVolume {
+    /// The voxel size of level 0.
     pub voxel_size: f64,
-    /// Truncation distance in world units.
+    /// Truncation distance of level 0 in world units.
     pub truncation: f64,
     max_weight: f32,
     min_confidence: f64,
     max_blocks: usize,
-    index: HashMap<[i32; 3], usize>,
+    max_depth_std: f64,
+    /// Which level owns each point of space; `None`: one level (0) everywhere.
+    levels: Option<LevelField>,
+    index: HashMap<([i32; 3], i8), usize>,
     blocks: Vec<Box<Block>>,
+    /// Allocation samples seen, and those left out as too uncertain (`max_depth_std`).
+    samples: usize,
+    samples_uncertain: usize,
 }
 
 /// The voxel size `opts` asks for, given the views (the median over the views with depth of `median depth / f`
@@ -188,9 +225,62 @@ impl TsdfVolume {
             max_weight: opts.max_weight as f32,
             min_confidence: opts.min_confidence,
             max_blocks: opts.max_blocks,
+            max_depth_std: opts.max_depth_std,
+            levels: None,
             index: HashMap::new(),
             blocks: Vec::new(),
+            samples: 0,
+            samples_uncertain: 0,
         })
+    }
+
+    /// Makes the voxel size follow the depth over these views ([`crate::levels`]): level 0 holds
+    /// the footprint `voxel_size / factor`. Call before integrating.
+    pub fn set_levels(
+        &mut self,
+        views: &[PosedView],
+        reference_footprint: f64,
+        opts: &TsdfOptions,
+    ) {
+        let projectors: Vec<Projector> = views.iter().map(|v| Projector::new(&v.posed)).collect();
+        self.levels = Some(LevelField::new(
+            &projectors,
+            reference_footprint,
+            opts.finest_level,
+            opts.coarsest_level,
+        ));
+    }
+
+    /// The level field, where the voxel size follows the depth.
+    pub fn levels(&self) -> Option<&LevelField> {
+        self.levels.as_ref()
+    }
+
+    /// Voxel size of a level.
+    pub fn level_voxel_size(&self, level: i8) -> f64 {
+        self.voxel_size * scale(level as i32)
+    }
+
+    /// The level that owns `p` (0 without levels; `None` where no view sees it).
+    pub fn level_at(&self, p: &Point3<f64>) -> Option<i8> {
+        match &self.levels {
+            None => Some(0),
+            Some(f) => f.level(p).map(|l| l as i8),
+        }
+    }
+
+    /// Allocation samples seen, and those left out as too uncertain (`max_depth_std`).
+    pub fn sample_counts(&self) -> (usize, usize) {
+        (self.samples, self.samples_uncertain)
+    }
+
+    /// Allocated blocks per level, finest first.
+    pub fn blocks_per_level(&self) -> Vec<(i8, usize)> {
+        let mut m = std::collections::BTreeMap::new();
+        for b in &self.blocks {
+            *m.entry(b.level).or_insert(0usize) += 1;
+        }
+        m.into_iter().collect()
     }
 
     /// Number of allocated blocks.
@@ -203,9 +293,14 @@ impl TsdfVolume {
         &self.blocks
     }
 
-    /// The block with key `key`, if allocated.
+    /// The level-0 block with key `key`, if allocated.
     pub fn block(&self, key: [i32; 3]) -> Option<&Block> {
-        self.index.get(&key).map(|&i| &*self.blocks[i])
+        self.block_at(key, 0)
+    }
+
+    /// The block with key `key` at `level`, if allocated.
+    pub fn block_at(&self, key: [i32; 3], level: i8) -> Option<&Block> {
+        self.index.get(&(key, level)).map(|&i| &*self.blocks[i])
     }
 
     /// Approximate bytes held by the blocks and the index.
@@ -242,6 +337,7 @@ impl TsdfVolume {
             trunc: self.truncation,
             max_w: self.max_weight,
             min_conf: self.min_confidence,
+            max_std: self.max_depth_std,
         };
         self.blocks
             .par_iter_mut()
@@ -250,60 +346,102 @@ impl TsdfVolume {
     }
 
     fn allocate_blocks(&mut self, view: &Depth, proj: &Projector, view_index: usize) -> Result<()> {
+        let f = view.posed.camera.intrinsics.f;
+        let z05 = depth_quantile(view, 0.05).ok_or(MeshError::EmptyDepth { view: view_index })?;
         let z95 = depth_quantile(view, 0.95).ok_or(MeshError::EmptyDepth { view: view_index })?;
-        let block_side = self.voxel_size * BLOCK as f64;
-        let footprint = z95 / view.posed.camera.intrinsics.f;
-        let stride = ((0.25 * block_side / footprint).floor() as usize).clamp(1, 16);
+        // The level a depth of this view gets from its own footprint (the field's can only be finer).
+        let own_level = |z: f64| -> i8 {
+            match &self.levels {
+                None => 0,
+                Some(field) => field.level_of_footprint(z / f) as i8,
+            }
+        };
+        // A quarter of a block side, in pixels, at the depths where a block is smallest in the image.
+        let stride = [z05, z95]
+            .iter()
+            .map(|&z| 0.25 * self.level_voxel_size(own_level(z)) * BLOCK as f64 * f / z)
+            .fold(f64::INFINITY, f64::min)
+            .floor()
+            .clamp(1.0, 16.0) as usize;
         let (w, h) = (view.depth.width, view.depth.height);
-        let trunc = self.truncation;
-        let n_steps = ((3.0 * trunc / (0.5 * block_side)).ceil() as usize).max(1);
-        let inv_block = 1.0 / block_side;
+        let (base_vs, base_trunc) = (self.voxel_size, self.truncation);
         let min_conf = self.min_confidence;
+        let max_std = self.max_depth_std;
+        let levels = self.levels.as_ref();
         let rt = proj.rot.transpose();
-        let keys: HashSet<[i32; 3]> = (0..h)
+        type Acc = (HashSet<([i32; 3], i8)>, usize, usize);
+        let (keys, samples, uncertain): Acc = (0..h)
             .into_par_iter()
             .step_by(stride)
-            .fold(HashSet::new, |mut set, y| {
-                let mut last = [i32::MIN; 3];
-                for x in (0..w).step_by(stride) {
-                    if view.weight(y * w + x, min_conf) <= 0.0 {
-                        continue;
-                    }
-                    let z = view.depth.data[y * w + x] as f64;
-                    let n = view
-                        .posed
-                        .camera
-                        .intrinsics
-                        .pixel_to_normalized(Vector2::new(x as f64, y as f64));
-                    let dir = rt * Vector3::new(n.x, n.y, 1.0);
-                    let scale = dir.norm();
-                    for s in 0..=n_steps {
-                        let zz = z + trunc * (2.0 * s as f64 / n_steps as f64 - 1.0) / scale * 1.5;
-                        if zz <= 0.0 {
+            .fold(
+                || (HashSet::new(), 0, 0),
+                |(mut set, mut n, mut bad), y| {
+                    let mut last = ([i32::MIN; 3], 0);
+                    for x in (0..w).step_by(stride) {
+                        if view.weight(y * w + x, min_conf) <= 0.0 {
                             continue;
                         }
-                        let p = proj.center + dir * zz;
-                        let k = [
-                            (p.x * inv_block + 0.5 / BLOCK as f64).floor() as i32,
-                            (p.y * inv_block + 0.5 / BLOCK as f64).floor() as i32,
-                            (p.z * inv_block + 0.5 / BLOCK as f64).floor() as i32,
-                        ];
-                        if k != last {
-                            set.insert(k);
-                            last = k;
+                        let z = view.depth.data[y * w + x] as f64;
+                        let nrm = view
+                            .posed
+                            .camera
+                            .intrinsics
+                            .pixel_to_normalized(Vector2::new(x as f64, y as f64));
+                        let dir = rt * Vector3::new(nrm.x, nrm.y, 1.0);
+                        let level = match levels {
+                            None => 0,
+                            Some(field) => {
+                                let p = proj.center + dir * z;
+                                let fp = field.footprint(&p).unwrap_or(z / f).min(z / f);
+                                field.level_of_footprint(fp) as i8
+                            }
+                        };
+                        let s = scale(level as i32);
+                        let (block_side, trunc) = (base_vs * s * BLOCK as f64, base_trunc * s);
+                        n += 1;
+                        if max_std > 0.0 && view.std(y * w + x) > max_std * trunc {
+                            bad += 1;
+                            continue;
+                        }
+                        let n_steps = ((3.0 * trunc / (0.5 * block_side)).ceil() as usize).max(1);
+                        let inv_block = 1.0 / block_side;
+                        let scale_dir = dir.norm();
+                        for st in 0..=n_steps {
+                            let zz = z + trunc * (2.0 * st as f64 / n_steps as f64 - 1.0)
+                                / scale_dir
+                                * 1.5;
+                            if zz <= 0.0 {
+                                continue;
+                            }
+                            let p = proj.center + dir * zz;
+                            let k = [
+                                (p.x * inv_block + 0.5 / BLOCK as f64).floor() as i32,
+                                (p.y * inv_block + 0.5 / BLOCK as f64).floor() as i32,
+                                (p.z * inv_block + 0.5 / BLOCK as f64).floor() as i32,
+                            ];
+                            if (k, level) != last {
+                                set.insert((k, level));
+                                last = (k, level);
+                            }
                         }
                     }
-                }
-                set
-            })
-            .reduce(HashSet::new, |a, b| {
-                if a.len() < b.len() {
-                    merge_sets(b, a)
-                } else {
-                    merge_sets(a, b)
-                }
-            });
-        let mut new: Vec<[i32; 3]> = keys
+                    (set, n, bad)
+                },
+            )
+            .reduce(
+                || (HashSet::new(), 0, 0),
+                |a, b| {
+                    let set = if a.0.len() < b.0.len() {
+                        merge_sets(b.0, a.0)
+                    } else {
+                        merge_sets(a.0, b.0)
+                    };
+                    (set, a.1 + b.1, a.2 + b.2)
+                },
+            );
+        self.samples += samples;
+        self.samples_uncertain += uncertain;
+        let mut new: Vec<([i32; 3], i8)> = keys
             .into_iter()
             .filter(|k| !self.index.contains_key(k))
             .collect();
@@ -316,9 +454,9 @@ impl TsdfVolume {
                 voxel_size: self.voxel_size,
             });
         }
-        for k in new {
-            self.index.insert(k, self.blocks.len());
-            self.blocks.push(Box::new(Block::new(k)));
+        for (k, l) in new {
+            self.index.insert((k, l), self.blocks.len());
+            self.blocks.push(Box::new(Block::new(k, l)));
         }
         Ok(())
     }
@@ -359,8 +497,8 @@ impl TsdfVolume {
                             voxel_size,
                         });
                     }
-                    vol.index.insert(key, vol.blocks.len());
-                    vol.blocks.push(Box::new(Block::new(key)));
+                    vol.index.insert((key, 0), vol.blocks.len());
+                    vol.blocks.push(Box::new(Block::new(key, 0)));
                 }
             }
         }
@@ -405,7 +543,7 @@ impl TsdfVolume {
     }
 }
 
-fn merge_sets(mut a: HashSet<[i32; 3]>, b: HashSet<[i32; 3]>) -> HashSet<[i32; 3]> {
+fn merge_sets<T: std::hash::Hash + Eq>(mut a: HashSet<T>, b: HashSet<T>) -> HashSet<T> {
     a.extend(b);
     a
 }
@@ -420,6 +558,8 @@ struct UpdateContext<'a> {
     trunc: f64,
     max_w: f32,
     min_conf: f64,
+    /// `max_depth_std` (0: off).
+    max_std: f64,
 }
 
 /// Smallest incidence cosine used (about 78°): beyond it the normal estimate is unreliable.
@@ -430,7 +570,9 @@ const MIN_COS: f64 = 0.2;
 /// (locally planar) surface, so the band has the same thickness at grazing angles; the sample's
 /// weight is its confidence times that cosine (Curless & Levoy 1996, §4).
 fn update_block(b: &mut Block, ctx: &UpdateContext) {
-    let (view, proj, vs, trunc) = (ctx.view, ctx.proj, ctx.vs, ctx.trunc);
+    let s = scale(b.level as i32);
+    let (view, proj, vs, trunc) = (ctx.view, ctx.proj, ctx.vs * s, ctx.trunc * s);
+    let max_std = ctx.max_std * trunc;
     let n = BLOCK as f64;
     let origin = Vector3::new(b.key[0] as f64, b.key[1] as f64, b.key[2] as f64) * n * vs;
     let base = proj.rot * origin + proj.trans;
@@ -465,7 +607,7 @@ fn update_block(b: &mut Block, ctx: &UpdateContext) {
                 }
                 let pix = ry as usize * w + rx as usize;
                 let conf = view.weight(pix, ctx.min_conf);
-                if conf <= 0.0 {
+                if conf <= 0.0 || (max_std > 0.0 && view.std(pix) > max_std) {
                     continue;
                 }
                 let Some(d) = sample_depth(view.depth, &px, 0.5 * trunc / pc.z) else {

@@ -52,6 +52,8 @@ pub(crate) struct Depth<'a> {
     pub posed: &'a PosedCamera,
     pub depth: &'a FloatMap,
     pub confidence: Option<&'a FloatMap>,
+    /// The depth's variance, where the dense stage wrote it.
+    pub variance: Option<&'a FloatMap>,
 }
 
 impl<'a> Depth<'a> {
@@ -68,11 +70,31 @@ impl<'a> Depth<'a> {
         if let Some(c) = &view.confidence {
             check("confidence map", c)?;
         }
+        if let Some(v) = &view.variance {
+            check("variance map", v)?;
+        }
         Ok(Self {
             posed: &view.posed,
             depth,
             confidence: view.confidence.as_ref(),
+            variance: view.variance.as_ref(),
         })
+    }
+
+    /// Standard deviation of pixel `i`'s depth: 0 without a variance map or where it holds no
+    /// finite value (nothing is known against the sample).
+    pub fn std(&self, i: usize) -> f64 {
+        match self.variance {
+            Some(v) => {
+                let x = v.data[i] as f64;
+                if x.is_finite() && x > 0.0 {
+                    x.sqrt()
+                } else {
+                    0.0
+                }
+            }
+            None => 0.0,
+        }
     }
 
     /// Weight of pixel `i` (row-major): `0` when the depth is missing or the confidence is not

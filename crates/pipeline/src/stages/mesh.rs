@@ -181,7 +181,11 @@ pub fn build(
     dir: &Path,
     bars: &dyn Progress,
 ) -> Result<Produced<MeshStageSummary>> {
-    let mut views = read_views(dense, |n| paths.get(n).cloned(), &[MapKind::Confidence])?;
+    let mut views = read_views(
+        dense,
+        |n| paths.get(n).cloned(),
+        &[MapKind::Confidence, MapKind::Variance],
+    )?;
     if views.is_empty() {
         return Err(PipelineError::workspace(
             dense,
