@@ -46,6 +46,8 @@ pub mod code {
     pub const FOCAL_UNDETERMINED: &str = "focal_undetermined";
     /// A view of the dense or mesh stage gave nothing.
     pub const VIEW_SKIPPED: &str = "view_skipped";
+    /// Depth samples left out of the fused mesh as too uncertain (far, too little parallax).
+    pub const DEPTH_LEFT_OUT: &str = "depth_left_out";
     /// A stage went on without an input it uses when it is there.
     pub const INPUT_MISSING: &str = "input_missing";
     /// A fallback: a method or output replaced by a simpler one.

@@ -3,17 +3,20 @@
 //! composited into every ingested frame by `handheld_render::augment::FrameLoop` (hidden where the
 //! reconstructed mesh is nearer), encoded at the input's size and rate with its audio; the camera
 //! track exported as an animated glTF camera and a Nuke `.chan`. It needs the sparse model and
-//! uses the mesh when the workspace has one (so `handheld augment` is one run of the graph: a
-//! large scene whose mesh stage fails is augmented without occlusion, with a warning).
+//! uses the mesh when the workspace has one (so `handheld augment` is one run of the graph). When
+//! the mesh stage failed, the dense depth maps hide the object instead (each frame's own, or the
+//! two nearest key-frames' warped into it), with a warning; without either it is drawn over
+//! everything, with a warning.
 
 use std::path::{Path, PathBuf};
 
-use handheld_core::{MetricReconstruction, Progress, Rigid3, TriMesh};
+use handheld_core::{MetricReconstruction, PosedCamera, Progress, Rigid3, TriMesh};
+use handheld_io::dense_folder::{map_file, read_cameras, MapKind};
 use handheld_io::track::{write_chan, write_track_glb, TrackFrame};
 use handheld_io::video::encode::VideoWriter;
 use handheld_render::augment::{
-    anchor_of, auto_place, object_axes, object_box, visible_somewhere, FrameFigures, FrameLoop,
-    PlaceOptions, Placement, PlacementReport,
+    anchor_of, auto_place, object_axes, object_box, visible_somewhere, DepthSource, FrameFigures,
+    FrameLoop, Occluder, PlaceOptions, Placement, PlacementReport,
 };
 use image::RgbImage;
 use nalgebra::Point3;
@@ -200,8 +203,8 @@ impl Stage for Augment {
 
     const NAME: &'static str = stage::AUGMENT;
     const READS: &'static [&'static str] = &[stage::INGEST, stage::SPARSE];
-    /// The mesh hides the object where the real scene is nearer.
-    const READS_IF_PRESENT: &'static [&'static str] = &[stage::MESH];
+    /// The mesh hides the object where the real scene is nearer; without one, the depth maps do.
+    const READS_IF_PRESENT: &'static [&'static str] = &[stage::DENSE, stage::MESH];
     const ABOUT: &'static str =
         "augmented video (§5.3): a virtual object composited into every frame; the camera track as glTF and .chan";
 
@@ -294,22 +297,71 @@ fn write_track(rec: &MetricReconstruction, tracked: &[TrackFrame], dir: &Path) -
     Ok(())
 }
 
-/// The real scene for occlusion: the mesh stage's model, when it finished (else a warning).
+/// The real scene that hides the object.
+enum Scene {
+    Mesh(TriMesh),
+    DepthMaps(Vec<DepthSource>),
+}
+
+impl Scene {
+    fn occluder(&self) -> Occluder<'_> {
+        match self {
+            Scene::Mesh(m) => Occluder::Mesh(m),
+            Scene::DepthMaps(d) => Occluder::DepthMaps(d),
+        }
+    }
+}
+
+/// The dense stage's depth maps with their cameras (`None` when the dense stage has not run).
+fn dense_depth(ws: &Workspace) -> Result<Option<Vec<DepthSource>>> {
+    let dir = ws.root.join(stage::DENSE);
+    if ws.manifest(stage::DENSE).is_none() {
+        return Ok(None);
+    }
+    let mut out = Vec::new();
+    for e in read_cameras(&dir)? {
+        let path = dir.join(map_file(MapKind::Depth, &e.image));
+        let depth = handheld_io::pfm::read_pfm(&path).map_err(|err| PipelineError::Input {
+            path: path.clone(),
+            reason: format!("cannot read the depth map ({err}); rerun the dense stage"),
+        })?;
+        out.push(DepthSource {
+            name: e.image,
+            posed: PosedCamera::new(e.camera, e.cam_from_world),
+            depth,
+        });
+    }
+    Ok((!out.is_empty()).then_some(out))
+}
+
+/// The real scene for occlusion: the mesh stage's model when it finished, else the dense depth
+/// maps (with a warning), else nothing (with a warning).
 fn occluder(
     ws: &Workspace,
     opts: &AugmentOptions,
     warnings: &mut Vec<Warning>,
-) -> Result<Option<TriMesh>> {
+) -> Result<Option<Scene>> {
     if !opts.occlusion {
         return Ok(None);
     }
     let mesh_path = ws.path(stage::MESH, MODEL_GLB);
     if ws.manifest(stage::MESH).is_some() && mesh_path.exists() {
-        return Ok(Some(handheld_io::glb::read_glb(&mesh_path)?.0));
+        return Ok(Some(Scene::Mesh(handheld_io::glb::read_glb(&mesh_path)?.0)));
+    }
+    if let Some(maps) = dense_depth(ws)? {
+        warnings.push(Warning::new(
+            code::FALLBACK,
+            format!(
+                "no reconstructed mesh: the object is hidden by the {} dense depth maps instead \
+                 (each frame's own, or the two nearest key-frames' warped into it)",
+                maps.len()
+            ),
+        ));
+        return Ok(Some(Scene::DepthMaps(maps)));
     }
     warnings.push(Warning::new(
         code::INPUT_MISSING,
-        "no reconstructed mesh: the object is drawn without occlusion",
+        "no reconstructed mesh and no depth maps: the object is drawn without occlusion",
     ));
     Ok(None)
 }
@@ -391,7 +443,7 @@ pub fn augment(
         &rec,
         &placed,
         texture.as_ref(),
-        scene_mesh.as_ref(),
+        scene_mesh.as_ref().map(Scene::occluder),
         anchor,
         fps,
     );

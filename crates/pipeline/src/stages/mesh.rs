@@ -62,6 +62,9 @@ impl Default for MeshStageOptions {
     }
 }
 
+/// Above this fraction of depth samples left out as uncertain, the mesh stage says so.
+const REPORT_LEFT_OUT: f64 = 0.05;
+
 /// The smallest face budget of the simplified model.
 pub const MIN_TARGET_FACES: usize = 100;
 
@@ -294,6 +297,22 @@ pub fn build(
                     ),
                 )
                 .advice("see the dense stage's failed pairs: a view whose every pair failed has no depth"),
+            );
+        }
+        if fs.uncertain_fraction > REPORT_LEFT_OUT {
+            warnings.push(
+                Warning::new(
+                    code::DEPTH_LEFT_OUT,
+                    format!(
+                        "{:.0} % of the depth samples were left out of the mesh: far background or surfaces seen \
+                         with too little parallax, whose depth is less certain than the mesh's resolution there",
+                        100.0 * fs.uncertain_fraction
+                    ),
+                )
+                .advice(
+                    "to model the far parts, film them from closer or with more sideways motion; \
+                     `mesh.fusion.tsdf.max_depth_std = 0` keeps every sample",
+                ),
             );
         }
         summary.fusion = Some(fs);

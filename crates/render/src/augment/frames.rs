@@ -109,22 +109,27 @@ pub fn visible_somewhere(rec: &MetricReconstruction, placed: &TriMesh) -> bool {
     })
 }
 
-/// The real scene's depth in the frame seen from `view`, inside the object's window (NaN
-/// elsewhere).
-pub fn scene_depth(
-    mesh: &TriMesh,
-    view: &PosedCamera,
-    placed: &TriMesh,
-    buf: &mut Vec<f32>,
-    out: &mut FloatMap,
-) {
+/// What hides the object: the reconstructed mesh, or (without one) the dense depth maps of the
+/// frames, warped into the frame being drawn.
+#[derive(Clone, Copy, Debug)]
+pub enum Occluder<'a> {
+    Mesh(&'a TriMesh),
+    DepthMaps(&'a [DepthSource]),
+}
+
+/// One view's dense depth map and the camera it was computed with (possibly downscaled).
+#[derive(Clone, Debug)]
+pub struct DepthSource {
+    pub name: String,
+    pub posed: PosedCamera,
+    /// Camera-frame z per pixel; NaN or ≤ 0 where missing.
+    pub depth: FloatMap,
+}
+
+/// The object's window in the frame, with a margin: `(x0, y0, x1, y1)`, `None` when empty.
+fn object_window(view: &PosedCamera, placed: &TriMesh) -> Option<(usize, usize, usize, usize)> {
     let (camera, pose) = (&view.camera, &view.cam_from_world);
     let (w, h) = (camera.width as usize, camera.height as usize);
-    if out.width != w || out.height != h {
-        *out = FloatMap::filled(w, h, 1, f32::NAN);
-    }
-    out.data.fill(f32::NAN);
-    // The object's window, with a margin.
     let mut lo = Vector2::repeat(f64::INFINITY);
     let mut hi = Vector2::repeat(f64::NEG_INFINITY);
     for p in &placed.vertices.positions {
@@ -141,19 +146,126 @@ pub fn scene_depth(
         }
     }
     if !lo.x.is_finite() {
-        return;
+        return None;
     }
     let x0 = (lo.x - 2.0).max(0.0) as usize;
     let y0 = (lo.y - 2.0).max(0.0) as usize;
     let x1 = ((hi.x + 3.0).max(0.0) as usize).min(w);
     let y1 = ((hi.y + 3.0).max(0.0) as usize).min(h);
-    if x0 >= x1 || y0 >= y1 {
-        return;
+    (x0 < x1 && y0 < y1).then_some((x0, y0, x1, y1))
+}
+
+/// `out` sized to the view's image and cleared to NaN.
+fn clear_depth(view: &PosedCamera, out: &mut FloatMap) {
+    let (w, h) = (view.camera.width as usize, view.camera.height as usize);
+    if out.width != w || out.height != h {
+        *out = FloatMap::filled(w, h, 1, f32::NAN);
     }
+    out.data.fill(f32::NAN);
+}
+
+/// The real scene's depth in the frame seen from `view`, inside the object's window (NaN
+/// elsewhere).
+pub fn scene_depth(
+    mesh: &TriMesh,
+    view: &PosedCamera,
+    placed: &TriMesh,
+    buf: &mut Vec<f32>,
+    out: &mut FloatMap,
+) {
+    clear_depth(view, out);
+    let Some(window) = object_window(view, placed) else {
+        return;
+    };
+    let w = view.camera.width as usize;
     let data = &mut out.data;
-    rasterise(mesh, view, 1, (x0, y0, x1, y1), buf, |f| {
+    rasterise(mesh, view, 1, window, buf, |f| {
         data[f.sy * w + f.sx] = f.z as f32;
     });
+}
+
+/// The depth maps that stand in for the scene in the frame `name` seen from `view`: its own, when
+/// it has one, else the two whose cameras are nearest.
+pub fn nearest_sources<'s>(
+    sources: &'s [DepthSource],
+    name: &str,
+    view: &PosedCamera,
+) -> Vec<&'s DepthSource> {
+    if let Some(own) = sources.iter().find(|s| s.name == name) {
+        return vec![own];
+    }
+    let c = view.center();
+    let mut by_distance: Vec<(f64, &DepthSource)> = sources
+        .iter()
+        .map(|s| ((s.posed.center() - c).norm(), s))
+        .collect();
+    by_distance.sort_by(|a, b| a.0.total_cmp(&b.0));
+    by_distance.into_iter().take(2).map(|(_, s)| s).collect()
+}
+
+/// The real scene's depth in the frame seen from `view`, inside the object's window, from depth
+/// maps: every pixel of each source is lifted to the world and projected into the frame, splatted
+/// over the pixels its footprint covers, the nearest depth kept (a forward warp with a z-buffer).
+/// Pixels no source reaches stay NaN (they do not hide the object).
+pub fn warped_depth(
+    sources: &[&DepthSource],
+    view: &PosedCamera,
+    placed: &TriMesh,
+    out: &mut FloatMap,
+) {
+    clear_depth(view, out);
+    let Some((x0, y0, x1, y1)) = object_window(view, placed) else {
+        return;
+    };
+    let w = view.camera.width as usize;
+    let ft = view.camera.intrinsics.f;
+    for src in sources {
+        let (sw, sh) = (src.depth.width, src.depth.height);
+        let to_frame = view.cam_from_world * src.posed.cam_from_world.inverse();
+        let fs = src.posed.camera.intrinsics.f;
+        for sy in 0..sh {
+            for sx in 0..sw {
+                let z = src.depth.data[sy * sw + sx];
+                if !(z.is_finite() && z > 0.0) {
+                    continue;
+                }
+                let ray = src
+                    .posed
+                    .camera
+                    .ray_in_cam(Vector2::new(sx as f64, sy as f64));
+                let pc = ray * (z as f64 / ray.z);
+                let q = to_frame * Point3::from(pc);
+                if q.z <= 0.0 {
+                    continue;
+                }
+                let px = view
+                    .camera
+                    .intrinsics
+                    .normalized_to_pixel(Vector2::new(q.x / q.z, q.y / q.z));
+                // The source pixel's footprint in the frame, in pixels.
+                let r = (0.5 * (ft / fs) * (z as f64 / q.z)).clamp(0.5, 8.0);
+                let (ax, bx) = (
+                    (px.x - r).round().max(x0 as f64),
+                    (px.x + r).round().min(x1 as f64 - 1.0),
+                );
+                let (ay, by) = (
+                    (px.y - r).round().max(y0 as f64),
+                    (px.y + r).round().min(y1 as f64 - 1.0),
+                );
+                if ax > bx || ay > by {
+                    continue;
+                }
+                for yy in ay as usize..=by as usize {
+                    for xx in ax as usize..=bx as usize {
+                        let d = &mut out.data[yy * w + xx];
+                        if !(d.is_finite() && *d <= q.z as f32) {
+                            *d = q.z as f32;
+                        }
+                    }
+                }
+            }
+        }
+    }
 }
 
 /// The placed object composited into the frames of a model, one frame at a time, with every
@@ -163,8 +275,8 @@ pub struct FrameLoop<'a> {
     by_name: BTreeMap<&'a str, &'a View>,
     placed: &'a TriMesh,
     texture: Option<&'a RgbImage>,
-    /// The reconstructed mesh, which hides the object where it is nearer.
-    occluder: Option<&'a TriMesh>,
+    /// The real scene, which hides the object where it is nearer.
+    occluder: Option<Occluder<'a>>,
     anchor: Point3<f64>,
     rms: BTreeMap<String, f64>,
     fps: f64,
@@ -186,7 +298,7 @@ impl<'a> FrameLoop<'a> {
         rec: &'a MetricReconstruction,
         placed: &'a TriMesh,
         texture: Option<&'a RgbImage>,
-        occluder: Option<&'a TriMesh>,
+        occluder: Option<Occluder<'a>>,
         anchor: Point3<f64>,
         fps: f64,
     ) -> Self {
@@ -217,8 +329,13 @@ impl<'a> FrameLoop<'a> {
         if let (Some(v), Some(cam)) = (view, cam) {
             let posed = PosedCamera::new(cam.clone(), v.cam_from_world);
             let occ = match self.occluder {
-                Some(m) => {
+                Some(Occluder::Mesh(m)) => {
                     scene_depth(m, &posed, self.placed, &mut self.zbuf, &mut self.depth);
+                    Some(&self.depth)
+                }
+                Some(Occluder::DepthMaps(maps)) => {
+                    let near = nearest_sources(maps, name, &posed);
+                    warped_depth(&near, &posed, self.placed, &mut self.depth);
                     Some(&self.depth)
                 }
                 None => None,

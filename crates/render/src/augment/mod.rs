@@ -26,8 +26,8 @@ use thiserror::Error;
 
 pub use composite::{CompositeStats, Compositor, SUB};
 pub use frames::{
-    anchor_of, frame_rms, jitter, placed_vertices, scene_depth, visible_somewhere, FrameFigures,
-    FrameLoop, TrackedFrame,
+    anchor_of, frame_rms, jitter, nearest_sources, placed_vertices, scene_depth, visible_somewhere,
+    warped_depth, DepthSource, FrameFigures, FrameLoop, Occluder, TrackedFrame,
 };
 pub use objects::{object_axes, object_box};
 pub use place::{auto_place, PlaceOptions, PlacementReport, SupportPlane};

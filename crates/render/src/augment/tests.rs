@@ -104,3 +104,82 @@ fn auto_placement_stands_on_the_ground() {
     let top = p.apply(&Point3::new(0.0, 1.0, 0.0));
     assert!((n.dot(&top.coords) - r.plane.d - r.height).abs() < 1e-9);
 }
+
+/// Without a mesh, a key-frame's depth map warped into the frame stands in for the scene: a real
+/// half-plane at z = 3 (x < edge) seen by a half-size key-frame 0.3 to the side gives the frame's
+/// exact depth up to two pixels from the edge, and nothing where the plane is not.
+#[test]
+fn a_key_frame_depth_map_warped_into_the_frame_hides_the_object() {
+    let intr = Intrinsics::pinhole(300.0, 159.5, 119.5);
+    let camera = Camera {
+        id: CameraId(0),
+        width: 320,
+        height: 240,
+        intrinsics: intr,
+    };
+    let view = PosedCamera::new(camera.clone(), Rigid3::identity());
+    let small = camera.scaled(0.5, 0.5);
+    let key_pose = Rigid3::translation(-0.3, 0.0, 0.0); // centre at x = +0.3
+    let (sw, sh) = (small.width as usize, small.height as usize);
+    let edge_x = 0.2;
+    let mut depth = FloatMap::filled(sw, sh, 1, f32::NAN);
+    for y in 0..sh {
+        for x in 0..sw {
+            let n = small
+                .intrinsics
+                .pixel_to_normalized(Vector2::new(x as f64, y as f64));
+            if 0.3 + 3.0 * n.x < edge_x {
+                depth.data[y * sw + x] = 3.0;
+            }
+        }
+    }
+    let key = DepthSource {
+        name: "key".into(),
+        posed: PosedCamera::new(small, key_pose),
+        depth,
+    };
+    let (obj, _) = object_box();
+    let placed =
+        Placement::new(2.0, &Rotation3::identity(), &Vector3::new(-0.5, -1.0, 5.0)).transform(&obj);
+    let sources = [key];
+    let near = nearest_sources(&sources, "frame", &view);
+    assert_eq!(near.len(), 1);
+    let mut out = FloatMap::filled(0, 0, 1, 0.0);
+    warped_depth(&near, &view, &placed, &mut out);
+    let edge_px = intr.normalized_to_pixel(Vector2::new(edge_x / 3.0, 0.0)).x;
+    // Where the object shows (drawn without occlusion), the warped depth is the plane's left of
+    // the edge and nothing right of it.
+    let mut c = Compositor::new();
+    let mut full = RgbImage::new(320, 240);
+    c.composite(&mut full, &placed, None, &view, None);
+    let (mut behind, mut open) = (0, 0);
+    for y in 0..240usize {
+        for x in 0..320usize {
+            let d = out.data[y * 320 + x];
+            let dx = x as f64 - edge_px;
+            if d.is_finite() {
+                assert!((d - 3.0).abs() < 1e-3, "({x}, {y}): {d}");
+                assert!(dx < 2.0, "({x}, {y}) covered right of the edge");
+            }
+            if full.get_pixel(x as u32, y as u32).0 == [0, 0, 0] {
+                continue;
+            }
+            if dx < -2.0 {
+                assert!(
+                    d.is_finite(),
+                    "({x}, {y}): the object shows behind the plane"
+                );
+                behind += 1;
+            } else if dx > 2.0 {
+                open += 1;
+            }
+        }
+    }
+    assert!(
+        behind > 500 && open > 500,
+        "{behind} pixels behind, {open} in the open"
+    );
+    let mut frame = RgbImage::new(320, 240);
+    let s = c.composite(&mut frame, &placed, None, &view, Some(&out));
+    assert!(s.hidden_samples > 0, "the plane hides part of the object");
+}
