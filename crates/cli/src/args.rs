@@ -70,6 +70,8 @@ pub enum BenchCommand {
     Augment(crate::bench::BenchAugmentArgs),
     /// SfM on large synthetic walks (250–2000 views): monolithic against split-and-merge.
     Scale(crate::bench::BenchScaleArgs),
+    /// Dense depth and the fused mesh of a synthetic street (1.5–150 m) against exact truth.
+    Mesh(crate::bench::BenchMeshArgs),
 }
 
 /// The demo's defaults, from the library.

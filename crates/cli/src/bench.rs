@@ -501,3 +501,65 @@ pub fn scale(a: &BenchScaleArgs, g: &GlobalArgs, bars: &Bars) -> Result<()> {
         s
     })
 }
+
+fn mesh_defaults() -> bench::MeshBenchOptions {
+    bench::MeshBenchOptions::default()
+}
+
+#[derive(Debug, Args)]
+pub struct BenchMeshArgs {
+    /// Image width (height is 3/4 of it).
+    #[arg(long, default_value_t = mesh_defaults().width)]
+    pub width: u32,
+    /// Frames per path (a drive down the street, a walk across it).
+    #[arg(long, default_value_t = mesh_defaults().frames)]
+    pub frames: usize,
+    /// Metres the car drives.
+    #[arg(long, default_value_t = mesh_defaults().drive_m)]
+    pub drive_m: f64,
+    /// Metres the walk crosses.
+    #[arg(long, default_value_t = mesh_defaults().walk_m)]
+    pub walk_m: f64,
+    #[arg(long, default_value_t = mesh_defaults().seed)]
+    pub seed: u64,
+    /// Write each path's first and last frame and its fused mesh (PLY) here.
+    #[arg(long)]
+    pub out: Option<std::path::PathBuf>,
+}
+
+pub fn mesh(a: &BenchMeshArgs, g: &GlobalArgs) -> Result<()> {
+    let o = bench::MeshBenchOptions {
+        width: a.width,
+        frames: a.frames,
+        drive_m: a.drive_m,
+        walk_m: a.walk_m,
+        seed: a.seed,
+        out: a.out.clone(),
+    };
+    let r = bench::bench_mesh(&o)?;
+    print(g, &r, |_| {
+        let mut s = String::from(
+            "path   depth fill  rel err med  mesh acc90 (rel)  complete 1%  faces    left out  dense s  mesh s  peak MB\n",
+        );
+        for x in &r.runs {
+            let m = x.mesh.as_ref();
+            s += &format!(
+                "{:<5}  {:>9.1}%  {:>10.3}%  {:>15}  {:>11}  {:>7}  {:>8}  {:>7.1}  {:>6.1}  {:>7.0}\n",
+                x.path,
+                100.0 * x.depth.fill,
+                100.0 * x.depth.relative_error_median,
+                m.map_or("-".into(), |m| format!("{:.3}%", 100.0 * m.relative_accuracy_90)),
+                m.map_or("-".into(), |m| format!("{:.1}%", 100.0 * m.completeness)),
+                m.map_or(0, |m| m.faces),
+                m.map_or("-".into(), |m| format!("{:.1}%", 100.0 * m.fusion.uncertain_fraction)),
+                x.dense_seconds,
+                x.mesh_seconds,
+                x.peak_rss_mb.unwrap_or(f64::NAN),
+            );
+            if let Some(e) = &x.mesh_error {
+                s += &format!("{}: mesh failed: {e}\n", x.path);
+            }
+        }
+        s
+    })
+}

@@ -101,6 +101,7 @@ fn run(cmd: &Command, g: &GlobalArgs) -> anyhow::Result<()> {
             BenchCommand::Specular(a) => bench::specular(a, g),
             BenchCommand::Augment(a) => bench::augment(a, g),
             BenchCommand::Scale(a) => bench::scale(a, g, &bars),
+            BenchCommand::Mesh(a) => bench::mesh(a, g),
         },
         Command::Stereo(a) => bench::stereo(a, g),
         Command::Render(a) => render::run(a, g, &bars),

@@ -30,6 +30,7 @@ pub mod ring;
 pub mod scene;
 pub mod sequence;
 pub mod street;
+pub mod street_scene;
 pub mod texture;
 mod util;
 

@@ -6,6 +6,7 @@ pub mod bundle;
 pub mod colmap;
 pub mod dense;
 pub mod matching;
+pub mod mesh;
 pub mod pycolmap;
 pub mod render;
 pub mod scale;
@@ -20,6 +21,7 @@ pub use bundle::{
 pub use colmap::{run_colmap, ColmapReport};
 pub use dense::{bench_dense, DenseBenchOptions, DenseBenchReport};
 pub use matching::{bench_matching, MatchingBenchOptions, MatchingBenchReport};
+pub use mesh::{bench_mesh, MeshBenchOptions, MeshBenchReport, StreetRun};
 pub use pycolmap::{pycolmap_version, run_pycolmap_sparse, PycolmapSparseRun};
 pub use render::{bench_render, RenderBenchOptions, RenderBenchReport};
 pub use scale::{bench_scale, ScaleBenchOptions, ScaleBenchReport, ScaleRun};
