@@ -219,21 +219,18 @@ impl Rectification {
     /// Disparity range `(min, max)` of the world points seen in both views, widened by `margin`
     /// (a fraction of the span, plus 2 px). `None` with fewer than 3 such points.
     pub fn disparity_range(&self, points: &[Point3<f64>], margin: f64) -> Option<(i32, i32)> {
-        let mut ds: Vec<f64> = points
+        let ds: Vec<(Vector2<f64>, f64)> = points
             .iter()
             .filter_map(|p| {
                 let r0 = self.to_rect(0, self.project(0, p)?)?;
                 let r1 = self.to_rect(1, self.project(1, p)?)?;
-                ((r0.y - r1.y).abs() < 1.0).then_some(r0.x - r1.x)
+                ((r0.y - r1.y).abs() < 1.0).then_some((r0, r0.x - r1.x))
             })
             .collect();
         if ds.len() < 3 {
             return None;
         }
-        ds.sort_by(f64::total_cmp);
-        // Trim the extreme 1% on each side against stray points.
-        let k = ds.len() / 100;
-        let (lo, hi) = (ds[k], ds[ds.len() - 1 - k]);
+        let (lo, hi) = area_weighted_bounds(&ds, RANGE_TRIM);
         let pad = margin * (hi - lo) + 2.0;
         Some(((lo - pad).floor() as i32, (hi + pad).ceil() as i32))
     }
@@ -243,6 +240,67 @@ impl Rectification {
         let v = &self.views[side];
         v.posed.project(p).filter(|m| v.contains(m))
     }
+}
+
+/// The share of the image, at each end of the disparities, left out of the range as stray points.
+const RANGE_TRIM: f64 = 0.01;
+
+/// Cells per side of the grid that weighs the points by the image area they stand for.
+const AREA_GRID: usize = 32;
+
+/// The disparities at `trim` and `1 − trim` of the image area the points stand for. Each point
+/// weighs `1 / (points in its cell)` of a [`AREA_GRID`]² grid over the points' extent, so the
+/// range covers most of the *pixels*, not most of the *points*: where most sparse points are far
+/// (a street), the few on the near road still stand for a large part of the image (a trim of 1 %
+/// of the points cut them off, and the near road got no depth); a few stray points among many
+/// good ones in their cell still weigh little. `ds` holds (rectified position, disparity) pairs.
+fn area_weighted_bounds(ds: &[(Vector2<f64>, f64)], trim: f64) -> (f64, f64) {
+    let (mut lo, mut hi) = (
+        Vector2::repeat(f64::INFINITY),
+        Vector2::repeat(f64::NEG_INFINITY),
+    );
+    for (p, _) in ds {
+        lo = lo.inf(p);
+        hi = hi.sup(p);
+    }
+    let size = (hi - lo).map(|v| v.max(1e-9));
+    let cell = |p: &Vector2<f64>| -> usize {
+        let c = (p - lo).component_div(&size) * AREA_GRID as f64;
+        let (x, y) = (
+            (c.x as usize).min(AREA_GRID - 1),
+            (c.y as usize).min(AREA_GRID - 1),
+        );
+        y * AREA_GRID + x
+    };
+    let mut count = vec![0usize; AREA_GRID * AREA_GRID];
+    for (p, _) in ds {
+        count[cell(p)] += 1;
+    }
+    let mut weighted: Vec<(f64, f64)> = ds
+        .iter()
+        .map(|(p, d)| (*d, 1.0 / count[cell(p)] as f64))
+        .collect();
+    weighted.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let total: f64 = weighted.iter().map(|w| w.1).sum();
+    let mut acc = 0.0;
+    let mut low = weighted[0].0;
+    for &(d, w) in &weighted {
+        acc += w;
+        low = d;
+        if acc > trim * total {
+            break;
+        }
+    }
+    acc = 0.0;
+    let mut high = weighted[weighted.len() - 1].0;
+    for &(d, w) in weighted.iter().rev() {
+        acc += w;
+        high = d;
+        if acc > trim * total {
+            break;
+        }
+    }
+    (low, high.max(low))
 }
 
 #[cfg(test)]

@@ -1,5 +1,5 @@
 use handheld_core::{pose::cam_from_world_from_center, Camera, CameraId, Intrinsics, Rigid3};
-use nalgebra::{Rotation3, Vector3};
+use nalgebra::{Rotation3, Vector2, Vector3};
 
 use super::*;
 
@@ -159,4 +159,36 @@ fn coincident_centres_are_an_error() {
         &RectifyOptions::default()
     )
     .is_err());
+}
+
+/// The range covers most of the image, not most of the points: on a street most sparse points are
+/// far, and the few on the near road (under 1 % of the points, a fifth of the image) must still be
+/// in range; a few stray points among many in their part of the image are not.
+#[test]
+fn the_disparity_range_weighs_points_by_the_image_area_they_stand_for() {
+    let mut ds: Vec<(Vector2<f64>, f64)> = Vec::new();
+    // The upper 80 % of a 640×480 image: 4000 far points, disparities 0..10 px.
+    for i in 0..4000 {
+        let (x, y) = ((i * 37 % 640) as f64, (i * 91 % 384) as f64);
+        ds.push((Vector2::new(x, y), 10.0 * i as f64 / 3999.0));
+    }
+    // The lower 20 %: 30 near points (0.7 % of all), 30..40 px.
+    for i in 0..30 {
+        let (x, y) = ((i * 23 % 640) as f64, 390.0 + (i * 7 % 90) as f64);
+        ds.push((Vector2::new(x, y), 30.0 + i as f64 / 3.0));
+    }
+    // Five stray points among the far ones, at 300 px.
+    for i in 0..5 {
+        ds.push((Vector2::new(100.0 + i as f64, 100.0), 300.0));
+    }
+    let (lo, hi) = area_weighted_bounds(&ds, 0.01);
+    assert!(lo < 0.5, "{lo}");
+    assert!(
+        (35.0..40.0).contains(&hi),
+        "the near points are in range, the stray ones not: {hi}"
+    );
+    // By point count alone, the same trim would lose the near road.
+    let mut by_count: Vec<f64> = ds.iter().map(|p| p.1).collect();
+    by_count.sort_by(f64::total_cmp);
+    assert!(by_count[by_count.len() - 1 - by_count.len() / 100] < 11.0);
 }

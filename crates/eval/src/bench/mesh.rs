@@ -70,6 +70,32 @@ pub struct DepthFigures {
     pub relative_error_p90: f64,
     /// Truth's depth range over the views (1st and 99th percentiles, m).
     pub true_depth_range_m: [f64; 2],
+    /// Fill and median relative error per band of true depth.
+    pub by_depth: Vec<Band>,
+}
+
+/// Figures of one band of true depth (or camera distance) `[from_m, to_m)`.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct Band {
+    pub from_m: f64,
+    pub to_m: f64,
+    /// The share of the pixels (or surface samples) in the band.
+    pub share: f64,
+    /// Depth: the fill; mesh: the completeness within 1 %.
+    pub fraction: f64,
+    /// Depth: the median relative error over the filled pixels.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub relative_error_median: Option<f64>,
+}
+
+/// Bands of true depth (m).
+const BANDS: [f64; 6] = [0.0, 5.0, 10.0, 20.0, 40.0, f64::INFINITY];
+
+fn band_of(z: f64) -> usize {
+    BANDS
+        .windows(2)
+        .position(|w| z >= w[0] && z < w[1])
+        .unwrap_or(BANDS.len() - 2)
 }
 
 /// Mesh figures of one path.
@@ -81,6 +107,8 @@ pub struct MeshFigures {
     pub completeness: f64,
     /// The same within 2 %.
     pub completeness_2pct: f64,
+    /// Completeness (1 %) per band of distance from the nearest camera.
+    pub by_distance: Vec<Band>,
     pub faces: usize,
     pub fusion: FusionSummary,
 }
@@ -190,6 +218,14 @@ fn run_path(
                     .map_err(|e| EvalError::option("--out", e.to_string()))?;
             }
         }
+        let mid = dense.len() / 2;
+        if let (Some(v), Some(gt)) = (dense.get(mid), seq.depths.get(mid)) {
+            if let Some(d) = &v.depth {
+                depth_pair_png(gt, d)
+                    .save(dir.join(format!("{name}-depth.png")))
+                    .map_err(|e| EvalError::option("--out", e.to_string()))?;
+            }
+        }
         if let Ok((m, _)) = &fused {
             handheld_io::ply::write_mesh(
                 &dir.join(format!("{name}.ply")),
@@ -247,6 +283,9 @@ fn depth_figures(dense: &[PosedView], truth: &[FloatMap]) -> DepthFigures {
     let mut fill_min = f64::INFINITY;
     let mut rel = Vec::new();
     let mut depths = Vec::new();
+    let nb = BANDS.len() - 1;
+    let (mut b_all, mut b_fill) = (vec![0usize; nb], vec![0usize; nb]);
+    let mut b_rel: Vec<Vec<f64>> = vec![Vec::new(); nb];
     for (v, gt) in dense.iter().zip(truth) {
         let Some(d) = &v.depth else { continue };
         let (mut s, mut f) = (0usize, 0usize);
@@ -258,10 +297,17 @@ fn depth_figures(dense: &[PosedView], truth: &[FloatMap]) -> DepthFigures {
             if i % 16 == 0 {
                 depths.push(g as f64);
             }
+            let b = band_of(g as f64);
+            b_all[b] += 1;
             let z = d.data[i];
             if z.is_finite() && z > 0.0 {
                 f += 1;
-                rel.push(((z - g) / g).abs() as f64);
+                b_fill[b] += 1;
+                let e = ((z - g) / g).abs() as f64;
+                rel.push(e);
+                if i % 4 == 0 {
+                    b_rel[b].push(e);
+                }
             }
         }
         surface += s;
@@ -274,6 +320,15 @@ fn depth_figures(dense: &[PosedView], truth: &[FloatMap]) -> DepthFigures {
         relative_error_median: percentile(&mut rel, 0.5),
         relative_error_p90: percentile(&mut rel, 0.9),
         true_depth_range_m: [percentile(&mut depths, 0.01), percentile(&mut depths, 0.99)],
+        by_depth: (0..nb)
+            .map(|b| Band {
+                from_m: BANDS[b],
+                to_m: BANDS[b + 1],
+                share: b_all[b] as f64 / surface.max(1) as f64,
+                fraction: b_fill[b] as f64 / b_all[b].max(1) as f64,
+                relative_error_median: Some(percentile(&mut b_rel[b], 0.5)),
+            })
+            .collect(),
     }
 }
 
@@ -328,11 +383,16 @@ fn mesh_figures(
         .collect();
     let ours = MeshIndex::new(mesh);
     let (mut within1, mut within2) = (0usize, 0usize);
+    let nb = BANDS.len() - 1;
+    let (mut b_all, mut b_in) = (vec![0usize; nb], vec![0usize; nb]);
     for p in &seen_twice {
         let r = nearest_camera(p, centres);
         let d = ours.distance_within(p, 0.02 * r);
+        let b = band_of(r);
+        b_all[b] += 1;
         if d <= 0.01 * r {
             within1 += 1;
+            b_in[b] += 1;
         }
         if d <= 0.02 * r {
             within2 += 1;
@@ -343,7 +403,38 @@ fn mesh_figures(
         relative_accuracy_90: percentile(&mut acc, 0.9),
         completeness: within1 as f64 / n,
         completeness_2pct: within2 as f64 / n,
+        by_distance: (0..nb)
+            .map(|b| Band {
+                from_m: BANDS[b],
+                to_m: BANDS[b + 1],
+                share: b_all[b] as f64 / n,
+                fraction: b_in[b] as f64 / b_all[b].max(1) as f64,
+                relative_error_median: None,
+            })
+            .collect(),
         faces: mesh.faces.len(),
         fusion,
     }
+}
+
+/// The true depth and the dense depth side by side, grey by log depth on one scale (1 m white,
+/// 200 m black), red where there is none.
+fn depth_pair_png(truth: &FloatMap, ours: &FloatMap) -> image::RgbImage {
+    let (w, h) = (truth.width, truth.height);
+    let grey = |z: f32| -> image::Rgb<u8> {
+        if !(z.is_finite() && z > 0.0) {
+            return image::Rgb([160, 0, 0]);
+        }
+        let t = ((z as f64).ln() / 200f64.ln()).clamp(0.0, 1.0);
+        let g = (255.0 * (1.0 - t)) as u8;
+        image::Rgb([g, g, g])
+    };
+    image::RgbImage::from_fn(2 * w as u32, h as u32, |x, y| {
+        let (x, y) = (x as usize, y as usize);
+        if x < w {
+            grey(truth.data[y * w + x])
+        } else {
+            grey(ours.data[y * w + x - w])
+        }
+    })
 }
