@@ -525,6 +525,10 @@ pub struct BenchMeshArgs {
     /// Write each path's first and last frame and its fused mesh (PLY) here.
     #[arg(long)]
     pub out: Option<std::path::PathBuf>,
+    /// Fusion: leave out depth samples whose standard deviation exceeds this many truncation
+    /// bands (0 keeps every sample).
+    #[arg(long, default_value_t = mesh_defaults().fusion.tsdf.max_depth_std)]
+    pub max_depth_std: f64,
 }
 
 pub fn mesh(a: &BenchMeshArgs, g: &GlobalArgs) -> Result<()> {
@@ -535,6 +539,11 @@ pub fn mesh(a: &BenchMeshArgs, g: &GlobalArgs) -> Result<()> {
         walk_m: a.walk_m,
         seed: a.seed,
         out: a.out.clone(),
+        fusion: {
+            let mut f = mesh_defaults().fusion;
+            f.tsdf.max_depth_std = a.max_depth_std;
+            f
+        },
     };
     let r = bench::bench_mesh(&o)?;
     print(g, &r, |_| {

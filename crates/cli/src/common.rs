@@ -289,6 +289,10 @@ pub struct MeshArgs {
     /// lengths (0: leave every hole open). The outline where the views stop always stays open.
     #[arg(long, default_value_t = defaults().mesh.fusion.max_hole_perimeter_voxels)]
     pub max_hole_perimeter: f64,
+    /// Mesh: leave out depth samples whose standard deviation exceeds this many truncation bands
+    /// of their voxel size (far background, too little parallax); 0 keeps every sample.
+    #[arg(long, default_value_t = defaults().mesh.fusion.tsdf.max_depth_std)]
+    pub max_depth_std: f64,
 }
 
 impl MeshArgs {
@@ -302,6 +306,7 @@ impl MeshArgs {
             o.fusion.tsdf.voxel_size = VoxelSize::Absolute(v);
         }
         o.fusion.max_hole_perimeter_voxels = self.max_hole_perimeter;
+        o.fusion.tsdf.max_depth_std = self.max_depth_std;
         o.view_meshes = !self.no_view_meshes;
         o.hold_out = self.hold_out.clone();
         o

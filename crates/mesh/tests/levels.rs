@@ -151,13 +151,13 @@ fn voxel_size_follows_the_depth() {
 #[test]
 fn uncertain_far_depths_are_left_out_and_counted() {
     let mut views = street_views(6);
-    // The far wall's depths are uncertain by 5% (as a stereo pair with little parallax gives).
+    // The far wall's depths are uncertain by 20% (as a stereo pair with little parallax gives).
     for v in &mut views {
         let d = v.depth.as_ref().unwrap();
         let mut var = FloatMap::filled(W, H, 1, 0.0);
         for (i, z) in d.data.iter().enumerate() {
             let s = if *z as f64 > 60.0 {
-                0.05 * *z
+                0.2 * *z
             } else {
                 0.0005 * *z
             };

@@ -42,6 +42,8 @@ pub struct MeshBenchOptions {
     /// Where to write each path's first and last frame and the fused mesh (`<path>-first.png`,
     /// `<path>-last.png`, `<path>.ply`), to look at. Default none.
     pub out: Option<std::path::PathBuf>,
+    /// The fusion's options (its defaults unless changed, e.g. `tsdf.max_depth_std`).
+    pub fusion: FusionOptions,
 }
 
 impl Default for MeshBenchOptions {
@@ -53,6 +55,7 @@ impl Default for MeshBenchOptions {
             walk_m: 4.0,
             seed: 0,
             out: None,
+            fusion: FusionOptions::default(),
         }
     }
 }
@@ -207,7 +210,7 @@ fn run_path(
     dense.sort_by(|a, b| a.name.cmp(&b.name));
     let depth = depth_figures(&dense, &seq.depths);
     let t = Instant::now();
-    let fused = fuse_depth_maps(&dense, &FusionOptions::default(), &NoProgress);
+    let fused = fuse_depth_maps(&dense, &o.fusion, &NoProgress);
     let mesh_seconds = t.elapsed().as_secs_f64();
     let centres: Vec<Vector3<f64>> = views.iter().map(|v| v.posed.center().coords).collect();
     if let Some(dir) = &o.out {
