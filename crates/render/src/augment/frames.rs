@@ -285,7 +285,8 @@ pub struct FrameLoop<'a> {
     depth: FloatMap,
     /// Every frame's figures, in the order given.
     pub per_frame: Vec<FrameFigures>,
-    /// The anchor's image position in every frame (`None` where unposed or behind).
+    /// The anchor's image position in every frame (`None` where unposed, behind or outside the
+    /// image).
     pub track: Vec<Option<Vector2<f64>>>,
     /// The posed frames' cameras.
     pub tracked: Vec<TrackedFrame>,
@@ -342,7 +343,11 @@ impl<'a> FrameLoop<'a> {
             };
             self.compositor
                 .composite(image, self.placed, self.texture, &posed, occ);
-            anchor_px = cam.project(&v.cam_from_world, &self.anchor);
+            // Only where the frame shows it: a point passing beside the camera projects
+            // thousands of pixels out, which is no jitter of the object.
+            anchor_px = cam
+                .project(&v.cam_from_world, &self.anchor)
+                .filter(|p| cam.contains(p));
             let rank = self.tracked.len();
             self.tracked.push(TrackedFrame {
                 frame: frame.map_or(rank as u64, |f| f.0),

@@ -183,3 +183,53 @@ fn a_key_frame_depth_map_warped_into_the_frame_hides_the_object() {
     let s = c.composite(&mut frame, &placed, None, &view, Some(&out));
     assert!(s.hidden_samples > 0, "the plane hides part of the object");
 }
+
+/// A camera driving past the object: once the anchor leaves the image (beside the camera, where it
+/// projects thousands of pixels out), the track drops it, so the jitter measures the object where
+/// the frames show it.
+#[test]
+fn the_anchor_track_keeps_only_frames_that_show_it() {
+    use handheld_testkit::path::PathOptions;
+    use handheld_testkit::render::{render_sequence, SequenceOptions};
+    let seq = render_sequence(&SequenceOptions {
+        width: 160,
+        height: 120,
+        num_frames: 12,
+        path: PathOptions::forward(12),
+        samples_per_axis: 1,
+        ..Default::default()
+    })
+    .expect("sequence");
+    let rec = &seq.gt;
+    // An anchor 1.2 m ahead of the first camera and 0.5 m to its side: the 1.6 m drive passes it.
+    let first = rec.views.values().next().expect("a view");
+    let c0 = first.center();
+    let rot = first.cam_from_world.rotation.inverse();
+    let anchor = c0 + rot * Vector3::new(0.5, 0.0, 1.2);
+    let (obj, _) = object_box();
+    let placed = Placement::new(0.05, &Rotation3::identity(), &anchor.coords).transform(&obj);
+    let mut frames = FrameLoop::new(rec, &placed, None, None, anchor, 10.0);
+    for v in rec.views.values() {
+        let cam = &rec.cameras[&v.camera_id];
+        let mut img = RgbImage::new(cam.width, cam.height);
+        frames.frame(&v.name, None, &mut img);
+    }
+    let shown = frames
+        .per_frame
+        .iter()
+        .filter(|f| f.anchor_px.is_some())
+        .count();
+    assert!(
+        shown >= 2 && shown < frames.per_frame.len(),
+        "{shown} frames show the anchor"
+    );
+    for f in &frames.per_frame {
+        if let Some([x, y]) = f.anchor_px {
+            assert!(
+                (-0.5..160.0).contains(&x) && (-0.5..120.0).contains(&y),
+                "{x}, {y}"
+            );
+        }
+    }
+    assert!(frames.jitter() < 20.0, "jitter {}", frames.jitter());
+}
