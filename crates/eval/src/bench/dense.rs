@@ -115,6 +115,8 @@ pub struct DenseBenchReport {
     pub threads: usize,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub speed_large: Option<PairTiming>,
+    /// Peak resident memory of the process over the whole bench (`VmHWM`, MB).
+    pub peak_rss_mb: Option<f64>,
 }
 
 fn to_map(img: &image::RgbImage) -> FloatMap {
@@ -320,6 +322,7 @@ fn speed_large(model: &std::path::Path, images: &std::path::Path) -> Result<Pair
 /// Runs every dense target.
 pub fn bench_dense(o: &DenseBenchOptions) -> Result<DenseBenchReport> {
     o.validate()?;
+    super::scale::reset_peak_rss();
     let linking = linking(o.width)?;
     let (polar_forward, speed_640) = forward_pair(o.width, o.runs)?;
     let speed_large = match (&o.model, &o.images) {
@@ -332,5 +335,6 @@ pub fn bench_dense(o: &DenseBenchOptions) -> Result<DenseBenchReport> {
         speed_640,
         threads: rayon::current_num_threads(),
         speed_large,
+        peak_rss_mb: super::scale::peak_rss_mb(),
     })
 }
