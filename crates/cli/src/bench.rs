@@ -179,64 +179,7 @@ pub fn sparse(a: &BenchSparseArgs, g: &GlobalArgs, bars: &Bars) -> Result<()> {
         ..Default::default()
     };
     let r = bench::bench_sparse(&o, bars)?;
-    print(g, &r, |_| {
-        let h = &r.handheld;
-        let mut text = format!(
-            "handheld: ingest {:.2} s + features {:.2} s, matches {:.2} s, sparse {:.2} s; total {:.2} s; \
-             {}/{} registered ({} threads)",
-            h.ingest_seconds,
-            h.features_seconds,
-            h.matches_seconds,
-            h.sparse_seconds,
-            h.total_seconds,
-            h.registered,
-            h.total_images,
-            r.threads
-        );
-        if let Some(c) = &r.colmap {
-            text.push_str(&format!(
-                "\ncolmap {}: extraction {:.2} s, matching {:.2} s, mapping {:.2} s; total {:.2} s; {}/{} registered",
-                c.run.version,
-                c.run.extraction_seconds,
-                c.run.matching_seconds,
-                c.run.mapping_seconds,
-                c.total_seconds,
-                c.run.registered,
-                c.run.total_images
-            ));
-        }
-        if r.rounds.len() > 1 {
-            for (k, round) in r.rounds.iter().enumerate() {
-                let c = round
-                    .colmap_seconds
-                    .map_or(String::new(), |c| format!(", colmap {:.2} s", c[3]));
-                let q = round
-                    .ratio
-                    .as_ref()
-                    .map_or(String::new(), |q| format!(", {:.2}×", q.total));
-                text.push_str(&format!(
-                    "\nround {}: handheld {:.2} s{c}{q}",
-                    k + 1,
-                    round.handheld_seconds[3]
-                ));
-            }
-        }
-        if let Some(q) = &r.ratio {
-            text.push_str(&format!(
-                "\nCOLMAP ÷ Handheld (median over the rounds): extraction {:.2}×, matching {:.2}×, mapping {:.2}×, total {:.2}× (target ≥ {})",
-                q.extraction, q.matching, q.mapping, q.total, r.target_total_ratio
-            ));
-        }
-        for (who, eval) in [
-            ("handheld", h.eval.as_ref()),
-            ("colmap", r.colmap.as_ref().and_then(|c| c.eval.as_ref())),
-        ] {
-            if let Some(e) = eval {
-                text.push_str(&format!("\n{who} eval: {e}"));
-            }
-        }
-        text
-    })
+    print(g, &r, |_| r.summary_text())
 }
 
 #[derive(Debug, Args)]
@@ -475,31 +418,7 @@ pub fn scale(a: &BenchScaleArgs, g: &GlobalArgs, bars: &Bars) -> Result<()> {
         seed: a.seed,
     };
     let r = bench::bench_scale(&o, bars)?;
-    print(g, &r, |_| {
-        let mut s = String::from(
-            "views  mode        seconds  peak MB  registered  AUC@1  AUC@5  f err %\n",
-        );
-        for x in &r.runs {
-            s += &format!(
-                "{:>5}  {:<10}  {:>7.1}  {:>7.0}  {:>10}  {:>5.2}  {:>5.2}  {}\n",
-                x.views,
-                x.mode,
-                x.seconds,
-                x.peak_rss_mb.unwrap_or(f64::NAN),
-                x.registered,
-                x.auc1,
-                x.auc5,
-                x.focal_error_pct.map_or("-".into(), |f| format!("{f:.2}")),
-            );
-        }
-        s += &format!(
-            "time ~ views^b: monolithic b = {}, split b = {}",
-            r.exponent_monolithic
-                .map_or("-".into(), |b| format!("{b:.2}")),
-            r.exponent_split.map_or("-".into(), |b| format!("{b:.2}"))
-        );
-        s
-    })
+    print(g, &r, |_| r.summary_text())
 }
 
 fn mesh_defaults() -> bench::MeshBenchOptions {
@@ -546,29 +465,5 @@ pub fn mesh(a: &BenchMeshArgs, g: &GlobalArgs) -> Result<()> {
         },
     };
     let r = bench::bench_mesh(&o)?;
-    print(g, &r, |_| {
-        let mut s = String::from(
-            "path   depth fill  rel err med  mesh acc90 (rel)  complete 1%  faces    left out  dense s  mesh s  peak MB\n",
-        );
-        for x in &r.runs {
-            let m = x.mesh.as_ref();
-            s += &format!(
-                "{:<5}  {:>9.1}%  {:>10.3}%  {:>15}  {:>11}  {:>7}  {:>8}  {:>7.1}  {:>6.1}  {:>7.0}\n",
-                x.path,
-                100.0 * x.depth.fill,
-                100.0 * x.depth.relative_error_median,
-                m.map_or("-".into(), |m| format!("{:.3}%", 100.0 * m.relative_accuracy_90)),
-                m.map_or("-".into(), |m| format!("{:.1}%", 100.0 * m.completeness)),
-                m.map_or(0, |m| m.faces),
-                m.map_or("-".into(), |m| format!("{:.1}%", 100.0 * m.fusion.uncertain_fraction)),
-                x.dense_seconds,
-                x.mesh_seconds,
-                x.peak_rss_mb.unwrap_or(f64::NAN),
-            );
-            if let Some(e) = &x.mesh_error {
-                s += &format!("{}: mesh failed: {e}\n", x.path);
-            }
-        }
-        s
-    })
+    print(g, &r, |_| r.summary_text())
 }

@@ -41,7 +41,7 @@
 //! of it), 739 MiB after texturing (3.3 s, 5131×5211 atlas); accuracy 0.4 mm at 90%, completeness
 //! 99.8%.
 //!
-//! Files, for the pieces above: `tsdf.rs` (confidence × incidence weights, per-voxel observation counts),
+//! Files, for the pieces above: `tsdf/` (blocks and allocation; `update.rs`: confidence × incidence weights, observation counts), `levels.rs`,
 //! `marching_cubes.rs` and `mc_tables.rs` (the derived crack-free table), `holes.rs` (boundary loops, hole filling,
 //! non-manifold repair), `simplify.rs` (QEM with locked borders), `fusion.rs`, `texture.rs` with `atlas.rs` and
 //! `seams.rs` (view per face, z-buffer occlusion, ICM labels), `eval.rs` with `bvh.rs`. Options and summaries are

@@ -441,3 +441,32 @@ fn depth_pair_png(truth: &FloatMap, ours: &FloatMap) -> image::RgbImage {
         }
     })
 }
+
+impl MeshBenchReport {
+    /// The report in a few lines, for people (the CLI prints it without `--json`).
+    pub fn summary_text(&self) -> String {
+        let mut s = String::from(
+            "path   depth fill  rel err med  mesh acc90 (rel)  complete 1%  faces    left out  dense s  mesh s  peak MB\n",
+        );
+        for x in &self.runs {
+            let m = x.mesh.as_ref();
+            s += &format!(
+                "{:<5}  {:>9.1}%  {:>10.3}%  {:>15}  {:>11}  {:>7}  {:>8}  {:>7.1}  {:>6.1}  {:>7.0}\n",
+                x.path,
+                100.0 * x.depth.fill,
+                100.0 * x.depth.relative_error_median,
+                m.map_or("-".into(), |m| format!("{:.3}%", 100.0 * m.relative_accuracy_90)),
+                m.map_or("-".into(), |m| format!("{:.1}%", 100.0 * m.completeness)),
+                m.map_or(0, |m| m.faces),
+                m.map_or("-".into(), |m| format!("{:.1}%", 100.0 * m.fusion.uncertain_fraction)),
+                x.dense_seconds,
+                x.mesh_seconds,
+                x.peak_rss_mb.unwrap_or(f64::NAN),
+            );
+            if let Some(e) = &x.mesh_error {
+                s += &format!("{}: mesh failed: {e}\n", x.path);
+            }
+        }
+        s
+    }
+}

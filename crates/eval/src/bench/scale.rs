@@ -436,6 +436,36 @@ pub(crate) fn peak_rss_mb() -> Option<f64> {
     Some(kb / 1024.0)
 }
 
+impl ScaleBenchReport {
+    /// The report in a few lines, for people (the CLI prints it without `--json`).
+    pub fn summary_text(&self) -> String {
+        let mut s = String::from(
+            "views  mode        seconds  peak MB  registered  AUC@1  AUC@5  f err %\n",
+        );
+        for x in &self.runs {
+            s += &format!(
+                "{:>5}  {:<10}  {:>7.1}  {:>7.0}  {:>10}  {:>5.2}  {:>5.2}  {}\n",
+                x.views,
+                x.mode,
+                x.seconds,
+                x.peak_rss_mb.unwrap_or(f64::NAN),
+                x.registered,
+                x.auc1,
+                x.auc5,
+                x.focal_error_pct.map_or("-".into(), |f| format!("{f:.2}")),
+            );
+        }
+        s += &format!(
+            "time ~ views^b: monolithic b = {}, split b = {}",
+            self.exponent_monolithic
+                .map_or("-".into(), |b| format!("{b:.2}")),
+            self.exponent_split
+                .map_or("-".into(), |b| format!("{b:.2}"))
+        );
+        s
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

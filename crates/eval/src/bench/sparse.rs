@@ -472,6 +472,68 @@ pub fn bench_sparse(o: &SparseBenchOptions, progress: &dyn Progress) -> Result<S
     ))
 }
 
+impl SparseBenchReport {
+    /// The report in a few lines, for people (the CLI prints it without `--json`).
+    pub fn summary_text(&self) -> String {
+        let h = &self.handheld;
+        let mut text = format!(
+            "handheld: ingest {:.2} s + features {:.2} s, matches {:.2} s, sparse {:.2} s; total {:.2} s; \
+             {}/{} registered ({} threads)",
+            h.ingest_seconds,
+            h.features_seconds,
+            h.matches_seconds,
+            h.sparse_seconds,
+            h.total_seconds,
+            h.registered,
+            h.total_images,
+            self.threads
+        );
+        if let Some(c) = &self.colmap {
+            text.push_str(&format!(
+                "\ncolmap {}: extraction {:.2} s, matching {:.2} s, mapping {:.2} s; total {:.2} s; {}/{} registered",
+                c.run.version,
+                c.run.extraction_seconds,
+                c.run.matching_seconds,
+                c.run.mapping_seconds,
+                c.total_seconds,
+                c.run.registered,
+                c.run.total_images
+            ));
+        }
+        if self.rounds.len() > 1 {
+            for (k, round) in self.rounds.iter().enumerate() {
+                let c = round
+                    .colmap_seconds
+                    .map_or(String::new(), |c| format!(", colmap {:.2} s", c[3]));
+                let q = round
+                    .ratio
+                    .as_ref()
+                    .map_or(String::new(), |q| format!(", {:.2}×", q.total));
+                text.push_str(&format!(
+                    "\nround {}: handheld {:.2} s{c}{q}",
+                    k + 1,
+                    round.handheld_seconds[3]
+                ));
+            }
+        }
+        if let Some(q) = &self.ratio {
+            text.push_str(&format!(
+                "\nCOLMAP ÷ Handheld (median over the rounds): extraction {:.2}×, matching {:.2}×, mapping {:.2}×, total {:.2}× (target ≥ {})",
+                q.extraction, q.matching, q.mapping, q.total, self.target_total_ratio
+            ));
+        }
+        for (who, eval) in [
+            ("handheld", h.eval.as_ref()),
+            ("colmap", self.colmap.as_ref().and_then(|c| c.eval.as_ref())),
+        ] {
+            if let Some(e) = eval {
+                text.push_str(&format!("\n{who} eval: {e}"));
+            }
+        }
+        text
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

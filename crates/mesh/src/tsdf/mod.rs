@@ -29,8 +29,11 @@ use rayon::prelude::*;
 
 use crate::error::{in_range, positive, MeshError, Result};
 use crate::levels::{scale, LevelField};
-use crate::view::{incidence_map, sample_depth, Depth, Projector};
+
+mod update;
+use crate::view::{incidence_map, Depth, Projector};
 use handheld_core::PosedView;
+use update::{update_block, UpdateContext};
 
 /// Voxels per block edge.
 pub const BLOCK: usize = 8;
@@ -549,87 +552,4 @@ impl TsdfVolume {
 fn merge_sets<T: std::hash::Hash + Eq>(mut a: HashSet<T>, b: HashSet<T>) -> HashSet<T> {
     a.extend(b);
     a
-}
-
-/// What the update pass needs of one view.
-struct UpdateContext<'a> {
-    view: &'a Depth<'a>,
-    proj: &'a Projector,
-    /// Per-pixel incidence cosine ([`incidence_map`]).
-    cos: &'a [f32],
-    vs: f64,
-    trunc: f64,
-    max_w: f32,
-    min_conf: f64,
-    /// `max_depth_std` (0: off).
-    max_std: f64,
-}
-
-/// Smallest incidence cosine used (about 78°): beyond it the normal estimate is unreliable.
-const MIN_COS: f64 = 0.2;
-
-/// The update pass of one block for one view (see the module documentation). The distance along
-/// the line of sight is multiplied by the incidence cosine, which turns it into the distance to the
-/// (locally planar) surface, so the band has the same thickness at grazing angles; the sample's
-/// weight is its confidence times that cosine (Curless & Levoy 1996, §4).
-fn update_block(b: &mut Block, ctx: &UpdateContext) {
-    let s = scale(b.level as i32);
-    let (view, proj, vs, trunc) = (ctx.view, ctx.proj, ctx.vs * s, ctx.trunc * s);
-    let max_std = ctx.max_std * trunc;
-    let n = BLOCK as f64;
-    let origin = Vector3::new(b.key[0] as f64, b.key[1] as f64, b.key[2] as f64) * n * vs;
-    let base = proj.rot * origin + proj.trans;
-    let (ex, ey, ez) = (
-        proj.rot.column(0) * vs,
-        proj.rot.column(1) * vs,
-        proj.rot.column(2) * vs,
-    );
-    // Cheap rejection: the block's eight corner voxels all outside the frustum (or behind).
-    let m = n - 1.0;
-    let corners: [Vector3<f64>; 8] = std::array::from_fn(|c| {
-        base + ex * (m * (c & 1) as f64)
-            + ey * (m * (c >> 1 & 1) as f64)
-            + ez * (m * (c >> 2 & 1) as f64)
-    });
-    if proj.outside_frustum(&corners) {
-        return;
-    }
-    let w = view.depth.width;
-    let (wi, hi) = (view.depth.width as i64, view.depth.height as i64);
-    for z in 0..BLOCK {
-        for y in 0..BLOCK {
-            let row = base + ez * z as f64 + ey * y as f64;
-            for x in 0..BLOCK {
-                let pc = row + ex * x as f64;
-                let Some(px) = proj.cam_to_pixel(&pc) else {
-                    continue;
-                };
-                let (rx, ry) = (px.x.round() as i64, px.y.round() as i64);
-                if rx < 0 || ry < 0 || rx >= wi || ry >= hi {
-                    continue;
-                }
-                let pix = ry as usize * w + rx as usize;
-                let conf = view.weight(pix, ctx.min_conf);
-                if conf <= 0.0 || (max_std > 0.0 && view.std(pix) > max_std) {
-                    continue;
-                }
-                let Some(d) = sample_depth(view.depth, &px, 0.5 * trunc / pc.z) else {
-                    continue;
-                };
-                let cos = (ctx.cos[pix] as f64).max(MIN_COS);
-                let sdf = (d - pc.z) * pc.norm() / pc.z * cos;
-                if sdf < -trunc {
-                    continue;
-                }
-                let i = x + BLOCK * (y + BLOCK * z);
-                let v = (sdf / trunc).min(1.0) as f32;
-                let (old_w, new_w) = (b.weight[i], (conf * cos) as f32);
-                b.tsdf[i] = (b.tsdf[i] * old_w + v * new_w) / (old_w + new_w);
-                b.weight[i] = (old_w + new_w).min(ctx.max_w);
-                if sdf < trunc {
-                    b.observations[i] = b.observations[i].saturating_add(1);
-                }
-            }
-        }
-    }
 }
