@@ -5,6 +5,10 @@
 //! A pixel whose match `x − d` falls outside the right image gets a neutral cost (half the census
 //! bits, or `ρ = 0` for ZNCC: that of a random mismatch), so that aggregation decides it from its
 //! neighbours.
+//!
+//! Coarse-to-fine matching ([`crate::stereo`]) gives every pixel its own window of `ndisp`
+//! disparities starting at `base(p)`, so that `k` indexes `d = base(p) + k` (the per-pixel search
+//! ranges of tSGM, Rothermel et al. 2012, here of one width).
 
 use rayon::prelude::*;
 
@@ -21,6 +25,9 @@ pub(crate) struct CostVolume {
     /// Upper bound of every cost in `data`.
     pub max_cost: u8,
     pub data: Vec<u8>,
+    /// Per-pixel first disparity `base(x, y0 + r)` at `r · width + x`; empty when every pixel
+    /// starts at `min_disparity`.
+    pub base: Vec<i32>,
 }
 
 impl CostVolume {
@@ -29,6 +36,16 @@ impl CostVolume {
     pub fn pixel(&self, x: usize, r: usize) -> &[u8] {
         let i = (r * self.width + x) * self.ndisp;
         &self.data[i..i + self.ndisp]
+    }
+
+    /// The disparity of index 0 at pixel `(x, y0 + r)`.
+    #[inline]
+    pub fn base(&self, x: usize, r: usize) -> i32 {
+        if self.base.is_empty() {
+            self.min_disparity
+        } else {
+            self.base[r * self.width + x]
+        }
     }
 }
 
@@ -109,9 +126,12 @@ pub(crate) struct VolumeSpec {
 }
 
 /// Builds the cost volume of rows `y0..y1` into `buf` (reused storage: its capacity is kept).
+/// `bases` (the whole image's per-pixel first disparities, row-major) replaces the constant
+/// `spec.min_disparity`; it needs the census cost without box averaging.
 pub(crate) fn cost_volume(
     input: &CostInput,
     spec: &VolumeSpec,
+    bases: Option<&[i32]>,
     y0: usize,
     y1: usize,
     mut buf: Vec<u8>,
@@ -126,39 +146,34 @@ pub(crate) fn cost_volume(
     let rows = y1 - y0;
     buf.clear();
     buf.resize(rows * width * ndisp, 0);
+    let base = bases.map_or_else(Vec::new, |b| b[y0 * width..y1 * width].to_vec());
     match input {
         CostInput::Census { left, right, bits } => {
             let border = (*bits / 2) as u8;
             if window <= 1 {
-                census_rows(
-                    left,
-                    right,
-                    width,
-                    y0,
+                let starts = Starts {
                     min_disparity,
-                    ndisp,
-                    border,
-                    &mut buf,
-                );
+                    base: &base,
+                };
+                census_rows(left, right, width, y0, starts, ndisp, border, &mut buf);
             } else {
                 let r = window / 2;
                 let e0 = y0.saturating_sub(r);
                 let e1 = (y1 + r).min(height);
+                debug_assert!(base.is_empty(), "per-pixel ranges need window 1");
                 let mut raw = vec![0u8; (e1 - e0) * width * ndisp];
-                census_rows(
-                    left,
-                    right,
-                    width,
-                    e0,
+                let starts = Starts {
                     min_disparity,
-                    ndisp,
-                    border,
-                    &mut raw,
-                );
+                    base: &[],
+                };
+                census_rows(left, right, width, e0, starts, ndisp, border, &mut raw);
                 box_average(&raw, width, (e0, e1), y0, ndisp, window, &mut buf);
             }
         }
-        CostInput::Zncc(z) => z.cost_rows(y0, min_disparity, ndisp, &mut buf),
+        CostInput::Zncc(z) => {
+            debug_assert!(base.is_empty(), "per-pixel ranges need the census cost");
+            z.cost_rows(y0, min_disparity, ndisp, &mut buf)
+        }
     }
     let max_cost = match input {
         CostInput::Census { bits, .. } => *bits as u8,
@@ -171,7 +186,16 @@ pub(crate) fn cost_volume(
         min_disparity,
         max_cost,
         data: buf,
+        base,
     }
+}
+
+/// Where each pixel's disparities start: `base` (rows from `y0`, row-major) or, when empty,
+/// `min_disparity` everywhere.
+#[derive(Clone, Copy)]
+struct Starts<'a> {
+    min_disparity: i32,
+    base: &'a [i32],
 }
 
 /// Hamming distances of census descriptors for rows starting at `y0` (as many as `out` holds).
@@ -181,7 +205,7 @@ fn census_rows(
     right: &[u64],
     width: usize,
     y0: usize,
-    min_disparity: i32,
+    starts: Starts,
     ndisp: usize,
     border: u8,
     out: &mut [u8],
@@ -190,6 +214,7 @@ fn census_rows(
         .enumerate()
         .for_each(|(r, row)| {
             let y = y0 + r;
+            let brow = (!starts.base.is_empty()).then(|| &starts.base[r * width..(r + 1) * width]);
             let l = &left[y * width..(y + 1) * width];
             // The right row mirrored: x_r = top − k sits at width − 1 − top + k, a forward slice.
             let rr: Vec<u64> = right[y * width..(y + 1) * width]
@@ -199,7 +224,8 @@ fn census_rows(
                 .collect();
             for (x, px) in row.chunks_exact_mut(ndisp).enumerate() {
                 // Disparities whose match x_r = x − d_min − k lies inside the right image.
-                let top = x as i64 - min_disparity as i64;
+                let d0 = brow.map_or(starts.min_disparity, |b| b[x]);
+                let top = x as i64 - d0 as i64;
                 let k_lo = (top - (width as i64 - 1)).max(0);
                 let k_hi = top.min(ndisp as i64 - 1);
                 if k_hi < k_lo {
@@ -316,7 +342,7 @@ mod tests {
                 ndisp: 8,
                 window,
             };
-            let v = cost_volume(&input, &spec, 2, 10, Vec::new());
+            let v = cost_volume(&input, &spec, None, 2, 10, Vec::new());
             let px = v.pixel(20, 3);
             assert_eq!(px[d], 0, "window {window}: {px:?}");
             assert!(

@@ -137,6 +137,7 @@ mod tests {
             rows: 1,
             ndisp: nd,
             min_disparity: 0,
+            base: Vec::new(),
             max_cost: 255,
             data,
         }

@@ -36,7 +36,9 @@
 //! - `wta`, `refine`, `fill` (private): winner-take-all with sub-pixel fits, median / consistency
 //!   / speckle filtering, and hole filling;
 //! - `stereo` (private): [`match_rectified`] and the reusable [`StereoMatcher`], band tiling for
-//!   bounded memory.
+//!   bounded memory;
+//! - `pyramid` (private): coarse-to-fine per-pixel disparity windows (tSGM), so that wide ranges
+//!   at full resolution search a fixed number of disparities per pixel.
 //!
 //! Beyond the pair matcher, the crate holds the whole §4 stage:
 //! - [`rectify`]: rectification of calibrated pairs: polar around the oriented epipoles with the minimal-size angle step
@@ -59,6 +61,7 @@ mod fill;
 pub mod link;
 pub mod options;
 pub mod pair;
+mod pyramid;
 pub mod rectify;
 mod refine;
 mod sgm;
@@ -74,6 +77,7 @@ pub use error::DenseError;
 pub use link::{link_depth, LinkOptions, LinkedDepth, CONFIDENCE_RELATIVE_SIGMA};
 pub use options::{
     HoleFill, MatchingCost, ParseStereoMethodError, SgmPaths, StereoMethod, StereoOptions,
+    MAX_DISPARITIES,
 };
 pub use pair::{
     grey_image, match_pair, match_pair_with, match_sequence_pairs, PairDisparity, PairOptions,

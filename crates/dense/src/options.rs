@@ -154,7 +154,19 @@ pub struct StereoOptions {
     /// processed in horizontal bands with overlap (Hirschmüller 2008, "Processing of Huge
     /// Images"). Default 1 GiB.
     pub max_volume_bytes: usize,
+    /// Coarse-to-fine matching (tSGM, Rothermel et al. 2012): when more disparities than this
+    /// are to be searched (SGM with the census cost and `window` 1), the pair is first matched at
+    /// half size, recursively, and each pixel then searches only this many disparities around
+    /// what the coarser level found near it. 0 searches the whole range at every pixel.
+    /// Default 64.
+    pub pyramid_disparities: usize,
+    /// The coarsest pyramid level keeps its longer side at least this many pixels, and is matched
+    /// over the whole range. Default 640.
+    pub pyramid_min_size: usize,
 }
+
+/// The widest disparity range one matching run accepts (the winner-take-all keys hold 16 bits).
+pub const MAX_DISPARITIES: usize = 65_535;
 
 impl Default for StereoOptions {
     fn default() -> Self {
@@ -186,6 +198,8 @@ impl StereoOptions {
             speckle_range: 1.0,
             hole_fill: HoleFill::Scanline,
             max_volume_bytes: 1 << 30,
+            pyramid_disparities: 64,
+            pyramid_min_size: 640,
         }
     }
 
@@ -208,6 +222,14 @@ impl StereoOptions {
         }
     }
 
+    /// Whether the pair may be matched coarse to fine (SGM on the pixel-wise census cost).
+    pub fn pyramid_applies(&self) -> bool {
+        self.pyramid_disparities > 0
+            && self.method == StereoMethod::Sgm
+            && matches!(self.cost, MatchingCost::Census { .. })
+            && self.window == 1
+    }
+
     /// Number of disparities searched.
     pub fn num_disparities(&self) -> usize {
         (i64::from(self.max_disparity) - i64::from(self.min_disparity) + 1).max(0) as usize
@@ -227,10 +249,25 @@ impl StereoOptions {
                 ),
             );
         }
-        if self.num_disparities() > 4096 {
+        if self.num_disparities() > MAX_DISPARITIES {
             return bad(
                 "max_disparity",
-                format!("at most 4096 disparities, got {}", self.num_disparities()),
+                format!(
+                    "at most {MAX_DISPARITIES} disparities, got {}",
+                    self.num_disparities()
+                ),
+            );
+        }
+        if self.pyramid_disparities != 0 && self.pyramid_disparities < 8 {
+            return bad(
+                "pyramid_disparities",
+                format!("must be 0 (off) or at least 8, got {}", self.pyramid_disparities),
+            );
+        }
+        if self.pyramid_min_size < 32 {
+            return bad(
+                "pyramid_min_size",
+                format!("must be at least 32 pixels, got {}", self.pyramid_min_size),
             );
         }
         if let MatchingCost::Census { width, height } = self.cost {

@@ -23,7 +23,9 @@ pub struct PairOptions {
     pub stereo: StereoOptions,
     /// Widening of the sparse disparity range, as a fraction of its span (plus 2 px).
     pub range_margin: f64,
-    /// Largest number of disparities searched; wider sparse ranges are an error.
+    /// Largest number of disparities a pair may span; wider sparse ranges are an error. 0 (the
+    /// default) sets no limit: coarse-to-fine matching ([`StereoOptions::pyramid_disparities`])
+    /// searches a fixed number per pixel however wide the range.
     pub max_disparities: usize,
 }
 
@@ -40,7 +42,7 @@ impl Default for PairOptions {
                 ..StereoOptions::default()
             },
             range_margin: 0.15,
-            max_disparities: 1024,
+            max_disparities: 0,
         }
     }
 }
@@ -113,7 +115,7 @@ pub fn match_pair_with(
                      is unknown"
                 .into(),
         })?;
-    if (range.1 - range.0) as usize + 1 > opts.max_disparities {
+    if opts.max_disparities > 0 && (range.1 - range.0) as usize + 1 > opts.max_disparities {
         return Err(DenseError::Rectification {
             reason: format!(
                 "the sparse points span disparities {}..{}, more than max_disparities = {}",

@@ -15,6 +15,11 @@
 //! previous row of each path is kept (`3 · width · (ndisp + 2)` values), so memory is the cost
 //! volume (1 byte per entry) plus the two pass sums (2 bytes each): 5 bytes per pixel and
 //! disparity.
+//!
+//! With per-pixel disparity windows (coarse-to-fine matching, [`CostVolume::base`]) index `k`
+//! means `d = base(p) + k`, so a predecessor whose window starts elsewhere is first shifted onto
+//! `p`'s window; disparities it did not search enter as unreachable except through the `P2` jump
+//! from its minimum (tSGM's treatment of neighbouring ranges, Rothermel et al. 2012).
 
 use crate::cost::CostVolume;
 
@@ -98,22 +103,76 @@ struct RowPreds<'a> {
 
 impl<'a> RowPreds<'a> {
     /// Predecessor of path `j` at previous-row abscissa `xp` (`start` outside the image or on the
-    /// first row, where `g_prev` is `None`).
+    /// first row, where `g_prev` is `None`), with the predecessor's first disparity.
     #[inline(always)]
-    fn get(&self, g_prev: Option<&[u8]>, g: u8, xp: isize, j: usize, start: Pred<'a>) -> Pred<'a> {
+    fn get(
+        &self,
+        g_prev: Option<&[u8]>,
+        g: u8,
+        xp: isize,
+        j: usize,
+        start: Pred<'a>,
+    ) -> (Pred<'a>, Option<usize>) {
         match g_prev {
             Some(gp) if xp >= 0 && (xp as usize) < self.w => {
                 let xp = xp as usize;
                 let k = j * self.w + xp;
-                Pred {
+                let p = Pred {
                     l: &self.prev[k * self.np..(k + 1) * self.np],
                     min: self.prev_min[k],
                     p2: self.lut[g.abs_diff(gp[xp]) as usize],
-                }
+                };
+                (p, Some(xp))
             }
-            _ => start,
+            _ => (start, None),
         }
     }
+}
+
+/// `src` (padded costs of a window starting at disparity `b_src`) re-indexed onto a window of
+/// the same width starting at `b_dst`, into `dst`, pads included (the `d ± 1` neighbours just
+/// outside `dst`'s window may lie inside `src`'s); disparities `src` does not hold are `BIG`.
+#[inline]
+fn shift_into(dst: &mut [u16], src: &[u16], b_src: i32, b_dst: i32) {
+    let np = src.len() as i64;
+    let s = i64::from(b_dst) - i64::from(b_src);
+    dst.fill(BIG);
+    // dst[j] = src[j + s] for 0 ≤ j, j + s < np.
+    let j0 = (-s).max(0);
+    let j1 = (np - s).min(np);
+    if j1 > j0 {
+        let (j0, j1) = (j0 as usize, j1 as usize);
+        let from = (j0 as i64 + s) as usize;
+        dst[j0..j1].copy_from_slice(&src[from..from + (j1 - j0)]);
+    }
+}
+
+/// Row predecessor `p` (at `xp` of row `pr`, or a path start) aligned on the window starting at
+/// `b`.
+#[inline(always)]
+fn row_aligned<'a>(
+    p: Pred<'a>,
+    xp: Option<usize>,
+    ranged: bool,
+    cost: &CostVolume,
+    pr: usize,
+    b: i32,
+    scratch: &'a mut [u16],
+) -> Pred<'a> {
+    match xp {
+        Some(xp) if ranged => aligned(p, cost.base(xp, pr), b, scratch),
+        _ => p,
+    }
+}
+
+/// `p`, or its copy shifted from window start `b_src` to `b_dst` in `scratch` when they differ.
+#[inline(always)]
+fn aligned<'a>(p: Pred<'a>, b_src: i32, b_dst: i32, scratch: &'a mut [u16]) -> Pred<'a> {
+    if b_src == b_dst {
+        return p;
+    }
+    shift_into(scratch, p.l, b_src, b_dst);
+    Pred { l: scratch, ..p }
 }
 
 /// One SGM pass: the horizontal path plus the vertical (and, with 8 paths, both diagonal) paths
@@ -141,6 +200,9 @@ fn pass(cost: &CostVolume, grey: &[u8], params: &SgmParams, forward: bool, out: 
     let mut cur_min = vec![0; nrow * w];
     let mut h_prev = vec![BIG; np];
     let mut h_cur = vec![BIG; np];
+    // Shifted copies of the four predecessors (per-pixel windows only).
+    let ranged = !cost.base.is_empty();
+    let mut sh = [vec![BIG; np], vec![BIG; np], vec![BIG; np], vec![BIG; np]];
     let p1 = params.p1;
     let lut = params.p2_lut;
     // Sums of one row, in visiting order, appended to `out` when the row is done.
@@ -159,16 +221,25 @@ fn pass(cost: &CostVolume, grey: &[u8], params: &SgmParams, forward: bool, out: 
                 min: 0,
                 p2: lut[0],
             };
+            let b = cost.base(x, r);
+            let [s0, s1, s2, s3] = &mut sh;
             let h = if i == 0 {
                 start
             } else {
                 let xp = if forward { x - 1 } else { x + 1 };
-                Pred {
+                let p = Pred {
                     l: &h_prev,
                     min: h_min,
                     p2: lut[g[x].abs_diff(g[xp]) as usize],
+                };
+                if ranged {
+                    aligned(p, cost.base(xp, r), b, s0)
+                } else {
+                    p
                 }
             };
+            // A row predecessor, aligned on this pixel's window.
+            let row_pred = |(p, xp), scratch| row_aligned(p, xp, ranged, cost, pr, b, scratch);
             let rp = RowPreds {
                 prev: &prev,
                 prev_min: &prev_min,
@@ -187,9 +258,9 @@ fn pass(cost: &CostVolume, grey: &[u8], params: &SgmParams, forward: bool, out: 
                     p1,
                     [
                         h,
-                        rp.get(g_prev, g[x], xi + offsets[0], 0, start),
-                        rp.get(g_prev, g[x], xi + offsets[1], 1, start),
-                        rp.get(g_prev, g[x], xi + offsets[2], 2, start),
+                        row_pred(rp.get(g_prev, g[x], xi + offsets[0], 0, start), s1),
+                        row_pred(rp.get(g_prev, g[x], xi + offsets[1], 1, start), s2),
+                        row_pred(rp.get(g_prev, g[x], xi + offsets[2], 2, start), s3),
                     ],
                     [
                         &mut h_cur,
@@ -204,7 +275,7 @@ fn pass(cost: &CostVolume, grey: &[u8], params: &SgmParams, forward: bool, out: 
                 cur_min[w + x] = m[2];
                 cur_min[2 * w + x] = m[3];
             } else {
-                let v = rp.get(g_prev, g[x], xi, 0, start);
+                let v = row_pred(rp.get(g_prev, g[x], xi, 0, start), s1);
                 let m = fused2(
                     c,
                     p1,
@@ -323,6 +394,7 @@ mod tests {
             min_disparity: 0,
             max_cost: 255,
             data,
+            base: Vec::new(),
         }
     }
 
@@ -338,7 +410,9 @@ mod tests {
         assert_eq!(m, 1);
     }
 
-    /// Eq. 13–14 evaluated naively, one path direction at a time.
+    /// Eq. 13–14 evaluated naively, one path direction at a time, on each pixel's window
+    /// (`v.base`, or `min_disparity` everywhere): a predecessor's disparity outside its own
+    /// window is unreachable except by the `P2` jump.
     fn reference(v: &CostVolume, grey: &[u8], params: &SgmParams) -> Vec<u32> {
         let (w, h, nd) = (v.width as i64, v.rows as i64, v.ndisp);
         let dirs: &[(i64, i64)] = if params.eight_paths {
@@ -381,16 +455,23 @@ mod tests {
                     }
                     let q = (qy * w + qx) as usize;
                     let lq = &l[q * nd..(q + 1) * nd].to_vec();
+                    let shift = v.base(x as usize, y as usize) - v.base(qx as usize, qy as usize);
+                    // L(q, ·) at this pixel's index k, if q searched that disparity.
+                    let at = |k: i64| {
+                        let kq = k + i64::from(shift);
+                        (0..nd as i64).contains(&kq).then(|| lq[kq as usize])
+                    };
                     let m = *lq.iter().min().unwrap();
                     let p2 = u32::from(params.p2_lut[grey[p].abs_diff(grey[q]) as usize]);
                     let p1 = u32::from(params.p1);
                     for d in 0..nd {
-                        let mut best = lq[d].min(m + p2);
-                        if d > 0 {
-                            best = best.min(lq[d - 1] + p1);
+                        let k = d as i64;
+                        let mut best = m + p2;
+                        if let Some(a) = at(k) {
+                            best = best.min(a);
                         }
-                        if d + 1 < nd {
-                            best = best.min(lq[d + 1] + p1);
+                        for e in [at(k - 1), at(k + 1)].into_iter().flatten() {
+                            best = best.min(e + p1);
                         }
                         l[p * nd + d] = u32::from(c[d]) + best - m;
                     }
@@ -409,21 +490,34 @@ mod tests {
             seed = seed.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
             seed >> 24
         };
-        let v = volume(w, h, nd, |_, _, _| (rnd() % 40) as u8);
+        let mut v = volume(w, h, nd, |_, _, _| (rnd() % 40) as u8);
         let grey: Vec<u8> = (0..w * h).map(|_| rnd() as u8).collect();
-        for eight in [true, false] {
-            let params = SgmParams::new(4, 30, Some(16.0), eight);
-            let empty = Aggregated {
-                fwd: Vec::new(),
-                bwd: Vec::new(),
-            };
-            let s = aggregate(&v, &grey, &params, empty);
-            let want = reference(&v, &grey, &params);
-            let n = w * h;
-            for p in 0..n {
-                for d in 0..nd {
-                    let got = u32::from(s.fwd[p * nd + d]) + u32::from(s.bwd[(n - 1 - p) * nd + d]);
-                    assert_eq!(got, want[p * nd + d], "pixel {p}, d {d}, eight {eight}");
+        // Whole range, then per-pixel windows whose starts differ by up to ±9 (more than the
+        // width, so some neighbours share no disparity at all).
+        let bases: Vec<i32> = (0..w * h).map(|_| (rnd() % 19) as i32 - 9).collect();
+        for ranged in [false, true] {
+            if ranged {
+                v.base = bases.clone();
+            }
+            for eight in [true, false] {
+                let params = SgmParams::new(4, 30, Some(16.0), eight);
+                let empty = Aggregated {
+                    fwd: Vec::new(),
+                    bwd: Vec::new(),
+                };
+                let s = aggregate(&v, &grey, &params, empty);
+                let want = reference(&v, &grey, &params);
+                let n = w * h;
+                for p in 0..n {
+                    for d in 0..nd {
+                        let got =
+                            u32::from(s.fwd[p * nd + d]) + u32::from(s.bwd[(n - 1 - p) * nd + d]);
+                        assert_eq!(
+                            got,
+                            want[p * nd + d],
+                            "pixel {p}, d {d}, eight {eight}, ranged {ranged}"
+                        );
+                    }
                 }
             }
         }

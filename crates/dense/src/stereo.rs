@@ -22,9 +22,10 @@ use crate::dp::dp_band;
 use crate::error::{DenseError, Result};
 use crate::fill::{fill_directional, fill_scanline, occlusions};
 use crate::options::{HoleFill, MatchingCost, StereoMethod, StereoOptions};
+use crate::pyramid::{half, half_range, windows_from_coarse};
 use crate::refine::{lr_check, median3, remove_speckles};
 use crate::sgm::{aggregate, Aggregated, SgmParams};
-use crate::wta::wta;
+use crate::wta::{wta, Windows};
 
 /// Rows of context above and below each SGM band when the image is split.
 pub const SGM_BAND_OVERLAP: usize = 48;
@@ -85,8 +86,11 @@ impl StereoMatcher {
     }
 
     /// Matches one rectified pair; see [`match_rectified`].
+    ///
+    /// When the options allow it ([`StereoOptions::pyramid_applies`]) and the range is wider than
+    /// [`StereoOptions::pyramid_disparities`], the pair is matched coarse to fine
+    /// ([`crate::pyramid`]).
     pub fn match_pair(&mut self, left: &FloatMap, right: &FloatMap) -> Result<Disparity> {
-        let opts = &self.opts;
         if (left.width, left.height) != (right.width, right.height) {
             return Err(DenseError::SizeMismatch {
                 lw: left.width,
@@ -97,9 +101,47 @@ impl StereoMatcher {
         }
         let gl = Gray::from_map(left, "left")?;
         let gr = Gray::from_map(right, "right")?;
-        let (w, h, nd) = (gl.width, gl.height, opts.num_disparities());
+        let range = (self.opts.min_disparity, self.opts.max_disparity);
+        self.match_levels(&gl, &gr, range)
+    }
+
+    /// Matches at this size, after the half-size level when the pyramid applies.
+    fn match_levels(&mut self, gl: &Gray, gr: &Gray, (min, max): (i32, i32)) -> Result<Disparity> {
+        let n = self.opts.pyramid_disparities;
+        let nd = (max - min + 1) as usize;
+        let coarser = (gl.width.max(gl.height) + 1) / 2;
+        if !self.opts.pyramid_applies() || nd <= n || coarser < self.opts.pyramid_min_size {
+            return self.match_gray(gl, gr, (min, max), None);
+        }
+        let t = Instant::now();
+        let (cl, cr) = rayon::join(|| half(gl), || half(gr));
+        let coarse = self.match_levels(&cl, &cr, half_range(min, max))?;
+        let bases = windows_from_coarse(&coarse, gl.width, gl.height, (min, max), n);
+        debug!(
+            ms = t.elapsed().as_secs_f64() * 1e3,
+            width = gl.width,
+            "coarse level and windows"
+        );
+        self.match_gray(gl, gr, (min, max), Some(&bases))
+    }
+
+    /// Matches grey images over `min..=max`, or over each pixel's window of
+    /// `pyramid_disparities` starting at `bases`.
+    fn match_gray(
+        &mut self,
+        gl: &Gray,
+        gr: &Gray,
+        (min, max): (i32, i32),
+        bases: Option<&[i32]>,
+    ) -> Result<Disparity> {
+        let opts = &self.opts;
+        let nd = match bases {
+            Some(_) => opts.pyramid_disparities,
+            None => (max - min + 1) as usize,
+        };
+        let (w, h) = (gl.width, gl.height);
         let t0 = Instant::now();
-        let input = CostInput::new(&gl, &gr, opts.cost, opts.window);
+        let input = CostInput::new(gl, gr, opts.cost, opts.window);
         debug!(ms = t0.elapsed().as_secs_f64() * 1e3, "cost input");
 
         let boxed = matches!(opts.cost, MatchingCost::Census { .. }) && opts.window > 1;
@@ -115,7 +157,7 @@ impl StereoMatcher {
         let spec = VolumeSpec {
             width: w,
             height: h,
-            min_disparity: opts.min_disparity,
+            min_disparity: min,
             ndisp: nd,
             window: opts.window,
         };
@@ -138,6 +180,7 @@ impl StereoMatcher {
             let cv = cost_volume(
                 &input,
                 &spec,
+                bases,
                 b.ext.0,
                 b.ext.1,
                 std::mem::take(&mut self.cost),
@@ -163,7 +206,12 @@ impl StereoMatcher {
                     let t = Instant::now();
                     let rows = (b.core.0 - b.ext.0, b.core.1 - b.ext.0);
                     let (l, r) = (&mut dl[core.clone()], &mut dr[core]);
-                    wta(&s, w, nd, rows, opts.min_disparity, opts.subpixel, l, r);
+                    let windows = Windows {
+                        min_disparity: min,
+                        base: &cv.base,
+                        max_disparity: max,
+                    };
+                    wta(&s, w, nd, rows, windows, opts.subpixel, l, r);
                     debug!(ms = t.elapsed().as_secs_f64() * 1e3, "winner take all");
                     self.sums = s;
                 }
@@ -177,7 +225,7 @@ impl StereoMatcher {
         }
 
         let t = Instant::now();
-        let d = post_process(opts, dl, dr, w, h);
+        let d = post_process(opts, dl, dr, w, h, (min, max));
         debug!(ms = t.elapsed().as_secs_f64() * 1e3, "post-processing");
         Ok(d)
     }
@@ -191,6 +239,7 @@ fn post_process(
     mut dr: Vec<f32>,
     w: usize,
     h: usize,
+    (min, max): (i32, i32),
 ) -> Disparity {
     if opts.median {
         let (l, r) = rayon::join(|| median3(&dl, w, h), || median3(&dr, w, h));
@@ -208,7 +257,7 @@ fn post_process(
             .collect(),
         HoleFill::Scanline => fill_scanline(&dl, &valid, w),
         HoleFill::Directional => {
-            let occ = occlusions(&dr, &valid, w, opts.min_disparity, opts.num_disparities());
+            let occ = occlusions(&dr, &valid, w, min, (max - min + 1) as usize);
             fill_directional(&dl, &valid, &occ, w, h)
         }
     };

@@ -21,11 +21,24 @@ pub(crate) fn parabola(a: f32, b: f32, c: f32) -> f32 {
     }
 }
 
-/// Bits of a packed `(cost << K_BITS) | k` key holding the disparity index.
-const K_BITS: u32 = 12;
+/// Bits of a packed `(cost << K_BITS) | k` key holding the disparity index (`S` is `u16`, so the
+/// key fits in `u32`).
+const K_BITS: u32 = 16;
 
-/// Left disparities (`min_disparity` added, sub-pixel when asked) and right disparities
-/// `argmin_d S(x_r + d, d)` (integers; `NaN` where no `x_r + d` is inside the image) of the rows
+/// Where each pixel's disparity window starts: `base` (the band's rows, row-major, as in
+/// [`crate::cost::CostVolume::base`]) or, when empty, `min_disparity` everywhere.
+#[derive(Clone, Copy)]
+pub(crate) struct Windows<'a> {
+    pub min_disparity: i32,
+    pub base: &'a [i32],
+    /// The whole range's last disparity: a per-pixel window's minimum on its own edge is no
+    /// minimum (the cost may fall further outside) unless that edge is the range's.
+    pub max_disparity: i32,
+}
+
+/// Left disparities (window start added, sub-pixel when asked) and right disparities
+/// `argmin_d S(x_r + d, d)` over the windows of the left pixels `x_r + d` (integers; `NaN` where
+/// no window reaches `x_r`) of the rows
 /// `core.0..core.1` of a band. `S = fwd + bwd` is summed on the fly ([`Aggregated`] layouts).
 /// Ties go to the smaller disparity. `left` and `right` hold the core rows.
 ///
@@ -37,12 +50,20 @@ pub(crate) fn wta(
     width: usize,
     ndisp: usize,
     core: (usize, usize),
-    min_disparity: i32,
+    windows: Windows,
     subpixel: bool,
     left: &mut [f32],
     right: &mut [f32],
 ) {
-    debug_assert!(ndisp <= 1 << K_BITS);
+    let Windows {
+        min_disparity,
+        base: bases,
+        max_disparity,
+    } = windows;
+    // Right keys hold d − d_lo.
+    let d_lo = bases.iter().copied().min().unwrap_or(min_disparity);
+    let d_hi = bases.iter().copied().max().unwrap_or(min_disparity) + ndisp as i32 - 1;
+    debug_assert!(((d_hi - d_lo) as usize) < 1 << K_BITS);
     debug_assert_eq!(left.len(), (core.1 - core.0) * width);
     let mask = (1u32 << K_BITS) - 1;
     let row_len = width * ndisp;
@@ -54,6 +75,7 @@ pub(crate) fn wta(
             || (vec![u32::MAX; width], vec![0u16; ndisp]),
             |(best_r, px), (i, (lrow, rrow))| {
                 let r = core.0 + i;
+                let base_row = (!bases.is_empty()).then(|| &bases[r * width..(r + 1) * width]);
                 let frow = &agg.fwd[r * row_len..(r + 1) * row_len];
                 let rb = band_rows - 1 - r;
                 let brow = &agg.bwd[rb * row_len..(rb + 1) * row_len];
@@ -72,14 +94,20 @@ pub(crate) fn wta(
                         key = key.min((u32::from(*v) << K_BITS) | k as u32);
                     }
                     let k = (key & mask) as usize;
-                    let mut d = (min_disparity as i64 + k as i64) as f32;
-                    if subpixel && k > 0 && k + 1 < ndisp {
+                    let d0 = base_row.map_or(min_disparity, |b| b[x]);
+                    let mut d = (d0 as i64 + k as i64) as f32;
+                    let cut = base_row.is_some()
+                        && ((k == 0 && d0 > min_disparity)
+                            || (k + 1 == ndisp && d0 + ndisp as i32 - 1 < max_disparity));
+                    if cut {
+                        d = f32::NAN;
+                    } else if subpixel && k > 0 && k + 1 < ndisp {
                         let f = |i: usize| f32::from(px[i]);
                         d += parabola(f(k - 1), f(k), f(k + 1));
                     }
                     *o = d;
                     // Right pixels x_r = top − k inside the image, at mirrored index base + k.
-                    let top = x as i64 - min_disparity as i64;
+                    let top = x as i64 - d0 as i64;
                     let k_lo = (top - (width as i64 - 1)).max(0);
                     let k_hi = top.min(ndisp as i64 - 1);
                     if k_hi < k_lo {
@@ -90,15 +118,16 @@ pub(crate) fn wta(
                     let n = k_hi + 1 - k_lo;
                     let dst = &mut best_r[base..base + n];
                     let src = &px[k_lo..k_lo + n];
+                    let off = (d0 - d_lo) as usize + k_lo;
                     for i in 0..n {
-                        dst[i] = dst[i].min((u32::from(src[i]) << K_BITS) | (k_lo + i) as u32);
+                        dst[i] = dst[i].min((u32::from(src[i]) << K_BITS) | (off + i) as u32);
                     }
                 }
                 for (o, b) in rrow.iter_mut().zip(best_r.iter().rev()) {
                     *o = if *b == u32::MAX {
                         f32::NAN
                     } else {
-                        (min_disparity as i64 + (b & mask) as i64) as f32
+                        (d_lo as i64 + (b & mask) as i64) as f32
                     };
                 }
             },
@@ -129,7 +158,12 @@ mod tests {
             bwd: vec![0; w * nd],
         };
         let (mut l, mut r) = (vec![0f32; w], vec![0f32; w]);
-        wta(&agg, w, nd, (0, 1), 1, true, &mut l, &mut r);
+        let windows = Windows {
+            min_disparity: 1,
+            base: &[],
+            max_disparity: 4,
+        };
+        wta(&agg, w, nd, (0, 1), windows, true, &mut l, &mut r);
         assert!(l.iter().all(|d| *d == 2.0), "{l:?}");
         // x_r + 2 is inside for x_r <= 3; x_r = 4 only sees d = 1, x_r = 5 sees nothing.
         assert_eq!(&r[..4], &[2.0; 4]);

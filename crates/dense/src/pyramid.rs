@@ -1,0 +1,180 @@
+//! Coarse-to-fine disparity windows (tSGM, Rothermel et al., "SURE: Photogrammetric Surface
+//! Reconstruction from Imagery", LC3D 2012): a pair matched at half size tells each full-size
+//! pixel which disparities are worth searching, so the search per pixel stays small however wide
+//! the pair's whole range is.
+//!
+//! Each full-size pixel takes the measured coarse disparities in a 5×5 neighbourhood of its coarse
+//! pixel (tSGM's window, which reaches across depth edges to both sides), doubles their minimum
+//! and maximum, and widens them by [`WINDOW_MARGIN`]. Its window of `n` disparities is centred
+//! on that span when it fits; when the span is wider (a large depth edge), it is centred on the
+//! pixel's own coarse disparity, or the nearest measured one (the left–right check leaves edges
+//! unmeasured at the coarse level), and where the 5×5 neighbourhood has none, on the median of a
+//! wider one. Windows stay inside the pair's range.
+
+use crate::disparity::{Disparity, Gray};
+
+/// Radius (coarse pixels) of the neighbourhood whose disparities set a pixel's window.
+const NEAR: usize = 2;
+/// Radius of the wider neighbourhood used where the near one measured nothing.
+const FAR: usize = 8;
+/// Full-size pixels added on both sides of the doubled coarse span: one for the coarse level's
+/// whole-pixel error, one for the sampling of the half-size grid.
+pub const WINDOW_MARGIN: i32 = 2;
+
+/// The image at half size (2×2 means; an odd last row or column is averaged with itself).
+pub(crate) fn half(g: &Gray) -> Gray {
+    let (w, h) = ((g.width + 1) / 2, (g.height + 1) / 2);
+    let at = |x: usize, y: usize| g.data[y.min(g.height - 1) * g.width + x.min(g.width - 1)];
+    let data = (0..h)
+        .flat_map(|y| {
+            (0..w).map(move |x| {
+                let (x0, y0) = (2 * x, 2 * y);
+                0.25 * (at(x0, y0) + at(x0 + 1, y0) + at(x0, y0 + 1) + at(x0 + 1, y0 + 1))
+            })
+        })
+        .collect();
+    Gray {
+        width: w,
+        height: h,
+        data,
+    }
+}
+
+/// The coarse level's range for a full-size range `min..=max` (a whole-pixel margin each side).
+pub(crate) fn half_range(min: i32, max: i32) -> (i32, i32) {
+    (min.div_euclid(2) - 1, (max + 1).div_euclid(2) + 1)
+}
+
+/// The first disparity of each full-size pixel's window of `n` (row-major, `width × height`),
+/// from the half-size map `coarse`, inside `min..=max` (which must hold at least `n`).
+pub(crate) fn windows_from_coarse(
+    coarse: &Disparity,
+    width: usize,
+    height: usize,
+    (min, max): (i32, i32),
+    n: usize,
+) -> Vec<i32> {
+    let (cw, ch) = (coarse.width, coarse.height);
+    let measured = |i: usize| coarse.valid[i] && coarse.data[i].is_finite();
+    // Per coarse pixel: the span of its near neighbourhood, or a wide fallback centre.
+    let n_i = n as i32;
+    let mut start = vec![0i32; cw * ch];
+    let mut vals = Vec::new();
+    for cy in 0..ch {
+        for cx in 0..cw {
+            let mut lo = f32::INFINITY;
+            let mut hi = f32::NEG_INFINITY;
+            // The measured neighbour nearest to this pixel (itself when measured).
+            let mut nearest = (usize::MAX, f32::NAN);
+            for y in cy.saturating_sub(NEAR)..(cy + NEAR + 1).min(ch) {
+                for x in cx.saturating_sub(NEAR)..(cx + NEAR + 1).min(cw) {
+                    let i = y * cw + x;
+                    if measured(i) {
+                        let v = coarse.data[i];
+                        lo = lo.min(v);
+                        hi = hi.max(v);
+                        let d2 = (x.abs_diff(cx)).pow(2) + (y.abs_diff(cy)).pow(2);
+                        if d2 < nearest.0 {
+                            nearest = (d2, v);
+                        }
+                    }
+                }
+            }
+            let own = cy * cw + cx;
+            let centre = if lo.is_finite() {
+                let (a, b) = (
+                    (2.0 * lo).floor() as i32 - WINDOW_MARGIN,
+                    (2.0 * hi).ceil() as i32 + WINDOW_MARGIN,
+                );
+                if b - a < n_i {
+                    (a + b) / 2
+                } else {
+                    (2.0 * nearest.1).round() as i32
+                }
+            } else {
+                vals.clear();
+                for y in cy.saturating_sub(FAR)..(cy + FAR + 1).min(ch) {
+                    for x in cx.saturating_sub(FAR)..(cx + FAR + 1).min(cw) {
+                        let i = y * cw + x;
+                        if measured(i) {
+                            vals.push(coarse.data[i]);
+                        }
+                    }
+                }
+                if vals.is_empty() {
+                    (min + max) / 2
+                } else {
+                    let m = vals.len() / 2;
+                    let (_, v, _) = vals.select_nth_unstable_by(m, f32::total_cmp);
+                    (2.0 * *v).round() as i32
+                }
+            };
+            start[own] = (centre - n_i / 2).clamp(min, max - n_i + 1);
+        }
+    }
+    let mut out = Vec::with_capacity(width * height);
+    for y in 0..height {
+        let cy = (y / 2).min(ch - 1);
+        for x in 0..width {
+            out.push(start[cy * cw + (x / 2).min(cw - 1)]);
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn halving_averages_blocks() {
+        let g = Gray {
+            width: 3,
+            height: 2,
+            data: vec![0.0, 2.0, 4.0, 2.0, 4.0, 8.0],
+        };
+        let h = half(&g);
+        assert_eq!((h.width, h.height), (2, 1));
+        assert_eq!(h.data, vec![2.0, 6.0]);
+        assert_eq!(half_range(-7, 9), (-5, 6));
+    }
+
+    #[test]
+    fn windows_cover_both_sides_of_a_small_edge_and_follow_a_large_one() {
+        // Coarse map: 10 on the left half, 14 (small edge) or 100 (large edge) on the right.
+        for (right, n) in [(14.0f32, 32usize), (100.0, 32)] {
+            let (cw, ch) = (12, 6);
+            let mut c = Disparity::missing(cw, ch);
+            for i in 0..cw * ch {
+                c.data[i] = if i % cw < 6 { 10.0 } else { right };
+                c.valid[i] = true;
+            }
+            // A hole the far neighbourhood fills.
+            for y in 0..ch {
+                for x in 0..3 {
+                    c.valid[y * cw + x] = false;
+                }
+            }
+            let b = windows_from_coarse(&c, 2 * cw, 2 * ch, (0, 300), n);
+            let covers = |x: usize, d: i32| {
+                let s = b[4 * 2 * cw + x];
+                (s..s + n as i32).contains(&d)
+            };
+            // Far from the edge, the pixel's own disparity (doubled) is inside its window.
+            assert!(covers(8, 20), "{:?}", &b[4 * 2 * cw..5 * 2 * cw]);
+            assert!(covers(2 * cw - 1, 2 * right as i32));
+            // In the hole, the wider neighbourhood's median (the near side's, when the step is
+            // small enough for the median to be on the near side).
+            if right == 14.0 {
+                assert!(covers(1, 20));
+            }
+            // At the edge, both sides fit the window when the step is small; with a large
+            // step each pixel keeps its own side.
+            assert!(covers(11, 20));
+            assert!(covers(12, 2 * right as i32));
+            if right == 14.0 {
+                assert!(covers(11, 28) && covers(12, 20));
+            }
+        }
+    }
+}
