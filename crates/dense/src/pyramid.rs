@@ -23,7 +23,7 @@ pub const WINDOW_MARGIN: i32 = 2;
 
 /// The image at half size (2×2 means; an odd last row or column is averaged with itself).
 pub(crate) fn half(g: &Gray) -> Gray {
-    let (w, h) = ((g.width + 1) / 2, (g.height + 1) / 2);
+    let (w, h) = (g.width.div_ceil(2), g.height.div_ceil(2));
     let at = |x: usize, y: usize| g.data[y.min(g.height - 1) * g.width + x.min(g.width - 1)];
     let data = (0..h)
         .flat_map(|y| {
@@ -120,6 +120,65 @@ pub(crate) fn windows_from_coarse(
         }
     }
     out
+}
+
+/// Where the full-size level kept no disparity but the half-size level measured a locally planar
+/// surface (its 3×3 neighbourhood all measured, second differences within one pixel), the
+/// half-size disparities, interpolated and doubled, stand; for the left map and the right map
+/// alike. Full-size matching leaves isolated holes on fine texture (sensor noise at the pixel
+/// scale) that the half-size level measured; depth edges, where the half-size level is coarse,
+/// are left alone.
+pub(crate) fn fill_from_coarse(fine: &mut Disparity, coarse: &Disparity) {
+    let (cw, ch) = (coarse.width, coarse.height);
+    // Locally planar: the 3×3 neighbourhood all measured, every second difference along its rows
+    // and columns within one coarse pixel (a slanted surface, such as the ground, passes).
+    let smooth = |map: &[f32], valid: Option<&[bool]>, cx: usize, cy: usize| -> bool {
+        if cx == 0 || cy == 0 || cx + 1 >= cw || cy + 1 >= ch {
+            return false;
+        }
+        let mut v = [[0f32; 3]; 3];
+        for (j, row) in v.iter_mut().enumerate() {
+            for (i, o) in row.iter_mut().enumerate() {
+                let k = (cy + j - 1) * cw + cx + i - 1;
+                if !map[k].is_finite() || valid.is_some_and(|m| !m[k]) {
+                    return false;
+                }
+                *o = map[k];
+            }
+        }
+        (0..3).all(|a| {
+            (v[a][0] - 2.0 * v[a][1] + v[a][2]).abs() <= 1.0
+                && (v[0][a] - 2.0 * v[1][a] + v[2][a]).abs() <= 1.0
+        })
+    };
+    // Bilinear value of the coarse map at full-size pixel (x, y), doubled.
+    let at = |map: &[f32], x: usize, y: usize| -> f32 {
+        let u = ((x as f32 + 0.5) / 2.0 - 0.5).clamp(0.0, (cw - 1) as f32);
+        let v = ((y as f32 + 0.5) / 2.0 - 0.5).clamp(0.0, (ch - 1) as f32);
+        let (x0, y0) = (u.floor() as usize, v.floor() as usize);
+        let (x1, y1) = ((x0 + 1).min(cw - 1), (y0 + 1).min(ch - 1));
+        let (fx, fy) = (u - x0 as f32, v - y0 as f32);
+        let g = |x: usize, y: usize| map[y * cw + x];
+        let top = g(x0, y0) * (1.0 - fx) + g(x1, y0) * fx;
+        let bot = g(x0, y1) * (1.0 - fx) + g(x1, y1) * fx;
+        2.0 * (top * (1.0 - fy) + bot * fy)
+    };
+    let w = fine.width;
+    let has_right = fine.right.len() == fine.data.len() && coarse.right.len() == cw * ch;
+    for i in 0..fine.data.len() {
+        let (x, y) = (i % w, i / w);
+        let (cx, cy) = ((x / 2).min(cw - 1), (y / 2).min(ch - 1));
+        if !fine.valid[i] && smooth(&coarse.data, Some(&coarse.valid), cx, cy) {
+            let d = at(&coarse.data, x, y);
+            if d.is_finite() {
+                fine.data[i] = d;
+                fine.valid[i] = true;
+            }
+        }
+        if has_right && !fine.right[i].is_finite() && smooth(&coarse.right, None, cx, cy) {
+            fine.right[i] = at(&coarse.right, x, y).round();
+        }
+    }
 }
 
 #[cfg(test)]

@@ -22,7 +22,7 @@ use crate::dp::dp_band;
 use crate::error::{DenseError, Result};
 use crate::fill::{fill_directional, fill_scanline, occlusions};
 use crate::options::{HoleFill, MatchingCost, StereoMethod, StereoOptions};
-use crate::pyramid::{half, half_range, windows_from_coarse};
+use crate::pyramid::{fill_from_coarse, half, half_range, windows_from_coarse};
 use crate::refine::{lr_check, median3, remove_speckles};
 use crate::sgm::{aggregate, Aggregated, SgmParams};
 use crate::wta::{wta, Windows};
@@ -109,7 +109,7 @@ impl StereoMatcher {
     fn match_levels(&mut self, gl: &Gray, gr: &Gray, (min, max): (i32, i32)) -> Result<Disparity> {
         let n = self.opts.pyramid_disparities;
         let nd = (max - min + 1) as usize;
-        let coarser = (gl.width.max(gl.height) + 1) / 2;
+        let coarser = gl.width.max(gl.height).div_ceil(2);
         if !self.opts.pyramid_applies() || nd <= n || coarser < self.opts.pyramid_min_size {
             return self.match_gray(gl, gr, (min, max), None);
         }
@@ -122,7 +122,9 @@ impl StereoMatcher {
             width = gl.width,
             "coarse level and windows"
         );
-        self.match_gray(gl, gr, (min, max), Some(&bases))
+        let mut fine = self.match_gray(gl, gr, (min, max), Some(&bases))?;
+        fill_from_coarse(&mut fine, &coarse);
+        Ok(fine)
     }
 
     /// Matches grey images over `min..=max`, or over each pixel's window of
