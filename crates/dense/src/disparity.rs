@@ -19,6 +19,14 @@ pub struct Disparity {
     /// The right view's disparities that passed the left–right check (right `(x, y)` ↔ left
     /// `(x + d, y)`), `NaN` elsewhere; empty when the producer did not keep them.
     pub right: Vec<f32>,
+    /// The size, in pixels of this map, of the pixel each left value was measured at: 1 at full
+    /// size, 2 where coarse-to-fine matching kept a half-size value, and so on (its matching
+    /// uncertainty scales with it). Empty: 1 everywhere.
+    #[serde(default)]
+    pub scale: Vec<u8>,
+    /// [`Disparity::scale`] of the right map.
+    #[serde(default)]
+    pub right_scale: Vec<u8>,
 }
 
 impl Disparity {
@@ -30,7 +38,19 @@ impl Disparity {
             data: vec![f32::NAN; width * height],
             valid: vec![false; width * height],
             right: vec![f32::NAN; width * height],
+            scale: Vec::new(),
+            right_scale: Vec::new(),
         }
+    }
+
+    /// The measurement's pixel size at index `i` of the left (`side` 0) or right map.
+    pub fn scale_at(&self, side: usize, i: usize) -> f64 {
+        let s = if side == 0 {
+            &self.scale
+        } else {
+            &self.right_scale
+        };
+        s.get(i).map_or(1.0, |v| f64::from(*v))
     }
 
     /// Disparity at `(x, y)` (`NaN` when missing).

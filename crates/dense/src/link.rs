@@ -3,7 +3,8 @@
 //! For each pixel of a reference view, correspondences are chained through the disparity maps
 //! of neighbouring pairs: `m_{i+1} = R′⁻¹(R(m_i) + D(R(m_i)))`. Every link gives a new depth
 //! estimate for the reference pixel, triangulated from the reference ray and the linked pixel;
-//! its variance follows from the chain's accumulated matching uncertainty (`σ_px·√links`)
+//! its variance follows from the chain's accumulated matching uncertainty (`σ_px·√Σ sᵢ²`, with
+//! `sᵢ` the pixel size each link's disparity was measured at: 1, or 2 for a half-size value)
 //! through the depth-vs-image-position derivative along the epipolar line. The estimates are
 //! fused by a Kalman filter (static state, so the update is the inverse-variance mean). A chain
 //! stops when its next estimate falls outside the gate `κ·√(σ² + σᵢ²)` of the fused depth, or
@@ -217,8 +218,9 @@ pub fn link_depth(
                 let m = Vector2::new(x as f64, y as f64);
                 let n = r.camera.intrinsics.pixel_to_normalized(m);
                 let ray = r_ref_t * Vector3::new(n.x, n.y, 1.0);
-                // Chain state per direction: current view and pixel, links so far, alive.
-                let mut chains = [(reference, m, 0usize, true), (reference, m, 0usize, true)];
+                // Chain state per direction: current view and pixel, the chain's accumulated
+                // matching variance in units of σ_px² (one per full-size link), alive.
+                let mut chains = [(reference, m, 0.0f64, true), (reference, m, 0.0f64, true)];
                 let mut fused: Option<(f64, f64)> = None;
                 let mut vis = 1usize;
                 for _ in 0..opts.max_links {
@@ -232,8 +234,8 @@ pub fn link_depth(
                                 .then(|| {
                                     pairs[a]
                                         .as_ref()
-                                        .and_then(|pd| pd.transfer(0, p))
-                                        .map(|q| (a + 1, q))
+                                        .and_then(|pd| pd.transfer_scaled(0, p))
+                                        .map(|(q, s)| (a + 1, q, s))
                                 })
                                 .flatten()
                         } else {
@@ -241,12 +243,12 @@ pub fn link_depth(
                                 .then(|| {
                                     pairs[a - 1]
                                         .as_ref()
-                                        .and_then(|pd| pd.transfer(1, p))
-                                        .map(|q| (a - 1, q))
+                                        .and_then(|pd| pd.transfer_scaled(1, p))
+                                        .map(|(q, s)| (a - 1, q, s))
                                 })
                                 .flatten()
                         };
-                        let Some((b, q)) = step else {
+                        let Some((b, q, scale)) = step else {
                             chain.3 = false;
                             continue;
                         };
@@ -258,8 +260,8 @@ pub fn link_depth(
                             chain.3 = false;
                             continue;
                         };
-                        let links = chain.2 + 1;
-                        let sigma = opts.sigma_px * (links as f64).sqrt() * dz_dpx.abs();
+                        let links = chain.2 + scale * scale;
+                        let sigma = opts.sigma_px * links.sqrt() * dz_dpx.abs();
                         let var = sigma * sigma;
                         match fused {
                             None => fused = Some((z, var)),

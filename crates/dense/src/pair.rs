@@ -194,6 +194,12 @@ impl PairDisparity {
     /// Follows the pair from an original pixel of view `side` to the matching original pixel of
     /// the other view (eq. 28: `m′ = R′⁻¹(R(m) + D(R(m)))`), using measured disparities only.
     pub fn transfer(&self, side: usize, m: Vector2<f64>) -> Option<Vector2<f64>> {
+        self.transfer_scaled(side, m).map(|(q, _)| q)
+    }
+
+    /// [`PairDisparity::transfer`] with the pixel size the disparity was measured at
+    /// ([`Disparity::scale`]), by which its matching uncertainty grows.
+    pub fn transfer_scaled(&self, side: usize, m: Vector2<f64>) -> Option<(Vector2<f64>, f64)> {
         let rect = &self.rectification;
         let r = rect.to_rect(side, m)?;
         let d = &self.disparity;
@@ -204,10 +210,11 @@ impl PairDisparity {
         };
         let disp = sample(map, valid, d.width, d.height, r)?;
         let disp = f64::from(disp);
+        let scale = d.scale_at(side, r.y.round() as usize * d.width + r.x.round() as usize);
         let x = if side == 0 { r.x - disp } else { r.x + disp };
         let other = 1 - side;
         let m2 = rect.from_rect(other, Vector2::new(x, r.y))?;
-        rect.view(other).contains(&m2).then_some(m2)
+        rect.view(other).contains(&m2).then_some((m2, scale))
     }
 }
 

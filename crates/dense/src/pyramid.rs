@@ -20,6 +20,13 @@ const FAR: usize = 8;
 /// Full-size pixels added on both sides of the doubled coarse span: one for the coarse level's
 /// whole-pixel error, one for the sampling of the half-size grid.
 pub const WINDOW_MARGIN: i32 = 2;
+/// Largest step (coarse pixels per pixel of distance) between a coarse disparity and a
+/// neighbour's for the coarse value to stand in for a missing full-size one.
+const MAX_STEP: f32 = 2.0;
+/// Radius (coarse pixels) searched for a depth edge around a coarse disparity that would stand in.
+const EDGE_RADIUS: usize = 2;
+/// Fewest measured neighbours (of 8) a coarse disparity needs to stand in.
+const MIN_NEIGHBOURS: usize = 3;
 
 /// The image at half size (2×2 means; an odd last row or column is averaged with itself).
 pub(crate) fn half(g: &Gray) -> Gray {
@@ -122,34 +129,43 @@ pub(crate) fn windows_from_coarse(
     out
 }
 
-/// Where the full-size level kept no disparity but the half-size level measured a locally planar
-/// surface (its 3×3 neighbourhood all measured, second differences within one pixel), the
+/// Where the full-size level kept no disparity but the half-size level measured a surface with no
+/// depth edge around the pixel (see `smooth` below), the
 /// half-size disparities, interpolated and doubled, stand; for the left map and the right map
 /// alike. Full-size matching leaves isolated holes on fine texture (sensor noise at the pixel
 /// scale) that the half-size level measured; depth edges, where the half-size level is coarse,
 /// are left alone.
 pub(crate) fn fill_from_coarse(fine: &mut Disparity, coarse: &Disparity) {
     let (cw, ch) = (coarse.width, coarse.height);
-    // Locally planar: the 3×3 neighbourhood all measured, every second difference along its rows
-    // and columns within one coarse pixel (a slanted surface, such as the ground, passes).
+    // A surface without a depth edge: the coarse pixel measured, at least 3 of its 8 neighbours
+    // measured, and every measured pixel of its 5×5 neighbourhood within 2 coarse pixels per
+    // pixel of distance of it. A slanted surface, such as the ground seen at a grazing angle,
+    // passes; an edge does not, even when the left–right check left its near side unmeasured.
     let smooth = |map: &[f32], valid: Option<&[bool]>, cx: usize, cy: usize| -> bool {
-        if cx == 0 || cy == 0 || cx + 1 >= cw || cy + 1 >= ch {
+        if cx < EDGE_RADIUS || cy < EDGE_RADIUS || cx + EDGE_RADIUS >= cw || cy + EDGE_RADIUS >= ch
+        {
             return false;
         }
-        let mut v = [[0f32; 3]; 3];
-        for (j, row) in v.iter_mut().enumerate() {
-            for (i, o) in row.iter_mut().enumerate() {
-                let k = (cy + j - 1) * cw + cx + i - 1;
-                if !map[k].is_finite() || valid.is_some_and(|m| !m[k]) {
+        let ok = |k: usize| map[k].is_finite() && valid.is_none_or(|m| m[k]);
+        let own = cy * cw + cx;
+        if !ok(own) {
+            return false;
+        }
+        let mut n = 0;
+        for y in cy - EDGE_RADIUS..=cy + EDGE_RADIUS {
+            for x in cx - EDGE_RADIUS..=cx + EDGE_RADIUS {
+                let k = y * cw + x;
+                if k == own || !ok(k) {
+                    continue;
+                }
+                let dist = x.abs_diff(cx).max(y.abs_diff(cy));
+                if (map[k] - map[own]).abs() > MAX_STEP * dist as f32 {
                     return false;
                 }
-                *o = map[k];
+                n += usize::from(dist == 1);
             }
         }
-        (0..3).all(|a| {
-            (v[a][0] - 2.0 * v[a][1] + v[a][2]).abs() <= 1.0
-                && (v[0][a] - 2.0 * v[1][a] + v[2][a]).abs() <= 1.0
-        })
+        n >= MIN_NEIGHBOURS
     };
     // Bilinear value of the coarse map at full-size pixel (x, y), doubled.
     let at = |map: &[f32], x: usize, y: usize| -> f32 {
@@ -164,19 +180,42 @@ pub(crate) fn fill_from_coarse(fine: &mut Disparity, coarse: &Disparity) {
         2.0 * (top * (1.0 - fy) + bot * fy)
     };
     let w = fine.width;
-    let has_right = fine.right.len() == fine.data.len() && coarse.right.len() == cw * ch;
+    let n = fine.data.len();
+    let has_right = fine.right.len() == n && coarse.right.len() == cw * ch;
+    // A value kept from the coarse level was measured on pixels twice the size (or more, when
+    // that level kept its own coarser values).
+    let coarse_scale = |side: usize, cx: usize, cy: usize| {
+        (2.0 * coarse.scale_at(side, cy * cw + cx)).min(f64::from(u8::MAX)) as u8
+    };
+    if fine.scale.len() != n {
+        fine.scale = vec![1; n];
+    }
+    if has_right && fine.right_scale.len() != n {
+        fine.right_scale = vec![1; n];
+    }
     for i in 0..fine.data.len() {
         let (x, y) = (i % w, i / w);
         let (cx, cy) = ((x / 2).min(cw - 1), (y / 2).min(ch - 1));
         if !fine.valid[i] && smooth(&coarse.data, Some(&coarse.valid), cx, cy) {
-            let d = at(&coarse.data, x, y);
+            // Bilinear where the four coarse neighbours are measured, the coarse pixel's own
+            // value otherwise.
+            let mut d = at(&coarse.data, x, y);
+            if !d.is_finite() {
+                d = 2.0 * coarse.data[cy * cw + cx];
+            }
             if d.is_finite() {
                 fine.data[i] = d;
                 fine.valid[i] = true;
+                fine.scale[i] = coarse_scale(0, cx, cy);
             }
         }
         if has_right && !fine.right[i].is_finite() && smooth(&coarse.right, None, cx, cy) {
-            fine.right[i] = at(&coarse.right, x, y).round();
+            let mut d = at(&coarse.right, x, y);
+            if !d.is_finite() {
+                d = 2.0 * coarse.right[cy * cw + cx];
+            }
+            fine.right[i] = d.round();
+            fine.right_scale[i] = coarse_scale(1, cx, cy);
         }
     }
 }

@@ -269,6 +269,8 @@ fn post_process(
         data,
         valid,
         right,
+        scale: Vec::new(),
+        right_scale: Vec::new(),
     }
 }
 

@@ -233,12 +233,22 @@ fn coarse_to_fine_keeps_the_truth_over_a_wide_range() {
     // What coarse to fine loses is a band of about 4 px along the box's 110-px depth edges, where
     // a window of 32 cannot hold both sides (measured: 1.2 % of the pixels).
     assert!(bf <= bw + 1.5, "coarse to fine {bf:.2}%, whole {bw:.2}%");
-    // The wrong ones sit in the first rows and columns inside the box, where the coarse level
-    // fattened the background by a pixel and the window followed it (measured: 0.8 %, against
-    // 0.05 % over the whole range).
-    let (wf, ww) = (measured_wrong(&fine), measured_wrong(&whole));
+    // Wrong beyond the pixel size it was measured at (values the half-size level kept are
+    // half-size measurements). The wrong ones sit in the first rows and columns inside the box,
+    // where the coarse level fattened the background by a pixel and the window followed it.
+    let wrong_scaled = |d: &Disparity| {
+        let n = (0..d.data.len()).filter(|&i| d.valid[i]).count();
+        let bad = (0..d.data.len())
+            .filter(|&i| d.valid[i])
+            .filter(|&i| (d.data[i] - pair.truth[i]).abs() as f64 > d.scale_at(0, i))
+            .count();
+        100.0 * bad as f64 / n.max(1) as f64
+    };
+    let (wf, ww) = (wrong_scaled(&fine), measured_wrong(&whole));
     assert!(wf < 1.2 && ww < 0.5, "measured and wrong: {wf:.2}% vs {ww:.2}%");
-    // The right map (for linking) is right too.
+    let kept = fine.scale.iter().filter(|s| **s > 1).count();
+    assert!(kept > 0, "no half-size value kept");
+    // The right map (for linking) is right too, within the pixel size it was measured at.
     let right_ok = fine
         .right
         .iter()
@@ -247,12 +257,15 @@ fn coarse_to_fine_keeps_the_truth_over_a_wide_range() {
         .filter(|(i, r)| {
             let (x, y) = (i % scene.width, i / scene.width);
             let xl = (x as f32 + **r).round() as usize;
-            xl < scene.width && (pair.truth[y * scene.width + xl] - **r).abs() <= 1.0
+            xl < scene.width
+                && f64::from((pair.truth[y * scene.width + xl] - **r).abs()) <= fine.scale_at(1, *i)
         })
         .count() as f64
         / fine.right.iter().filter(|r| r.is_finite()).count().max(1) as f64;
-    assert!(right_ok > 0.98, "right map {:.3} consistent", right_ok);
+    // Whole pixels (no sub-pixel fit on the right map); the misses sit along the box's edges.
+    assert!(right_ok > 0.97, "right map {:.3} consistent", right_ok);
 }
+
 
 
 

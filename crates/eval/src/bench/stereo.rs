@@ -330,6 +330,8 @@ pub fn bench_stereo(o: &StereoBenchOptions) -> Result<StereoBenchReport> {
                 valid: map.data.iter().map(|v| v.is_finite()).collect(),
                 data: map.data,
                 right: Vec::new(),
+                scale: Vec::new(),
+                right_scale: Vec::new(),
             };
             entry.opencv_sgbm = Some(score(&d, &gt, 4.0, secs));
             for m in [&mut entry.sgm, &mut entry.dp] {
