@@ -195,6 +195,13 @@ pub struct BenchDenseArgs {
     /// Timed runs (median reported).
     #[arg(long, default_value_t = bench::DenseBenchOptions::default().runs)]
     pub runs: u32,
+    /// With --model: also run the whole dense stage on it (defaults: full size up to 24 MP), and
+    /// report failed pairs, fill per view, seconds per megapixel and peak memory.
+    #[arg(long, requires = "model")]
+    pub stage: bool,
+    /// With --stage: the longer-side limit of the stage run (0: the default).
+    #[arg(long, default_value_t = 0)]
+    pub stage_max_size: u32,
 }
 
 pub fn dense(a: &BenchDenseArgs, g: &GlobalArgs) -> Result<()> {
@@ -203,6 +210,7 @@ pub fn dense(a: &BenchDenseArgs, g: &GlobalArgs) -> Result<()> {
         model: a.model.clone(),
         images: a.images.clone(),
         runs: a.runs,
+        stage_max_size: a.stage.then_some(a.stage_max_size),
     };
     print(g, &bench::bench_dense(&o)?, pretty)
 }

@@ -234,9 +234,12 @@ impl InputArgs {
 /// Options of the dense stage (§4).
 #[derive(Debug, Clone, Args)]
 pub struct DenseArgs {
-    /// Dense: images are downscaled so their longer side is at most this (0 = full resolution).
+    /// Dense: images are downscaled so their longer side is at most this (0 = no limit).
     #[arg(long, default_value_t = defaults().dense.max_size)]
     pub dense_max_size: u32,
+    /// Dense: images larger than this many megapixels are downscaled to it.
+    #[arg(long, default_value_t = defaults().dense.max_megapixels)]
+    pub dense_max_megapixels: f64,
     /// Dense: stereo method of each rectified pair (§4.2): `sgm` (semi-global matching, census
     /// cost; the more accurate on Middlebury) or `dp` (the paper's scanline dynamic programming).
     #[arg(long, default_value = choice_name(&defaults().dense.stereo_method()), value_parser = choice::<StereoMethod>)]
@@ -257,6 +260,7 @@ impl DenseArgs {
     pub fn options(&self) -> handheld_pipeline::Result<DenseStageOptions> {
         let mut o = defaults().dense;
         o.max_size = self.dense_max_size;
+        o.max_megapixels = self.dense_max_megapixels;
         o.set_stereo_method(self.stereo_method);
         o.set_link_views(self.link_views)?;
         o.dense.link.min_visibility = self.min_visibility;

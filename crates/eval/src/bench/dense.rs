@@ -37,6 +37,9 @@ pub struct DenseBenchOptions {
     pub images: Option<PathBuf>,
     /// Timed runs (the median is reported). Default 5.
     pub runs: u32,
+    /// With `model`: also run the whole dense stage on it, with the stage's defaults but this
+    /// longer-side limit (0: the default, full size up to 24 MP). Default `None`: no stage run.
+    pub stage_max_size: Option<u32>,
 }
 
 impl Default for DenseBenchOptions {
@@ -46,6 +49,7 @@ impl Default for DenseBenchOptions {
             model: None,
             images: None,
             runs: 5,
+            stage_max_size: None,
         }
     }
 }
@@ -58,6 +62,9 @@ impl DenseBenchOptions {
         }
         if self.model.is_some() && self.images.is_none() {
             return Err(EvalError::option("--images", "is required with --model"));
+        }
+        if self.stage_max_size.is_some() && self.model.is_none() {
+            return Err(EvalError::option("--stage", "needs --model and --images"));
         }
         Ok(())
     }
@@ -115,8 +122,71 @@ pub struct DenseBenchReport {
     pub threads: usize,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub speed_large: Option<PairTiming>,
+    /// The whole dense stage on `model` (`--stage`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub stage: Option<StageRun>,
     /// Peak resident memory of the process over the whole bench (`VmHWM`, MB).
     pub peak_rss_mb: Option<f64>,
+}
+
+/// The whole dense stage on a real model: what issue #35 asks of full-size dense depth.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct StageRun {
+    /// The size the views were matched at (the first view's).
+    pub width: u32,
+    pub height: u32,
+    pub views: usize,
+    pub pairs_matched: usize,
+    /// Pairs that failed, with the reason.
+    pub pairs_failed: Vec<String>,
+    /// Fill of each view's depth map (fraction of its pixels).
+    pub fill: Vec<f64>,
+    pub fill_min: f64,
+    pub fill_mean: f64,
+    pub seconds: f64,
+    /// Seconds per megapixel of one view (`seconds / (views · megapixels)`).
+    pub seconds_per_megapixel_view: f64,
+    /// Peak resident memory at the end of the stage (`VmHWM`, MB).
+    pub peak_rss_mb: Option<f64>,
+}
+
+/// Runs the dense stage on `model` into a temporary folder.
+fn stage_run(model: &std::path::Path, images: &std::path::Path, max_size: u32) -> Result<StageRun> {
+    use handheld_pipeline::stages::dense::{densify_model, DenseStageOptions};
+    let opts = DenseStageOptions {
+        max_size,
+        ..DenseStageOptions::default()
+    };
+    let tmp = tempfile::tempdir().with_context(|| "cannot make a temporary folder".to_string())?;
+    let t = Instant::now();
+    let summary = densify_model(model, images, &opts, tmp.path(), &handheld_core::NoProgress)?;
+    let seconds = t.elapsed().as_secs_f64();
+    let path = tmp.path().join(handheld_pipeline::files::SUMMARY_JSON);
+    let text = std::fs::read_to_string(&path)
+        .with_context(|| format!("{}: cannot read", path.display()))?;
+    let full: handheld_pipeline::stages::dense::DenseStageSummary = serde_json::from_str(&text)
+        .map_err(|e| EvalError::Data(format!("{}: {e}", path.display())))?;
+    let per_view = full.per_view.unwrap_or_default();
+    let fill: Vec<f64> = per_view.iter().map(|v| v.fill).collect();
+    let (width, height) = per_view.first().map_or((0, 0), |v| (v.width, v.height));
+    let mp = f64::from(width) * f64::from(height) / 1e6;
+    Ok(StageRun {
+        width,
+        height,
+        views: summary.views,
+        pairs_matched: summary.pairs_matched,
+        pairs_failed: summary
+            .pairs_failed
+            .iter()
+            .map(|f| format!("{}–{}: {}", f.pair[0], f.pair[1], f.reason))
+            .collect(),
+        fill_min: fill.iter().copied().fold(f64::INFINITY, f64::min),
+        fill_mean: fill.iter().sum::<f64>() / fill.len().max(1) as f64,
+        fill,
+        seconds,
+        seconds_per_megapixel_view: seconds / (summary.views.max(1) as f64 * mp.max(1e-9)),
+        peak_rss_mb: super::scale::peak_rss_mb(),
+    })
 }
 
 fn to_map(img: &image::RgbImage) -> FloatMap {
@@ -329,12 +399,17 @@ pub fn bench_dense(o: &DenseBenchOptions) -> Result<DenseBenchReport> {
         (Some(model), Some(images)) => Some(speed_large(model, images)?),
         _ => None,
     };
+    let stage = match (&o.model, &o.images, o.stage_max_size) {
+        (Some(model), Some(images), Some(max_size)) => Some(stage_run(model, images, max_size)?),
+        _ => None,
+    };
     Ok(DenseBenchReport {
         linking,
         polar_forward,
         speed_640,
         threads: rayon::current_num_threads(),
         speed_large,
+        stage,
         peak_rss_mb: super::scale::peak_rss_mb(),
     })
 }

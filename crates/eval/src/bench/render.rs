@@ -249,7 +249,7 @@ pub fn bench_render(o: &RenderBenchOptions, progress: &dyn Progress) -> Result<R
         &dense_dir,
         Some(&mesh_dir.join(handheld_pipeline::files::MODEL_GLB)),
         &held,
-        dense_opts.max_size,
+        scene_max_size(&rec, &dense_opts),
     )?;
     let mut renderer = Renderer::new();
     let mut views = Vec::new();
@@ -262,7 +262,8 @@ pub fn bench_render(o: &RenderBenchOptions, progress: &dyn Progress) -> Result<R
         let Some(cam) = rec.cameras.get(&view.camera_id) else {
             continue;
         };
-        let (camera, photo) = held_out_photo(&paths, name, cam, dense_opts.max_size)?;
+        let max_size = dense_opts.max_size_for(cam.width, cam.height);
+        let (camera, photo) = held_out_photo(&paths, name, cam, max_size)?;
         views.push(score_view(
             &scene,
             &mut renderer,
@@ -288,7 +289,8 @@ pub fn bench_render(o: &RenderBenchOptions, progress: &dyn Progress) -> Result<R
             let id = names.iter().find(|n| &n.0 == name)?.1;
             let view = rec.views.get(&id)?;
             let cam = rec.cameras.get(&view.camera_id)?;
-            let (camera, _) = held_out_photo(&paths, name, cam, dense_opts.max_size).ok()?;
+            let max_size = dense_opts.max_size_for(cam.width, cam.height);
+            let (camera, _) = held_out_photo(&paths, name, cam, max_size).ok()?;
             let mut out = empty();
             let t = Instant::now();
             scene
@@ -330,6 +332,18 @@ fn empty() -> Rendered {
         covered: Vec::new(),
         depth: FloatMap::filled(0, 0, 1, 0.0),
     }
+}
+
+/// The dense stage's size limit for the model's largest camera (0: none).
+fn scene_max_size(
+    rec: &handheld_core::MetricReconstruction,
+    dense_opts: &handheld_pipeline::stages::dense::DenseStageOptions,
+) -> u32 {
+    rec.cameras
+        .values()
+        .map(|c| dense_opts.max_size_for(c.width, c.height))
+        .max()
+        .unwrap_or(0)
 }
 
 /// The held-out photo at the dense stage's resolution, and its camera there.

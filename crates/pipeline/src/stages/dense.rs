@@ -1,7 +1,8 @@
 //! The dense stage (§4): reads the sparse model and the images, calls
 //! `handheld_dense::dense_reconstruct` and writes `dense/`:
 //! - `depth/<image>.pfm`: z-depth in the camera frame of the sparse model, model units, `NaN`
-//!   where nothing was kept (full-resolution maps unless `max_size` downscaled the view;
+//!   where nothing was kept (full-resolution maps unless `max_size` or `max_megapixels`
+//!   downscaled the view;
 //!   `cameras.json` holds the camera each map belongs to);
 //! - `variance/<image>.pfm`: the Kalman-fused depth variance (model units²);
 //! - `confidence/<image>.pfm`: `1 / (1 + σ/(0.005·z))` (`LinkedDepth::confidence`), 0.5 where the 1σ
@@ -35,21 +36,44 @@ use crate::stage::{Produced, Stage, StageContext, SummaryFile};
 #[derive(Clone, Debug, Serialize, Deserialize)]
 #[serde(default)]
 pub struct DenseStageOptions {
-    /// Images are downscaled so their longer side is at most this (0: full resolution).
+    /// Images are downscaled so their longer side is at most this (0, the default: no limit).
     pub max_size: u32,
+    /// Images larger than this many megapixels are downscaled to it. Default 24: a phone's
+    /// 12 MP and a drone's 20 MP are matched at their own size (coarse to fine keeps the search
+    /// per pixel small).
+    pub max_megapixels: f64,
     pub dense: DenseOptions,
 }
 
 impl Default for DenseStageOptions {
     fn default() -> Self {
         Self {
-            max_size: 1600,
+            max_size: 0,
+            max_megapixels: 24.0,
             dense: DenseOptions::default(),
         }
     }
 }
 
 impl DenseStageOptions {
+    /// The longer side a `width`×`height` image is matched at: its own, or less under
+    /// `max_size` and `max_megapixels`; 0 when the image is kept as it is.
+    pub fn max_size_for(&self, width: u32, height: u32) -> u32 {
+        let longer = width.max(height);
+        let pixels = f64::from(width) * f64::from(height);
+        let cap = self.max_megapixels * 1e6;
+        let by_area = if pixels > cap {
+            (f64::from(longer) * (cap / pixels).sqrt()).floor() as u32
+        } else {
+            0
+        };
+        match (self.max_size, by_area) {
+            (0, a) => a,
+            (m, 0) => m,
+            (m, a) => m.min(a),
+        }
+    }
+
     /// N, the views linked per reference view: the reference and (N−1)/2 on each side (§4.3).
     pub fn link_views(&self) -> usize {
         2 * self.dense.link.max_links + 1
@@ -83,6 +107,12 @@ impl DenseStageOptions {
     }
 
     pub fn validate(&self) -> Result<()> {
+        if !(self.max_megapixels.is_finite() && self.max_megapixels >= 0.01) {
+            return Err(PipelineError::option(
+                "--dense-max-megapixels",
+                format!("must be at least 0.01, got {}", self.max_megapixels),
+            ));
+        }
         let n = self.link_views();
         let link = &self.dense.link;
         if link.max_links < 1 {
@@ -184,7 +214,7 @@ impl Stage for Dense {
                 ids.len().saturating_sub(1)
             )));
         };
-        let views = load_views(&ctx.ws.image_paths()?, &rec, pair, self.options.max_size)?;
+        let views = load_views(&ctx.ws.image_paths()?, &rec, pair, &self.options)?;
         let points: Vec<_> = rec.points.values().map(|p| p.xyz).collect();
         let outcome =
             handheld_dense::match_pair(&views[0], &views[1], &points, &self.options.dense.pair)
@@ -249,7 +279,7 @@ fn load_views(
     paths: &BTreeMap<String, PathBuf>,
     rec: &MetricReconstruction,
     ids: &[ImageId],
-    max_size: u32,
+    stage_opts: &DenseStageOptions,
 ) -> Result<Vec<PosedView>> {
     let opts = ImageIngestOptions {
         min_dimension: 1,
@@ -282,6 +312,7 @@ fn load_views(
                 });
             }
             let longer = img.width().max(img.height());
+            let max_size = stage_opts.max_size_for(img.width(), img.height());
             let (img, camera) = if max_size > 0 && longer > max_size {
                 let s = max_size as f64 / longer as f64;
                 let w = (img.width() as f64 * s).round() as u32;
@@ -328,7 +359,7 @@ fn densify_with(
     progress: &dyn Progress,
     matched: impl Fn(usize) -> Option<std::result::Result<PairDisparity, String>>,
 ) -> Result<Produced<DenseStageSummary>> {
-    let views = load_views(paths, rec, ids, opts.max_size)?;
+    let views = load_views(paths, rec, ids, opts)?;
     let points: Vec<_> = rec.points.values().map(|p| p.xyz).collect();
     for sub in MapKind::ALL
         .iter()
