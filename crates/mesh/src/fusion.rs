@@ -1,5 +1,5 @@
 //! The volumetric stage of §5.1 as one call: depth maps → TSDF ([`crate::tsdf`], Curless & Levoy
-//! 1996) → marching cubes ([`crate::marching_cubes`], Lorensen & Cline 1987) → removal of floating
+//! 1996), streamed over spatial tiles ([`crate::tiles`]) → marching cubes ([`crate::marching_cubes`], Lorensen & Cline 1987) → removal of floating
 //! specks → hole filling inside observed surface ([`crate::holes`]) → quadric simplification
 //! ([`mod@crate::simplify`], Garland & Heckbert 1997) → cutting out the non-manifold edges the
 //! collapses leave, and closing those small holes again. The result is watertight where observed:
@@ -16,10 +16,11 @@ use handheld_core::{PosedView, Progress, TriMesh};
 
 use crate::error::{in_range, MeshError, Result};
 use crate::holes::{boundary_loops, fill_holes, remove_non_manifold, HoleFillOptions, HoleReport};
-use crate::marching_cubes::{extract_mesh, ExtractOptions};
+use crate::marching_cubes::{ExtractOptions, Welder};
 use crate::simplify::{compact, simplify, SimplifyOptions};
 use crate::topology::{edge_report, face_components, remove_small_components};
-use crate::tsdf::{resolve_voxel_size, TsdfOptions, TsdfVolume, VoxelSize, BLOCK_VOXELS};
+use crate::tiles::fuse_tiled;
+use crate::tsdf::{resolve_voxel_size, TsdfOptions, TsdfVolume, VoxelSize, BLOCK_BYTES, BLOCK_VOXELS};
 use crate::view::Depth;
 
 /// Options of [`fuse_depth_maps`].
@@ -90,12 +91,16 @@ pub struct FusionSummary {
     /// The fraction of the depth samples left out of fusion because their uncertainty exceeds
     /// `max_depth_std` truncations (far background, too little parallax).
     pub uncertain_fraction: f64,
-    /// Allocated voxel blocks and the voxels they hold.
+    /// Allocated voxel blocks and the voxels they hold (over the whole scene).
     pub blocks: usize,
     pub voxels: usize,
     /// Voxels that received any weight.
     pub observed_voxels: usize,
-    /// Approximate bytes held by the volume.
+    /// The spatial tiles fused one at a time ([`crate::tiles`]), and the most blocks alive at
+    /// once (a tile and its halo).
+    pub tiles: usize,
+    pub peak_blocks: usize,
+    /// Approximate bytes held by the volume at its peak (one tile).
     pub volume_bytes: usize,
     /// Effective `min_observations` (after clamping to the number of views).
     pub min_observations: usize,
@@ -118,7 +123,9 @@ pub struct FusionSummary {
     pub outer_boundaries: usize,
     pub open_holes: usize,
     pub vertices_final: usize,
+    /// Integration and marching cubes (interleaved, tile by tile).
     pub integrate_seconds: f64,
+    /// Speck removal and hole filling.
     pub extract_seconds: f64,
     pub simplify_seconds: f64,
 }
@@ -182,22 +189,21 @@ pub fn fuse_depth_maps(
         let used_views: Vec<PosedView> = used.iter().map(|&(_, v)| v.clone()).collect();
         vol.set_levels(&used_views, voxel_size / factor, &opts.tsdf);
     }
-    progress.start("TSDF fusion", 2 * used.len() as u64);
-    for &(i, v) in &used {
-        vol.allocate(v, i)?;
-        progress.inc(1);
-    }
-    for &(i, v) in &used {
-        vol.update(v, i)?;
-        progress.inc(1);
-    }
-    progress.finish();
     let min_obs = opts.extract.min_observations.clamp(1, used.len());
-    let seen = vol
-        .blocks()
-        .iter()
-        .any(|b| b.observations.iter().any(|&o| o as usize >= min_obs));
-    if !seen {
+    let extract = ExtractOptions {
+        min_observations: min_obs,
+        ..opts.extract.clone()
+    };
+    let mut welder = Welder::default();
+    let pass = fuse_tiled(
+        &mut vol,
+        &used,
+        opts.tsdf.tile_blocks,
+        &extract,
+        &mut welder,
+        progress,
+    )?;
+    if !pass.seen {
         return Err(MeshError::NoOverlap {
             views: used.len(),
             min_observations: min_obs,
@@ -211,14 +217,16 @@ pub fn fuse_depth_maps(
             .collect(),
         voxel_size,
         truncation: vol.truncation,
-        blocks: vol.num_blocks(),
-        voxels: vol.num_blocks() * BLOCK_VOXELS,
-        observed_voxels: vol.observed_voxels(),
-        volume_bytes: vol.memory_bytes(),
+        blocks: pass.blocks,
+        voxels: pass.blocks * BLOCK_VOXELS,
+        observed_voxels: pass.observed_voxels,
+        tiles: pass.tiles,
+        peak_blocks: pass.peak_blocks,
+        volume_bytes: pass.peak_blocks * (BLOCK_BYTES + 40),
         levels: if vol.levels().is_some() {
-            vol.blocks_per_level()
-                .into_iter()
-                .map(|(l, n)| LevelReport {
+            pass.blocks_per_level
+                .iter()
+                .map(|&(l, n)| LevelReport {
                     level: l as i32,
                     voxel_size: vol.level_voxel_size(l),
                     blocks: n,
@@ -235,14 +243,10 @@ pub fn fuse_depth_maps(
         integrate_seconds: t0.elapsed().as_secs_f64(),
         ..Default::default()
     };
-    tracing::debug!(?summary, "TSDF integrated");
-    let t1 = Instant::now();
-    let extract = ExtractOptions {
-        min_observations: min_obs,
-        ..opts.extract.clone()
-    };
-    let mut mesh = extract_mesh(&vol, &extract, progress)?;
     drop(vol);
+    tracing::debug!(?summary, "TSDF integrated and meshed over tiles");
+    let t1 = Instant::now();
+    let mut mesh = welder.finish(&extract)?;
     summary.faces_extracted = mesh.faces.len();
     if opts.min_component_faces > 1 {
         let kept = remove_small_components(&mesh, opts.min_component_faces);

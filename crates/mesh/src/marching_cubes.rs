@@ -226,48 +226,86 @@ pub fn extract_mesh(
 ) -> Result<TriMesh> {
     opts.validate()?;
     progress.start("marching cubes", vol.num_blocks() as u64);
-    let parts: Vec<BlockMesh> = vol
-        .blocks()
-        .par_iter()
-        .map(|b| {
-            let m = mesh_block(vol, b, opts);
-            progress.inc(1);
-            m
-        })
-        .collect();
+    let mut welder = Welder::default();
+    welder.add_blocks(vol, opts, |_| true, &|| progress.inc(1));
     progress.finish();
-    let total_faces: usize = parts.iter().map(|p| p.faces.len()).sum();
-    if total_faces == 0 {
-        return Err(MeshError::EmptyResult {
-            stage: "marching cubes",
-            reason: format!(
-                "no zero crossing among {} blocks with at least {} observations per voxel",
-                vol.num_blocks(),
-                opts.min_observations
-            ),
-        });
-    }
-    let mut mesh = TriMesh::default();
-    mesh.faces.reserve(total_faces);
-    let mut global: HashMap<EdgeKey, u32> = HashMap::with_capacity(total_faces / 2 + 16);
-    for part in parts {
-        let ids: Vec<u32> = part
-            .vertices
-            .iter()
-            .map(|(key, p)| {
-                *global.entry(*key).or_insert_with(|| {
-                    mesh.vertices
-                        .positions
-                        .push([p[0] as f32, p[1] as f32, p[2] as f32]);
-                    (mesh.vertices.positions.len() - 1) as u32
-                })
+    welder.finish(opts)
+}
+
+/// Welds the triangles of blocks extracted from one or more volumes (the tiles of a fusion over
+/// space) into one mesh: a vertex is identified by its global grid edge, so a tile's triangles
+/// meet its neighbours' exactly when both hold the voxels of their shared cubes.
+#[derive(Default)]
+pub struct Welder {
+    mesh: TriMesh,
+    global: HashMap<EdgeKey, u32>,
+    blocks: usize,
+}
+
+impl Welder {
+    /// Meshes the blocks of `vol` for which `own` holds (their cubes may read voxels of the other,
+    /// halo, blocks) and welds them in. `tick` is called once per block meshed.
+    pub fn add_blocks(
+        &mut self,
+        vol: &TsdfVolume,
+        opts: &ExtractOptions,
+        own: impl Fn(&Block) -> bool + Sync,
+        tick: &(dyn Fn() + Sync),
+    ) {
+        let parts: Vec<BlockMesh> = vol
+            .blocks()
+            .par_iter()
+            .filter(|b| own(b))
+            .map(|b| {
+                let m = mesh_block(vol, b, opts);
+                tick();
+                m
             })
             .collect();
-        mesh.faces
-            .extend(part.faces.iter().map(|f| f.map(|i| ids[i as usize])));
+        self.blocks += parts.len();
+        let total_faces: usize = parts.iter().map(|p| p.faces.len()).sum();
+        self.mesh.faces.reserve(total_faces);
+        for part in parts {
+            let ids: Vec<u32> = part
+                .vertices
+                .iter()
+                .map(|(key, p)| {
+                    *self.global.entry(*key).or_insert_with(|| {
+                        self.mesh
+                            .vertices
+                            .positions
+                            .push([p[0] as f32, p[1] as f32, p[2] as f32]);
+                        (self.mesh.vertices.positions.len() - 1) as u32
+                    })
+                })
+                .collect();
+            self.mesh
+                .faces
+                .extend(part.faces.iter().map(|f| f.map(|i| ids[i as usize])));
+        }
     }
-    mesh.compute_vertex_normals();
-    Ok(mesh)
+
+    /// The faces welded so far.
+    pub fn faces(&self) -> usize {
+        self.mesh.faces.len()
+    }
+
+    /// The welded mesh with area-weighted vertex normals; no face at all is an error
+    /// ([`MeshError::EmptyResult`]).
+    pub fn finish(self, opts: &ExtractOptions) -> Result<TriMesh> {
+        if self.mesh.faces.is_empty() {
+            return Err(MeshError::EmptyResult {
+                stage: "marching cubes",
+                reason: format!(
+                    "no zero crossing among {} blocks with at least {} observations per voxel",
+                    self.blocks, opts.min_observations
+                ),
+            });
+        }
+        let mut mesh = self.mesh;
+        mesh.compute_vertex_normals();
+        Ok(mesh)
+    }
 }
 
 #[cfg(test)]

@@ -136,10 +136,11 @@ fn depth_maps_that_do_not_overlap_are_an_error() {
         ),
         "{err}"
     );
-    // A voxel size far too small for the scene hits the block budget instead of eating memory.
+    // A voxel size far too small for a tile hits the block budget instead of eating memory.
     let mut o = opts();
     o.tsdf.voxel_size = VoxelSize::Absolute(0.001);
     o.tsdf.max_blocks = 10_000;
+    o.tsdf.tile_blocks = 1 << 20;
     let err = fuse_depth_maps(&views, &o, &NoProgress).unwrap_err();
     assert!(
         matches!(err, MeshError::TooManyBlocks { limit: 10_000, .. }),

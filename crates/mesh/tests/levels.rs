@@ -191,3 +191,49 @@ fn uncertain_far_depths_are_left_out_and_counted() {
         .iter()
         .any(|p| (p[2] as f64 - FAR_Z).abs() < 0.5));
 }
+
+#[test]
+fn fusion_over_small_tiles_gives_the_one_volume_mesh_with_a_fraction_of_the_blocks() {
+    // Marching cubes as it comes (no speck removal, hole filling or simplification), so that
+    // the two meshes can be compared vertex for vertex.
+    let raw = |tile_blocks: usize| FusionOptions {
+        simplify: None,
+        min_component_faces: 0,
+        max_hole_perimeter_voxels: 0.0,
+        tsdf: handheld_mesh::TsdfOptions {
+            tile_blocks,
+            ..Default::default()
+        },
+        ..FusionOptions::default()
+    };
+    let views = street_views(6);
+    let (whole, w) = fuse_depth_maps(&views, &raw(1 << 20), &NoProgress).unwrap();
+    let (tiled, t) = fuse_depth_maps(&views, &raw(4), &NoProgress).unwrap();
+    println!(
+        "one tile: {} blocks; tiles of 4 blocks: {} tiles, at most {} blocks at once",
+        w.peak_blocks, t.tiles, t.peak_blocks
+    );
+    assert_eq!(w.tiles, 1);
+    assert!(t.tiles > 10, "{} tiles", t.tiles);
+    assert_eq!((t.blocks, t.levels.clone()), (w.blocks, w.levels.clone()));
+    assert!(
+        t.peak_blocks * 4 < w.peak_blocks,
+        "{} blocks at once vs {}",
+        t.peak_blocks,
+        w.peak_blocks
+    );
+    // The same surface, welded across the tiles: the same vertices (as a set) and faces.
+    assert_eq!(tiled.faces.len(), whole.faces.len());
+    let sorted = |m: &TriMesh| {
+        let mut v: Vec<[u32; 3]> = m
+            .vertices
+            .positions
+            .iter()
+            .map(|p| p.map(f32::to_bits))
+            .collect();
+        v.sort_unstable();
+        v
+    };
+    assert_eq!(sorted(&tiled), sorted(&whole));
+    assert_eq!(t.observed_voxels, w.observed_voxels);
+}

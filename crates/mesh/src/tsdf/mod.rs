@@ -66,10 +66,14 @@ pub struct TsdfOptions {
     pub min_confidence: f64,
     /// Cap on the accumulated weight of a voxel (keeps the average responsive). Default 1e4.
     pub max_weight: f64,
-    /// Upper bound on the number of blocks; exceeding it is an error, not a silent crop.
-    /// Default 300 000 (about 1.4 GB of voxels; with the extracted mesh the stage stays near 4 GB
-    /// at that size).
+    /// Upper bound on the number of blocks alive at once (those of one spatial tile and its halo
+    /// in [`crate::fuse_depth_maps`]); exceeding it is an error, not a silent crop. Default
+    /// 300 000 (about 1.4 GB of voxels).
     pub max_blocks: usize,
+    /// The fusion streams over cubic tiles of this many level-0 blocks a side: one tile's
+    /// blocks are in memory at a time, so peak memory is set by a tile, not by the scene.
+    /// Default 64 (512 voxels a side).
+    pub tile_blocks: usize,
     /// The voxel size follows the depth ([`crate::levels`]): space seen at twice the median
     /// footprint gets voxels twice the size, and so on. Only with [`VoxelSize::PixelFootprint`]; an
     /// absolute voxel size is one size everywhere. Default true.
@@ -95,6 +99,7 @@ impl Default for TsdfOptions {
             min_confidence: 0.0,
             max_weight: 1e4,
             max_blocks: 300_000,
+            tile_blocks: 64,
             adaptive: true,
             finest_level: 0,
             coarsest_level: 6,
@@ -133,9 +138,18 @@ impl TsdfOptions {
                 reason: "must be positive".into(),
             });
         }
+        if !(1..=1 << 20).contains(&self.tile_blocks) {
+            return Err(MeshError::InvalidOption {
+                option: "tile_blocks",
+                reason: format!("must be in 1..=1048576, got {}", self.tile_blocks),
+            });
+        }
         Ok(())
     }
 }
+
+/// A block's coordinates and level.
+pub type BlockKey = ([i32; 3], i8);
 
 /// One block of voxels, x fastest: local index `x + BLOCK·(y + BLOCK·z)`.
 pub struct Block {
@@ -351,7 +365,74 @@ impl TsdfVolume {
         Ok(())
     }
 
+    /// The blocks one view's depths need (see [`Self::allocate`]), without creating them: the unit
+    /// of planning for fusion over spatial tiles. Counts the view's allocation samples.
+    pub fn plan(&mut self, view: &PosedView, view_index: usize) -> Result<HashSet<BlockKey>> {
+        let view = Depth::of(view, view_index)?;
+        let proj = Projector::new(view.posed);
+        let (keys, samples, uncertain) = self.collect_keys(&view, &proj, view_index)?;
+        self.samples += samples;
+        self.samples_uncertain += uncertain;
+        Ok(keys)
+    }
+
+    /// Replaces the volume's blocks by fresh ones at `keys` (sorted first, so block order is
+    /// reproducible). Errors past `max_blocks`, the bound on blocks alive at once.
+    pub fn load_blocks(&mut self, keys: &[BlockKey]) -> Result<()> {
+        if keys.len() > self.max_blocks {
+            return Err(MeshError::TooManyBlocks {
+                limit: self.max_blocks,
+                bytes_mib: (keys.len() * BLOCK_BYTES) >> 20,
+                voxel_size: self.voxel_size,
+            });
+        }
+        let mut keys = keys.to_vec();
+        keys.sort_unstable();
+        keys.dedup();
+        self.index.clear();
+        self.blocks.clear();
+        for (k, l) in keys {
+            self.index.insert((k, l), self.blocks.len());
+            self.blocks.push(Box::new(Block::new(k, l)));
+        }
+        Ok(())
+    }
+
+    /// World-space edge length of a block of `level`.
+    pub fn block_side(&self, level: i8) -> f64 {
+        self.level_voxel_size(level) * BLOCK as f64
+    }
+
     fn allocate_blocks(&mut self, view: &Depth, proj: &Projector, view_index: usize) -> Result<()> {
+        let (keys, samples, uncertain) = self.collect_keys(view, proj, view_index)?;
+        self.samples += samples;
+        self.samples_uncertain += uncertain;
+        let mut new: Vec<BlockKey> = keys
+            .into_iter()
+            .filter(|k| !self.index.contains_key(k))
+            .collect();
+        // Sorted, so block order (and everything downstream) is reproducible.
+        new.sort_unstable();
+        if self.blocks.len() + new.len() > self.max_blocks {
+            return Err(MeshError::TooManyBlocks {
+                limit: self.max_blocks,
+                bytes_mib: ((self.blocks.len() + new.len()) * BLOCK_BYTES) >> 20,
+                voxel_size: self.voxel_size,
+            });
+        }
+        for (k, l) in new {
+            self.index.insert((k, l), self.blocks.len());
+            self.blocks.push(Box::new(Block::new(k, l)));
+        }
+        Ok(())
+    }
+
+    fn collect_keys(
+        &self,
+        view: &Depth,
+        proj: &Projector,
+        view_index: usize,
+    ) -> Result<(HashSet<BlockKey>, usize, usize)> {
         let f = view.posed.camera.intrinsics.f;
         let z05 = depth_quantile(view, 0.05).ok_or(MeshError::EmptyDepth { view: view_index })?;
         let z95 = depth_quantile(view, 0.95).ok_or(MeshError::EmptyDepth { view: view_index })?;
@@ -445,26 +526,7 @@ impl TsdfVolume {
                     (set, a.1 + b.1, a.2 + b.2)
                 },
             );
-        self.samples += samples;
-        self.samples_uncertain += uncertain;
-        let mut new: Vec<([i32; 3], i8)> = keys
-            .into_iter()
-            .filter(|k| !self.index.contains_key(k))
-            .collect();
-        // Sorted, so block order (and everything downstream) is reproducible.
-        new.sort_unstable();
-        if self.blocks.len() + new.len() > self.max_blocks {
-            return Err(MeshError::TooManyBlocks {
-                limit: self.max_blocks,
-                bytes_mib: ((self.blocks.len() + new.len()) * BLOCK_BYTES) >> 20,
-                voxel_size: self.voxel_size,
-            });
-        }
-        for (k, l) in new {
-            self.index.insert((k, l), self.blocks.len());
-            self.blocks.push(Box::new(Block::new(k, l)));
-        }
-        Ok(())
+        Ok((keys, samples, uncertain))
     }
 
     /// A volume sampled from an analytic signed distance `sdf(p)` (positive outside) over the box
