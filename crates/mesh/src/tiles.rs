@@ -85,6 +85,8 @@ pub(crate) fn fuse_tiled(
         ..Default::default()
     };
     let min_obs = extract.min_observations as u8;
+    // Each view's incidence cosines, computed when a tile first needs the view (2 bytes a pixel).
+    let mut incidence: Vec<Option<Vec<u16>>> = vec![None; views.len()];
     progress.start("TSDF fusion", tiles.len() as u64);
     for own in tiles.values() {
         let owned: HashSet<BlockKey> = own.iter().copied().collect();
@@ -114,7 +116,7 @@ pub(crate) fn fuse_tiled(
             lo = lo.inf(&o);
             hi = hi.sup(&(o + Vector3::repeat(side)));
         }
-        for (&(i, v), proj) in views.iter().zip(&projectors) {
+        for (j, (&(i, v), proj)) in views.iter().zip(&projectors).enumerate() {
             let corners: [Vector3<f64>; 8] = std::array::from_fn(|c| {
                 let p = Vector3::new(
                     if c & 1 == 0 { lo.x } else { hi.x },
@@ -124,7 +126,11 @@ pub(crate) fn fuse_tiled(
                 proj.rot * p + proj.trans
             });
             if !proj.outside_frustum(&corners) {
-                vol.update(v, i)?;
+                if incidence[j].is_none() {
+                    incidence[j] = Some(TsdfVolume::incidence(v, i)?);
+                }
+                let cos = incidence[j].as_deref().unwrap_or_default();
+                vol.update_with(v, i, cos)?;
             }
         }
         for b in vol.blocks() {

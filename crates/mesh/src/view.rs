@@ -249,7 +249,7 @@ impl Projector {
 /// neighbour farther than 10% in depth is a discontinuity, not surface). Pixels without a usable
 /// neighbourhood get 1. Curless & Levoy 1996 weigh samples by this cosine; the fusion also uses it
 /// to turn distances along the line of sight into distances to the surface.
-pub(crate) fn incidence_map(view: &Depth) -> Vec<f32> {
+pub(crate) fn incidence_map(view: &Depth) -> Vec<u16> {
     use rayon::prelude::*;
     let (w, h) = (view.depth.width, view.depth.height);
     let k = &view.posed.camera.intrinsics;
@@ -274,7 +274,7 @@ pub(crate) fn incidence_map(view: &Depth) -> Vec<f32> {
             let first = y0.saturating_sub(1);
             let rays: Vec<Vec<Vector3<f64>>> = (first..(y1 + 1).min(h)).map(ray_row).collect();
             let ray = |x: usize, y: usize| rays[y - first][x];
-            let mut out = vec![1f32; (y1 - y0) * w];
+            let mut out = vec![u16::MAX; (y1 - y0) * w];
             for y in y0..y1 {
                 for x in 0..w {
                     let Some(d0) = depth(x, y) else { continue };
@@ -303,7 +303,8 @@ pub(crate) fn incidence_map(view: &Depth) -> Vec<f32> {
                         let n = a.cross(&b);
                         let denom = n.norm() * centre.norm();
                         if denom > 0.0 {
-                            out[(y - y0) * w + x] = (n.dot(&centre).abs() / denom) as f32;
+                            let cos = (n.dot(&centre).abs() / denom).min(1.0);
+                            out[(y - y0) * w + x] = (cos * f64::from(u16::MAX)).round() as u16;
                         }
                     }
                 }

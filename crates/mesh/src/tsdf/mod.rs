@@ -346,13 +346,24 @@ impl TsdfVolume {
 
     /// The update pass of one view over every allocated block (see the module documentation).
     pub fn update(&mut self, view: &PosedView, view_index: usize) -> Result<()> {
+        let cos = Self::incidence(view, view_index)?;
+        self.update_with(view, view_index, &cos)
+    }
+
+    /// The per-pixel incidence cosines [`Self::update_with`] needs (in units of `1 / u16::MAX`);
+    /// computing them is most of a view's fixed cost, so fusion over tiles keeps them.
+    pub fn incidence(view: &PosedView, view_index: usize) -> Result<Vec<u16>> {
+        Ok(incidence_map(&Depth::of(view, view_index)?))
+    }
+
+    /// [`Self::update`] with the view's incidence cosines ([`Self::incidence`]).
+    pub fn update_with(&mut self, view: &PosedView, view_index: usize, cos: &[u16]) -> Result<()> {
         let view = Depth::of(view, view_index)?;
         let proj = Projector::new(view.posed);
-        let cos = incidence_map(&view);
         let ctx = UpdateContext {
             view: &view,
             proj: &proj,
-            cos: &cos,
+            cos,
             vs: self.voxel_size,
             trunc: self.truncation,
             max_w: self.max_weight,

@@ -12,8 +12,8 @@ use crate::view::{sample_depth, Depth, Projector};
 pub(super) struct UpdateContext<'a> {
     pub view: &'a Depth<'a>,
     pub proj: &'a Projector,
-    /// Per-pixel incidence cosine ([`incidence_map`]).
-    pub cos: &'a [f32],
+    /// Per-pixel incidence cosine ([`crate::view::incidence_map`]), in units of `1 / u16::MAX`.
+    pub cos: &'a [u16],
     pub vs: f64,
     pub trunc: f64,
     pub max_w: f32,
@@ -73,7 +73,7 @@ pub(super) fn update_block(b: &mut Block, ctx: &UpdateContext) {
                 let Some(d) = sample_depth(view.depth, &px, 0.5 * trunc / pc.z) else {
                     continue;
                 };
-                let cos = (ctx.cos[pix] as f64).max(MIN_COS);
+                let cos = (f64::from(ctx.cos[pix]) / f64::from(u16::MAX)).max(MIN_COS);
                 let sdf = (d - pc.z) * pc.norm() / pc.z * cos;
                 if sdf < -trunc {
                     continue;
