@@ -240,6 +240,10 @@ pub struct DenseArgs {
     /// Dense: images larger than this many megapixels are downscaled to it.
     #[arg(long, default_value_t = defaults().dense.max_megapixels)]
     pub dense_max_megapixels: f64,
+    /// Dense: memory the views' maps may take, in GB; many large views are downscaled to fit
+    /// (0 = 60 % of this machine's memory).
+    #[arg(long, default_value_t = defaults().dense.max_memory_gb)]
+    pub dense_max_memory_gb: f64,
     /// Dense: stereo method of each rectified pair (§4.2): `sgm` (semi-global matching, census
     /// cost; the more accurate on Middlebury) or `dp` (the paper's scanline dynamic programming).
     #[arg(long, default_value = choice_name(&defaults().dense.stereo_method()), value_parser = choice::<StereoMethod>)]
@@ -261,6 +265,7 @@ impl DenseArgs {
         let mut o = defaults().dense;
         o.max_size = self.dense_max_size;
         o.max_megapixels = self.dense_max_megapixels;
+        o.max_memory_gb = self.dense_max_memory_gb;
         o.set_stereo_method(self.stereo_method);
         o.set_link_views(self.link_views)?;
         o.dense.link.min_visibility = self.min_visibility;

@@ -261,7 +261,10 @@ impl StereoOptions {
         if self.pyramid_disparities != 0 && self.pyramid_disparities < 8 {
             return bad(
                 "pyramid_disparities",
-                format!("must be 0 (off) or at least 8, got {}", self.pyramid_disparities),
+                format!(
+                    "must be 0 (off) or at least 8, got {}",
+                    self.pyramid_disparities
+                ),
             );
         }
         if self.pyramid_min_size < 32 {

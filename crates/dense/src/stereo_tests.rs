@@ -245,7 +245,10 @@ fn coarse_to_fine_keeps_the_truth_over_a_wide_range() {
         100.0 * bad as f64 / n.max(1) as f64
     };
     let (wf, ww) = (wrong_scaled(&fine), measured_wrong(&whole));
-    assert!(wf < 1.2 && ww < 0.5, "measured and wrong: {wf:.2}% vs {ww:.2}%");
+    assert!(
+        wf < 1.2 && ww < 0.5,
+        "measured and wrong: {wf:.2}% vs {ww:.2}%"
+    );
     let kept = fine.scale.iter().filter(|s| **s > 1).count();
     assert!(kept > 0, "no half-size value kept");
     // The right map (for linking) is right too, within the pixel size it was measured at.
@@ -265,7 +268,3 @@ fn coarse_to_fine_keeps_the_truth_over_a_wide_range() {
     // Whole pixels (no sub-pixel fit on the right map); the misses sit along the box's edges.
     assert!(right_ok > 0.97, "right map {:.3} consistent", right_ok);
 }
-
-
-
-

@@ -18,9 +18,11 @@ use crate::error::{in_range, MeshError, Result};
 use crate::holes::{boundary_loops, fill_holes, remove_non_manifold, HoleFillOptions, HoleReport};
 use crate::marching_cubes::{ExtractOptions, Welder};
 use crate::simplify::{compact, simplify, SimplifyOptions};
-use crate::topology::{edge_report, face_components, remove_small_components};
 use crate::tiles::fuse_tiled;
-use crate::tsdf::{resolve_voxel_size, TsdfOptions, TsdfVolume, VoxelSize, BLOCK_BYTES, BLOCK_VOXELS};
+use crate::topology::{edge_report, face_components, remove_small_components};
+use crate::tsdf::{
+    resolve_voxel_size, TsdfOptions, TsdfVolume, VoxelSize, BLOCK_BYTES, BLOCK_VOXELS,
+};
 use crate::view::Depth;
 
 /// Options of [`fuse_depth_maps`].

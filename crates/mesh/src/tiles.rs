@@ -77,7 +77,10 @@ pub(crate) fn fuse_tiled(
         tiles.entry(t).or_default().push((k, l));
         *per_level.entry(l).or_default() += 1;
     }
-    let projectors: Vec<Projector> = views.iter().map(|(_, v)| Projector::new(&v.posed)).collect();
+    let projectors: Vec<Projector> = views
+        .iter()
+        .map(|(_, v)| Projector::new(&v.posed))
+        .collect();
     let mut pass = TiledPass {
         blocks: keys.len(),
         blocks_per_level: per_level.into_iter().collect(),
@@ -109,7 +112,10 @@ pub(crate) fn fuse_tiled(
         vol.load_blocks(&load)?;
         pass.peak_blocks = pass.peak_blocks.max(vol.num_blocks());
         // The world box of the loaded blocks, to skip the views that cannot see the tile.
-        let (mut lo, mut hi) = (Vector3::repeat(f64::INFINITY), Vector3::repeat(f64::NEG_INFINITY));
+        let (mut lo, mut hi) = (
+            Vector3::repeat(f64::INFINITY),
+            Vector3::repeat(f64::NEG_INFINITY),
+        );
         for b in vol.blocks() {
             let side = vol.block_side(b.level);
             let o = Vector3::new(b.key[0] as f64, b.key[1] as f64, b.key[2] as f64) * side;

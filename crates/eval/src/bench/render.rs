@@ -249,7 +249,7 @@ pub fn bench_render(o: &RenderBenchOptions, progress: &dyn Progress) -> Result<R
         &dense_dir,
         Some(&mesh_dir.join(handheld_pipeline::files::MODEL_GLB)),
         &held,
-        scene_max_size(&rec, &dense_opts),
+        scene_max_size(&rec, &dense_opts, keep.len()),
     )?;
     let mut renderer = Renderer::new();
     let mut views = Vec::new();
@@ -262,7 +262,7 @@ pub fn bench_render(o: &RenderBenchOptions, progress: &dyn Progress) -> Result<R
         let Some(cam) = rec.cameras.get(&view.camera_id) else {
             continue;
         };
-        let max_size = dense_opts.max_size_for(cam.width, cam.height);
+        let max_size = dense_opts.max_size_for(cam.width, cam.height, keep.len());
         let (camera, photo) = held_out_photo(&paths, name, cam, max_size)?;
         views.push(score_view(
             &scene,
@@ -289,7 +289,7 @@ pub fn bench_render(o: &RenderBenchOptions, progress: &dyn Progress) -> Result<R
             let id = names.iter().find(|n| &n.0 == name)?.1;
             let view = rec.views.get(&id)?;
             let cam = rec.cameras.get(&view.camera_id)?;
-            let max_size = dense_opts.max_size_for(cam.width, cam.height);
+            let max_size = dense_opts.max_size_for(cam.width, cam.height, keep.len());
             let (camera, _) = held_out_photo(&paths, name, cam, max_size).ok()?;
             let mut out = empty();
             let t = Instant::now();
@@ -338,10 +338,11 @@ fn empty() -> Rendered {
 fn scene_max_size(
     rec: &handheld_core::MetricReconstruction,
     dense_opts: &handheld_pipeline::stages::dense::DenseStageOptions,
+    views: usize,
 ) -> u32 {
     rec.cameras
         .values()
-        .map(|c| dense_opts.max_size_for(c.width, c.height))
+        .map(|c| dense_opts.max_size_for(c.width, c.height, views))
         .max()
         .unwrap_or(0)
 }

@@ -42,7 +42,29 @@ pub struct DenseStageOptions {
     /// 12 MP and a drone's 20 MP are matched at their own size (coarse to fine keeps the search
     /// per pixel small).
     pub max_megapixels: f64,
+    /// Memory the views' maps may take, in GB: the mesh stage holds every view's depth,
+    /// variance and confidence maps, its image and its incidence cosines (about
+    /// [`BYTES_PER_VIEW_PIXEL`] bytes a pixel), so many large views are downscaled until they fit.
+    /// 0 (the default): 60 % of the machine's memory.
+    pub max_memory_gb: f64,
     pub dense: DenseOptions,
+}
+
+/// Bytes a view's pixel costs at the peak of a run: the mesh stage's depth, variance and
+/// confidence (`f32`), RGB and incidence (`u16`) are 17, and the measured peak of the whole
+/// pipeline on a phone set (23 views of 12.2 MP: 9.1 GB) is 32 a pixel.
+pub const BYTES_PER_VIEW_PIXEL: f64 = 32.0;
+
+/// The machine's memory in bytes (`/proc/meminfo`), 8 GB where it cannot be read.
+fn machine_memory_bytes() -> f64 {
+    std::fs::read_to_string("/proc/meminfo")
+        .ok()
+        .and_then(|t| {
+            let line = t.lines().find(|l| l.starts_with("MemTotal:"))?;
+            let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+            Some(kb * 1024.0)
+        })
+        .unwrap_or(8e9)
 }
 
 impl Default for DenseStageOptions {
@@ -50,18 +72,30 @@ impl Default for DenseStageOptions {
         Self {
             max_size: 0,
             max_megapixels: 24.0,
+            max_memory_gb: 0.0,
             dense: DenseOptions::default(),
         }
     }
 }
 
 impl DenseStageOptions {
-    /// The longer side a `width`×`height` image is matched at: its own, or less under
-    /// `max_size` and `max_megapixels`; 0 when the image is kept as it is.
-    pub fn max_size_for(&self, width: u32, height: u32) -> u32 {
+    /// The memory budget of the views' maps, in bytes (`max_memory_gb`, or 60 % of the machine's).
+    pub fn memory_budget_bytes(&self) -> f64 {
+        if self.max_memory_gb > 0.0 {
+            self.max_memory_gb * 1e9
+        } else {
+            0.6 * machine_memory_bytes()
+        }
+    }
+
+    /// The longer side a `width`×`height` image of a set of `views` is matched at: its own, or
+    /// less under `max_size`, `max_megapixels` and the memory budget shared by the views; 0 when
+    /// the image is kept as it is.
+    pub fn max_size_for(&self, width: u32, height: u32, views: usize) -> u32 {
         let longer = width.max(height);
         let pixels = f64::from(width) * f64::from(height);
-        let cap = self.max_megapixels * 1e6;
+        let by_memory = self.memory_budget_bytes() / (views.max(1) as f64 * BYTES_PER_VIEW_PIXEL);
+        let cap = (self.max_megapixels * 1e6).min(by_memory.max(0.25e6));
         let by_area = if pixels > cap {
             (f64::from(longer) * (cap / pixels).sqrt()).floor() as u32
         } else {
@@ -111,6 +145,12 @@ impl DenseStageOptions {
             return Err(PipelineError::option(
                 "--dense-max-megapixels",
                 format!("must be at least 0.01, got {}", self.max_megapixels),
+            ));
+        }
+        if !(self.max_memory_gb.is_finite() && self.max_memory_gb >= 0.0) {
+            return Err(PipelineError::option(
+                "--dense-max-memory-gb",
+                format!("must be 0 (auto) or positive, got {}", self.max_memory_gb),
             ));
         }
         let n = self.link_views();
@@ -214,7 +254,7 @@ impl Stage for Dense {
                 ids.len().saturating_sub(1)
             )));
         };
-        let views = load_views(&ctx.ws.image_paths()?, &rec, pair, &self.options)?;
+        let views = load_views(&ctx.ws.image_paths()?, &rec, pair, ids.len(), &self.options)?;
         let points: Vec<_> = rec.points.values().map(|p| p.xyz).collect();
         let outcome =
             handheld_dense::match_pair(&views[0], &views[1], &points, &self.options.dense.pair)
@@ -279,6 +319,7 @@ fn load_views(
     paths: &BTreeMap<String, PathBuf>,
     rec: &MetricReconstruction,
     ids: &[ImageId],
+    set_size: usize,
     stage_opts: &DenseStageOptions,
 ) -> Result<Vec<PosedView>> {
     let opts = ImageIngestOptions {
@@ -312,7 +353,7 @@ fn load_views(
                 });
             }
             let longer = img.width().max(img.height());
-            let max_size = stage_opts.max_size_for(img.width(), img.height());
+            let max_size = stage_opts.max_size_for(img.width(), img.height(), set_size);
             let (img, camera) = if max_size > 0 && longer > max_size {
                 let s = max_size as f64 / longer as f64;
                 let w = (img.width() as f64 * s).round() as u32;
@@ -359,7 +400,27 @@ fn densify_with(
     progress: &dyn Progress,
     matched: impl Fn(usize) -> Option<std::result::Result<PairDisparity, String>>,
 ) -> Result<Produced<DenseStageSummary>> {
-    let views = load_views(paths, rec, ids, opts)?;
+    let views = load_views(paths, rec, ids, ids.len(), opts)?;
+    if let (Some(v), Some(id)) = (views.first(), ids.first()) {
+        let full = rec
+            .views
+            .get(id)
+            .and_then(|view| rec.cameras.get(&view.camera_id))
+            .map(|c| (c.width, c.height));
+        let used = (v.image.width(), v.image.height());
+        if let Some(full) = full.filter(|f| *f != used) {
+            tracing::info!(
+                "dense: {} views matched at {}x{} (the images are {}x{}; limits: --dense-max-size, \
+                 --dense-max-megapixels, and {:.1} GB of memory for the views' maps)",
+                ids.len(),
+                used.0,
+                used.1,
+                full.0,
+                full.1,
+                opts.memory_budget_bytes() / 1e9
+            );
+        }
+    }
     let points: Vec<_> = rec.points.values().map(|p| p.xyz).collect();
     for sub in MapKind::ALL
         .iter()
@@ -451,4 +512,38 @@ pub fn densify_model(
     let ids: Vec<ImageId> = rec.views.keys().copied().collect();
     std::fs::create_dir_all(out).map_err(|e| handheld_io::IoError::io(out, e))?;
     Ok(densify(&rec, &paths, &ids, opts, out, progress)?.summary)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn views_keep_their_size_until_the_megapixel_or_memory_limit() {
+        let o = DenseStageOptions {
+            max_memory_gb: 1.0,
+            ..Default::default()
+        };
+        // Two 12 MP phone photos fit: their own size.
+        assert_eq!(o.max_size_for(4032, 3024, 2), 0);
+        // A hundred share 1 GB: 1e9 / (100 · 32) pixels each, about 645 px on the longer side.
+        let s = o.max_size_for(4032, 3024, 100);
+        let px = f64::from(s) * f64::from(s) * 3024.0 / 4032.0;
+        let want = 1e9 / (100.0 * BYTES_PER_VIEW_PIXEL);
+        assert!((px - want).abs() / px < 0.01, "{s}");
+        // A 36 MP image is brought to 24 MP whatever the memory.
+        let big = DenseStageOptions {
+            max_memory_gb: 1000.0,
+            ..Default::default()
+        };
+        let s = big.max_size_for(7360, 4912, 2);
+        let px = f64::from(s) * f64::from(s) * 4912.0 / 7360.0;
+        assert!((px - 24e6).abs() / 24e6 < 0.01, "{s}");
+        // --dense-max-size wins when smaller.
+        let small = DenseStageOptions {
+            max_size: 1600,
+            ..big
+        };
+        assert_eq!(small.max_size_for(7360, 4912, 2), 1600);
+    }
 }
