@@ -115,6 +115,17 @@ pub fn match_pair_with(
                      is unknown"
                 .into(),
         })?;
+    // Both ends of a match lie in rectified images of this width: no disparity reaches it.
+    let reach = rect.size().0.saturating_sub(1) as i32;
+    let range = (range.0.max(-reach), range.1.min(reach));
+    if range.0 >= range.1 {
+        return Err(DenseError::Rectification {
+            reason: format!(
+                "the sparse points' disparities lie beyond the rectified image ({} px)",
+                reach + 1
+            ),
+        });
+    }
     if opts.max_disparities > 0 && (range.1 - range.0) as usize + 1 > opts.max_disparities {
         return Err(DenseError::Rectification {
             reason: format!(
