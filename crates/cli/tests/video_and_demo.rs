@@ -337,14 +337,21 @@ fn phone_is_right(extra: &[&str]) {
     );
 }
 
-/// Runs the demo with `extra` arguments and checks its model against the exact cameras: every
-/// frame registered, the focal length within 2 % of the truth and the relative rotations within
-/// 0.5° at the median (a wrong focal length tilts them by degrees), whether or not the run warned
-/// that the images do not determine the focal length.
+/// Runs the demo with `extra` arguments up to the sparse model and checks it against the exact
+/// cameras: every frame registered, the focal length within 2 % of the truth and the relative
+/// rotations within 0.5° at the median (a wrong focal length tilts them by degrees), whether or
+/// not the run warned that the images do not determine the focal length.
 fn demo_is_right(extra: &[&str]) {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("demo");
-    let mut args = vec!["demo", "-o", out.to_str().unwrap(), "--json"];
+    let mut args = vec![
+        "demo",
+        "-o",
+        out.to_str().unwrap(),
+        "--json",
+        "--until",
+        "sparse",
+    ];
     args.extend_from_slice(extra);
     let o = handheld(&args);
     assert!(o.status.success(), "{}", stderr(&o));

@@ -16,7 +16,9 @@
 //!
 //! The same judge runs the candidate loop of `upgrade/frame.rs` ([`first_sound`], [`best_sound`]:
 //! every candidate adjusted, the sound one with the best score kept; [`challenge`] for one more
-//! frame that contests the kept one), and undoes a later step whose adjustment removed too many
+//! frame that contests the kept one; `screen.rs`: a large model's candidates first adjusted on a
+//! subsample, which rejects the ones that collapse and passes over the ones that come to a
+//! calibration already adjusted), and undoes a later step whose adjustment removed too many
 //! observations ([`collapsed`]: the predicted matches, the consistency check, the principal
 //! point's test, a merge). It also says when the images do not determine the focal length: another
 //! sound frame (or one rejected only for its removals) with a different focal length fits about as
@@ -74,6 +76,10 @@ pub struct CandidateRecord {
     pub removals_only: bool,
     /// Why it was rejected.
     pub rejected: Option<String>,
+    /// Points of the subsample whose adjustment decided it alone ([`screen`]): it collapsed there,
+    /// or came to the calibration of a frame already adjusted in full. `None`: the full adjustment
+    /// judged it (or it was not tried).
+    pub screened_points: Option<usize>,
 }
 
 /// Observations of the model's points.
@@ -230,7 +236,9 @@ pub(crate) fn first_sound<'a, C>(
 
 /// Adjusts every candidate and returns the accepted one with the best score after its full
 /// adjustment (ties: the earlier), the paper's "let the full adjustment decide" among the frames
-/// that critical motion leaves open. Every candidate is recorded in `tried`.
+/// that critical motion leaves open. Every candidate is recorded in `tried`. A candidate of a large
+/// model is first adjusted on a subsample ([`screen`]), which rejects it when it collapses there and
+/// passes over it when it comes to the calibration of a frame already adjusted.
 pub(crate) fn best_sound<'a, C>(
     candidates: impl IntoIterator<Item = (&'a C, &'a str, &'a MetricReconstruction)>,
     projective_rms_px: Option<f64>,
@@ -239,6 +247,10 @@ pub(crate) fn best_sound<'a, C>(
 ) -> Option<(&'a C, MetricReconstruction, Vec<MetricBaRecord>)> {
     let mut best: Option<(f64, usize, &'a C, MetricReconstruction, Vec<MetricBaRecord>)> = None;
     for (c, source, rec) in candidates {
+        if let Some(r) = screen::screen(source, rec, projective_rms_px, &mut adjust, tried, true) {
+            tried.push(r);
+            continue;
+        }
         let mut found = Vec::new();
         let Some((c, adjusted, adjustments)) = first_sound(
             std::iter::once((c, source, rec)),
@@ -413,8 +425,8 @@ pub(crate) fn describe_rejections(records: &[CandidateRecord]) -> String {
 }
 
 /// One more frame against the kept one, after the candidate loop (a probe of a camera that only
-/// translates, a frame found along the focal profile): it gets the full adjustment and
-/// [`judge`]'s checks, and it replaces the kept frame when it is sound and scores better (the
+/// translates, a frame found along the focal profile): it is screened on a subsample ([`screen`];
+/// whether it comes to the kept calibration is asked of a probe only), then gets the full adjustment and [`judge`]'s checks, and it replaces the kept frame when it is sound and scores better (the
 /// rule of [`best_sound`]). Its records go to `tried`, marked `probe` when asked; a sound frame
 /// that scores lower is rejected with `lost`, and a kept frame it replaces with `won`. Returns the
 /// adjusted frame only when it replaces the kept one.
@@ -422,12 +434,24 @@ pub(crate) fn describe_rejections(records: &[CandidateRecord]) -> String {
 pub(crate) fn challenge<'a, C>(
     candidate: (&'a C, &'a str, &'a MetricReconstruction),
     projective_rms_px: Option<f64>,
-    adjust: impl FnMut(&mut MetricReconstruction) -> Result<Vec<MetricBaRecord>, String>,
+    mut adjust: impl FnMut(&mut MetricReconstruction) -> Result<Vec<MetricBaRecord>, String>,
     tried: &mut Vec<CandidateRecord>,
     probe: bool,
     lost: &str,
     won: &str,
 ) -> Option<(&'a C, MetricReconstruction, Vec<MetricBaRecord>)> {
+    if let Some(mut r) = screen::screen(
+        candidate.1,
+        candidate.2,
+        projective_rms_px,
+        &mut adjust,
+        tried,
+        probe,
+    ) {
+        r.probe |= probe;
+        tried.push(r);
+        return None;
+    }
     let kept_score = tried
         .iter()
         .find(|r| r.accepted)
@@ -462,5 +486,6 @@ pub(crate) fn challenge<'a, C>(
     found.filter(|_| better)
 }
 
+mod screen;
 #[cfg(test)]
 mod tests;

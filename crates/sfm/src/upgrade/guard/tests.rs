@@ -9,6 +9,12 @@ use nalgebra::{Point3, Vector3};
 
 /// Two cameras 1 m apart looking down +z at 20 points 4–6 m away; exact observations.
 fn model(f: f64) -> MetricReconstruction {
+    model_of(f, 2, 20)
+}
+
+/// `views` cameras 1 m apart along x looking down +z at `points` points 4–6 m away, each seen by
+/// every camera; exact observations.
+pub(crate) fn model_of(f: f64, views: u32, points: u32) -> MetricReconstruction {
     let cam = Camera {
         id: CameraId(1),
         width: 640,
@@ -17,31 +23,27 @@ fn model(f: f64) -> MetricReconstruction {
     };
     let mut rec = MetricReconstruction::default();
     rec.cameras.insert(cam.id, cam.clone());
-    let poses = [
-        Rigid3::identity(),
-        Rigid3::new(Vector3::new(-1.0, 0.0, 0.0), Vector3::zeros()),
-    ];
-    for (k, pose) in poses.iter().enumerate() {
-        let id = ImageId(k as u32 + 1);
+    for k in 0..views {
+        let id = ImageId(k + 1);
         rec.views.insert(
             id,
             View {
                 id,
                 camera_id: cam.id,
                 name: format!("{k}.png"),
-                cam_from_world: *pose,
+                cam_from_world: Rigid3::new(
+                    Vector3::new(-f64::from(k), 0.0, 0.0),
+                    Vector3::zeros(),
+                ),
                 observations: Vec::new(),
                 frame: None,
             },
         );
     }
-    for i in 0..20 {
-        let xyz = Point3::new(
-            -1.0 + 0.1 * i as f64,
-            0.5 - 0.05 * i as f64,
-            4.0 + 0.1 * i as f64,
-        );
-        let pid = PointId(i);
+    for i in 0..points {
+        let t = f64::from(i) / f64::from(points);
+        let xyz = Point3::new(-1.0 + 2.0 * t, 0.5 - t, 4.0 + 2.0 * t);
+        let pid = PointId(i.into());
         let mut track = Track::default();
         for (id, v) in rec.views.iter_mut() {
             let xy = cam.project(&v.cam_from_world, &xyz).expect("in front");

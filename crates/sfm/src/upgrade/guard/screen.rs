@@ -1,0 +1,328 @@
+//! Candidates ranked cheaply first (issue #34): before its full adjustment, a candidate frame of a
+//! large model is adjusted on a subsample of its points, which decides two cases alone:
+//!
+//! - it collapses there (the schedule's filters remove [`COLLAPSED_FRACTION`] of the observations):
+//!   the full adjustment would collapse the same way, since the removals are a fraction of
+//!   whatever points are kept, and would cost the whole schedule first (a focal hypothesis of 10 px
+//!   on the demo's sideways walk took 100 iterations over 16 600 points to lose 99.9 %);
+//! - it is sound there and converges to the calibration of a frame that already had its full
+//!   adjustment (every focal length within [`SAME_FOCAL`]): the two are one frame reached from two
+//!   starts, and it cannot show that the images leave the focal length open
+//!   ([`super::focal_ambiguity`] needs one more than [`super::DISTINCT_FOCAL`] away). Asked only
+//!   where that is the question (the candidate loop, the probes of a camera that only translates),
+//!   not for a frame found along the focal profile, whose point is a better fit in the same place.
+//!   The sideways walk's probes (the priors, the two-view focal length, a hypothesis) all came to
+//!   within 0.02 % of the self-calibration's 576 px, each after a full schedule.
+//!
+//! Every other candidate gets the full adjustment, as before: a sound frame with its own
+//! calibration, or one that loses many observations without collapsing, is judged on all of them.
+//! Models of at most `2 × SCREEN_POINTS` points are not screened (their full adjustment is cheap).
+
+use std::collections::BTreeSet;
+
+use handheld_core::{MetricReconstruction, PointId};
+
+use super::{judge, observation_count, record_before, CandidateRecord};
+use crate::metric::ba::{remove_points, MetricBaRecord, COLLAPSED_FRACTION};
+
+/// Points of the subsample a candidate is screened on.
+pub const SCREEN_POINTS: usize = 3000;
+/// Observations every view keeps in the subsample (points added from the view's own when the
+/// spread of the subsample left it fewer), so that no camera is left loose.
+pub const MIN_VIEW_OBSERVATIONS: usize = 60;
+/// Relative difference between a subsample's focal length and a fully adjusted frame's below
+/// which the two are one calibration: half of [`super::DISTINCT_FOCAL`], the guard's own bound for
+/// "the same calibration reached by another path", so that a frame passed over can never have
+/// been a distinct one. The margin is the subsample's own spread where the focal length is weakly
+/// determined: on kitti-seq1 (forward motion, a flat focal profile) two probes came to 720 px on
+/// a subsample of 2 805 points and to 709 px with all 39 377, against the kept 711 px.
+pub const SAME_FOCAL: f64 = 0.5 * super::DISTINCT_FOCAL;
+
+/// The points of a subsample of `rec`: every k-th point (ids in order, so spread over the scene
+/// the way the tracks were made), with each view topped up to [`MIN_VIEW_OBSERVATIONS`]. `None`
+/// when `rec` has at most `2 × target` points.
+pub(crate) fn subsample(rec: &MetricReconstruction, target: usize) -> Option<MetricReconstruction> {
+    let n = rec.points.len();
+    if target == 0 || n <= 2 * target {
+        return None;
+    }
+    let step = n.div_ceil(target);
+    let mut keep: BTreeSet<PointId> = rec.points.keys().step_by(step).copied().collect();
+    let mut per_view = std::collections::BTreeMap::new();
+    for id in &keep {
+        for el in &rec.points[id].track.elements {
+            *per_view.entry(el.image_id).or_insert(0usize) += 1;
+        }
+    }
+    for (image, view) in &rec.views {
+        let mut have = per_view.get(image).copied().unwrap_or(0);
+        for ob in &view.observations {
+            if have >= MIN_VIEW_OBSERVATIONS {
+                break;
+            }
+            let Some(pid) = ob.point_id else { continue };
+            if rec.points.contains_key(&pid) && keep.insert(pid) {
+                have += 1;
+            }
+        }
+    }
+    let mut sub = rec.clone();
+    let out: Vec<PointId> = rec
+        .points
+        .keys()
+        .filter(|id| !keep.contains(id))
+        .copied()
+        .collect();
+    remove_points(&mut sub, out);
+    Some(sub)
+}
+
+/// The record of a candidate the subsample decides alone, or `None` when it needs the full
+/// adjustment. `tried` holds the frames adjusted so far; `adjust` is the full metric adjustment,
+/// run here on the subsample; `same` asks whether it comes to a calibration already adjusted.
+pub(crate) fn screen(
+    source: &str,
+    rec: &MetricReconstruction,
+    projective_rms_px: Option<f64>,
+    adjust: &mut impl FnMut(&mut MetricReconstruction) -> Result<Vec<MetricBaRecord>, String>,
+    tried: &[CandidateRecord],
+    same: bool,
+) -> Option<CandidateRecord> {
+    let mut sub = subsample(rec, SCREEN_POINTS)?;
+    let mut record = record_before(source, &sub);
+    let points = sub.points.len();
+    let adjustments = adjust(&mut sub).ok()?;
+    let why = judge(&mut record, &sub, &adjustments, projective_rms_px);
+    let removed = record.removed_fraction.unwrap_or(0.0);
+    let verdict = if removed >= COLLAPSED_FRACTION {
+        Some((
+            false,
+            format!(
+                "on a subsample of {points} points its adjustment removed {:.0} % of the observations",
+                100.0 * removed
+            ),
+        ))
+    } else if why.is_none() && same {
+        same_calibration(&record.focal_after_px, tried).map(|(other, f)| {
+            (
+                true,
+                format!(
+                    "on a subsample of {points} points it converged to the calibration of the frame from {other} (f = {:.0} px against {f:.0} px)",
+                    record.focal_after_px.first().copied().unwrap_or(f64::NAN)
+                ),
+            )
+        })
+    } else {
+        None
+    };
+    let Some(verdict) = verdict else {
+        tracing::debug!(
+            focal = ?record.focal_after_px,
+            removed,
+            why,
+            "metric frame from {source} on a subsample of {points} points: the full adjustment decides"
+        );
+        return None;
+    };
+    let (sound, why) = verdict;
+    tracing::debug!("metric frame from {source} decided on a subsample: {why}");
+    let mut out = record_before(source, rec);
+    out.tried = true;
+    out.sound = sound;
+    out.removed_fraction = record.removed_fraction;
+    out.final_rms_px = record.final_rms_px;
+    out.focal_after_px = record.focal_after_px;
+    out.screened_points = Some(points);
+    out.rejected = Some(why);
+    debug_assert_eq!(observation_count(rec), out.observations);
+    Some(out)
+}
+
+/// The source and focal length of a fully adjusted sound frame whose focal lengths all lie within
+/// [`SAME_FOCAL`] of `focal`.
+fn same_calibration<'a>(focal: &[f64], tried: &'a [CandidateRecord]) -> Option<(&'a str, f64)> {
+    tried
+        .iter()
+        .filter(|r| r.sound && r.screened_points.is_none() && r.score.is_some())
+        .find(|r| {
+            r.focal_after_px.len() == focal.len()
+                && !focal.is_empty()
+                && r.focal_after_px
+                    .iter()
+                    .zip(focal)
+                    .all(|(a, b)| (b / a - 1.0).abs() <= SAME_FOCAL)
+        })
+        .map(|r| (r.source.as_str(), r.focal_after_px[0]))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn model(points: u32, views: u32) -> MetricReconstruction {
+        crate::upgrade::guard::tests::model_of(500.0, views, points)
+    }
+
+    /// An adjustment that sets the focal length to `f` and removes `fraction` of what it is given,
+    /// counting the points it saw.
+    fn fake(
+        f: f64,
+        fraction: f64,
+        seen: &mut Vec<usize>,
+    ) -> impl FnMut(&mut MetricReconstruction) -> Result<Vec<MetricBaRecord>, String> + '_ {
+        move |rec| {
+            seen.push(rec.points.len());
+            for c in rec.cameras.values_mut() {
+                c.intrinsics.f = f;
+            }
+            let removed = (fraction * observation_count(rec) as f64) as usize;
+            Ok(vec![MetricBaRecord {
+                step: "final".into(),
+                iterations: 3,
+                initial_rms_px: 0.5,
+                final_rms_px: 0.5,
+                seconds: 0.0,
+                observations_removed: removed,
+                points_removed: 0,
+                loss_scale_px: 1.5,
+                noise_px: None,
+            }])
+        }
+    }
+
+    fn adjusted_in_full(source: &str, f: f64) -> CandidateRecord {
+        CandidateRecord {
+            source: source.into(),
+            focal_after_px: vec![f],
+            tried: true,
+            sound: true,
+            score: Some(1000.0),
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn a_subsample_spreads_over_the_scene_and_keeps_every_view_held() {
+        assert!(subsample(&model(2 * SCREEN_POINTS as u32, 3), SCREEN_POINTS).is_none());
+        let rec = model(7001, 3);
+        let sub = subsample(&rec, SCREEN_POINTS).expect("large enough");
+        assert!(sub.points.len() <= SCREEN_POINTS && sub.points.len() > SCREEN_POINTS / 2);
+        // Its points are the model's own, untouched, and every view still observes them.
+        for (id, p) in &sub.points {
+            assert_eq!(p.xyz, rec.points[id].xyz);
+            assert_eq!(p.track.len(), 3);
+        }
+        for v in sub.views.values() {
+            let seen = v
+                .observations
+                .iter()
+                .filter(|o| o.point_id.is_some())
+                .count();
+            assert_eq!(seen, sub.points.len());
+        }
+    }
+
+    #[test]
+    fn a_candidate_that_collapses_on_the_subsample_is_rejected_without_the_full_adjustment() {
+        let rec = model(7001, 3);
+        let mut seen = Vec::new();
+        let r = screen(
+            "focal hypothesis",
+            &rec,
+            None,
+            &mut fake(500.0, 0.95, &mut seen),
+            &[],
+            true,
+        )
+        .expect("decided on the subsample");
+        assert_eq!(seen.len(), 1, "only the subsample was adjusted");
+        assert!(seen[0] <= SCREEN_POINTS);
+        assert!(!r.sound && r.tried && !r.accepted);
+        assert_eq!(r.screened_points, Some(seen[0]));
+        assert_eq!(r.observations, observation_count(&rec));
+        assert!(
+            r.rejected
+                .as_deref()
+                .is_some_and(|w| w.contains("removed 95 %")),
+            "{r:?}"
+        );
+    }
+
+    #[test]
+    fn a_candidate_that_comes_to_an_adjusted_calibration_is_passed_over() {
+        let rec = model(7001, 3);
+        let mut seen = Vec::new();
+        let tried = [adjusted_in_full("self-calibration", 520.0)];
+        let r = screen(
+            "priors",
+            &rec,
+            None,
+            &mut fake(500.0, 0.01, &mut seen),
+            &tried,
+            true,
+        )
+        .expect("the same calibration");
+        assert!(r.sound && !r.accepted && r.score.is_none(), "{r:?}");
+        assert!(r
+            .rejected
+            .as_deref()
+            .is_some_and(|w| w.contains("self-calibration")));
+        // Not an ambiguity: it has no score of its own.
+        assert!(super::super::focal_ambiguity(&[
+            CandidateRecord {
+                accepted: true,
+                ..tried[0].clone()
+            },
+            r
+        ])
+        .is_none());
+    }
+
+    #[test]
+    fn a_candidate_with_its_own_calibration_or_a_small_model_gets_the_full_adjustment() {
+        let tried = [adjusted_in_full("self-calibration", 503.0)];
+        let mut seen = Vec::new();
+        // 8 % away from the adjusted one: a calibration of its own.
+        assert!(screen(
+            "priors",
+            &model(7001, 3),
+            None,
+            &mut fake(543.0, 0.01, &mut seen),
+            &tried,
+            true
+        )
+        .is_none());
+        // The same calibration, where that is not asked (a frame along the focal profile).
+        assert!(screen(
+            "priors",
+            &model(7001, 3),
+            None,
+            &mut fake(503.0, 0.01, &mut seen),
+            &tried,
+            false
+        )
+        .is_none());
+        // Many removals but no collapse: the full adjustment judges them.
+        assert!(screen(
+            "priors",
+            &model(7001, 3),
+            None,
+            &mut fake(500.0, 0.5, &mut seen),
+            &tried,
+            true
+        )
+        .is_none());
+        assert_eq!(seen.len(), 3);
+        // A small model is not screened at all.
+        assert!(screen(
+            "priors",
+            &model(500, 3),
+            None,
+            &mut fake(500.0, 0.95, &mut seen),
+            &tried,
+            true
+        )
+        .is_none());
+        assert_eq!(seen.len(), 3);
+    }
+}
