@@ -34,6 +34,17 @@ pub struct RansacOptions {
     /// below 0.2 are also hard to reach by sampling (the 7-point F needs about 4·10⁵ samples at
     /// 0.2 for 99 % confidence). In [0, 1]; default 0.2.
     pub min_inlier_ratio: f64,
+    /// The run succeeds only when the best model has at least this many inliers, besides
+    /// `min_inlier_ratio` (the two-view verification passes its `min_inliers`). Default 0.
+    ///
+    /// Together the two give the least support `s` a model needs to be returned, and with it a
+    /// bail-out for a hopeless run (few putative matches, none consistent): once it has drawn the
+    /// samples that would have found a model with `s` inliers at confidence `1 − (1 − Γ)/10`, it
+    /// stops, where it would otherwise draw all `max_iterations` (paper §2.2's rule applied to the
+    /// weakest model that could succeed; at 10× the miss rate of the adaptive stop, so a pair
+    /// near the bar is lost no more often than a sound one stops early).
+    #[serde(default)]
+    pub min_support: usize,
     /// LO-RANSAC (Chum, Matas & Kittler 2003): whenever a new best model is found, refit it with
     /// [`crate::Estimator::refit`] on its inliers and keep the refit while it scores better.
     /// Default true.
@@ -66,6 +77,7 @@ impl Default for RansacOptions {
             min_iterations: 0,
             max_iterations: 10_000,
             min_inlier_ratio: 0.2,
+            min_support: 0,
             local_optimization: true,
             lo_iterations: 10,
             lo_inner_samples: 10,

@@ -128,9 +128,23 @@ where
         return Ok(report);
     }
     let stop_exponent = p + opts.tdd.unwrap_or(0);
+    // The least support a returned model needs, and the samples that would have found one that
+    // has it: past them a run whose best model falls short stops (a hopeless pair, see
+    // `RansacOptions::min_support`).
+    let min_support = ((opts.min_inlier_ratio * n as f64).ceil() as usize)
+        .max(p + 1)
+        .max(opts.min_support);
+    if min_support > n {
+        return Ok(report);
+    }
+    let enough = required_iterations(
+        min_support as f64 / n as f64,
+        stop_exponent,
+        1.0 - (1.0 - opts.confidence) / 10.0,
+    );
     let mut best: Option<Scored<E::Model>> = None;
     let mut best_sampled_score = f64::NEG_INFINITY;
-    let mut required = opts.max_iterations;
+    let mut required = opts.max_iterations.min(enough);
     let mut indices = Vec::with_capacity(p);
     let mut minimal: Vec<E::Sample> = Vec::with_capacity(p);
     let mut models: Vec<E::Model> = Vec::new();
@@ -188,7 +202,8 @@ where
                 candidate.support as f64 / n as f64,
                 stop_exponent,
                 opts.confidence,
-            );
+            )
+            .min(enough);
             best = Some(candidate);
         }
     }
@@ -198,7 +213,6 @@ where
     };
     report.support = best.support;
     report.score = best.score;
-    let min_support = ((opts.min_inlier_ratio * n as f64).ceil() as usize).max(p + 1);
     if best.support < min_support {
         return Ok(report);
     }
@@ -417,6 +431,45 @@ mod tests {
                 rep.num_trials
             );
         }
+    }
+
+    /// A hopeless run (no line through enough of the points) stops once it has drawn the samples
+    /// that would have found the weakest model it may return, at 10× the adaptive stop's
+    /// confidence, instead of drawing `max_iterations`; a run whose model just reaches the bar
+    /// still finds it.
+    #[test]
+    fn a_hopeless_run_stops_once_the_weakest_acceptable_model_would_have_been_found() {
+        let mut r = UniformSampler::new(7);
+        let rng = r.rng();
+        let scatter: Vec<(f64, f64)> = (0..60)
+            .map(|_| (rng.random_range(0.0..10.0), rng.random_range(0.0..10.0)))
+            .collect();
+        let opts = RansacOptions {
+            max_error: 0.01,
+            min_support: 30,
+            ..Default::default()
+        };
+        let mut sampler = UniformSampler::new(0);
+        let rep = run(&Line, &InlierCount, &mut sampler, &scatter, &opts).expect("valid");
+        assert!(!rep.success);
+        // 1 − (1 − 0.5²)^m ≥ 0.999 ⇒ m = 25.
+        assert_eq!(rep.num_trials, required_iterations(0.5, 2, 0.999));
+        assert_eq!(rep.num_trials, 25);
+        // 30 of the 60 points on a line: found, with all of them.
+        let mut half = scatter.clone();
+        for (k, p) in half.iter_mut().enumerate().filter(|(k, _)| k % 2 == 0) {
+            *p = (0.15 * k as f64, 0.3 * k as f64 - 1.0);
+        }
+        let mut sampler = UniformSampler::new(0);
+        let rep = run(&Line, &InlierCount, &mut sampler, &half, &opts).expect("valid");
+        assert!(rep.success && rep.support >= 30, "{} inliers", rep.support);
+        // More points needed than there are: no sample is drawn.
+        let many = RansacOptions {
+            min_support: 61,
+            ..opts
+        };
+        let rep = run(&Line, &InlierCount, &mut sampler, &half, &many).expect("valid");
+        assert!(!rep.success && rep.num_trials == 0);
     }
 
     #[test]

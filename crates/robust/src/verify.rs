@@ -219,6 +219,7 @@ pub fn estimate_two_view_geometry(
         matches,
         &RansacOptions {
             max_error: opts.f_threshold_px,
+            min_support: opts.ransac.min_support.max(opts.min_inliers),
             ..opts.ransac.clone()
         },
     )?;
@@ -227,6 +228,7 @@ pub fn estimate_two_view_geometry(
     let h_opts = RansacOptions {
         max_error: opts.h_threshold_px,
         max_iterations: opts.ransac.max_iterations.min(1000),
+        min_support: opts.ransac.min_support.max(opts.min_inliers),
         ..opts.ransac.clone()
     };
     let h_rep = ransac(&HomographyEstimator, matches, &h_opts)?;
