@@ -70,6 +70,10 @@ fn main() -> ExitCode {
         }
     };
     ui::init_logging(&cli.global);
+    if let Some(e) = handheld_features::quantized::simd_env_error() {
+        eprintln!("error: {e}");
+        return ExitCode::from(2);
+    }
     match run(&cli.command, &cli.global) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {

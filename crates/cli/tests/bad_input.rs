@@ -292,3 +292,21 @@ fn augment_and_render_bad_inputs() {
     let err = stderr(&o);
     assert!(!o.status.success() && !err.contains("panicked"), "{err}");
 }
+
+/// A kernel choice the matcher does not have is refused before any work, naming the variable.
+#[test]
+fn an_unknown_simd_choice_is_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let ws = dir.path().join("ws");
+    let o = handheld_env(
+        &[
+            "reconstruct",
+            dir.path().to_str().unwrap(),
+            "-o",
+            ws.to_str().unwrap(),
+        ],
+        &[("HANDHELD_SIMD", "avx9")],
+    );
+    assert_clean_failure(&o, &["HANDHELD_SIMD", "avx9", "avx2"], &ws);
+    assert_eq!(o.status.code(), Some(2));
+}

@@ -360,7 +360,7 @@ mod tests {
         ignore = "needs a CPU with AVX-512 VNNI (this one has none)"
     )]
     fn the_vnni_kernel_and_the_f32_product_give_the_same_matches() {
-        assert!(quantized::have_vnni(), "this CPU has no AVX-512 VNNI");
+        assert!(quantized::cpu_has_vnni(), "this CPU has no AVX-512 VNNI");
         let mut s = 11u64;
         let mut rnd = || {
             s = s

@@ -61,8 +61,51 @@ impl PackedB {
     }
 }
 
-/// Whether this CPU runs the VNNI kernel (AVX-512 F, BW and VNNI).
+/// The environment variable that picks the matching kernel: `avx2` runs the AVX2 path (the f32
+/// product on the same integers, with the same matches) even where the CPU has AVX-512 VNNI, so
+/// that both paths are measured on one machine; `auto` (or unset) takes the best the CPU has.
+pub const SIMD_ENV: &str = "HANDHELD_SIMD";
+
+/// The values [`SIMD_ENV`] takes.
+pub const SIMD_VALUES: [&str; 2] = ["auto", "avx2"];
+
+/// Whether [`SIMD_ENV`] asks for the AVX2 path. Any other value than [`SIMD_VALUES`] is `auto`
+/// here; the CLI refuses it before any work ([`simd_env_error`]).
+fn forced_avx2() -> bool {
+    static FORCED: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *FORCED.get_or_init(|| {
+        std::env::var(SIMD_ENV).is_ok_and(|v| v.trim().eq_ignore_ascii_case("avx2"))
+    })
+}
+
+/// The error for a value of [`SIMD_ENV`] that is not one of [`SIMD_VALUES`].
+pub fn simd_env_error() -> Option<String> {
+    let v = std::env::var(SIMD_ENV).ok()?;
+    let known = SIMD_VALUES.iter().any(|k| v.trim().eq_ignore_ascii_case(k));
+    (!known).then(|| {
+        format!(
+            "{SIMD_ENV}={v:?} is not a kernel choice: use `avx2` (the AVX2 path on any CPU) or `auto` (the best this CPU has), or unset it"
+        )
+    })
+}
+
+/// The matching kernel that runs: `avx512-vnni` or `avx2` (printed by the benchmarks).
+pub fn simd_path() -> &'static str {
+    if have_vnni() {
+        "avx512-vnni"
+    } else {
+        "avx2"
+    }
+}
+
+/// Whether the matcher runs the VNNI kernel: the CPU has AVX-512 F, BW and VNNI, and [`SIMD_ENV`]
+/// does not ask for the AVX2 path.
 pub fn have_vnni() -> bool {
+    cpu_has_vnni() && !forced_avx2()
+}
+
+/// Whether this CPU can run the VNNI kernel (AVX-512 F, BW and VNNI).
+pub fn cpu_has_vnni() -> bool {
     #[cfg(target_arch = "x86_64")]
     {
         std::arch::is_x86_feature_detected!("avx512f")
@@ -77,7 +120,7 @@ pub fn have_vnni() -> bool {
 
 /// `out (rows × cols) = qa[i0..i0+rows] · qb[j0..j0+cols]ᵀ` as f32, for `qa` row-major with
 /// `dim` columns, its row sums `suma`, and `b` packed by [`PackedB::new`]. `j0` must be a
-/// multiple of 16. Only call when [`have_vnni`] is true.
+/// multiple of 16. Only call when [`cpu_has_vnni`] is true.
 #[allow(clippy::too_many_arguments)]
 pub fn scores_block(
     qa: &[u8],
@@ -94,7 +137,7 @@ pub fn scores_block(
     assert!(
         qa.len() >= (i0 + rows) * dim && suma.len() >= i0 + rows && dim.div_ceil(4) == b.groups
     );
-    assert!(have_vnni());
+    assert!(cpu_has_vnni());
     #[cfg(target_arch = "x86_64")]
     // SAFETY: the CPU has AVX-512 F/BW/VNNI (asserted above); the asserted lengths cover every
     // element the kernel addresses (see `vnni::block`).
@@ -190,7 +233,7 @@ mod tests {
         ignore = "needs a CPU with AVX-512 VNNI (this one has none)"
     )]
     fn vnni_scores_equal_the_exact_integer_products() {
-        assert!(have_vnni(), "this CPU has no AVX-512 VNNI");
+        assert!(cpu_has_vnni(), "this CPU has no AVX-512 VNNI");
         let mut s = 7u64;
         let mut rnd = || {
             s = s

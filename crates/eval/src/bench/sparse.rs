@@ -155,6 +155,10 @@ impl SparseRatios {
 pub struct SparseBenchReport {
     pub images: PathBuf,
     pub threads: usize,
+    /// The matching kernel that ran: `avx512-vnni` or `avx2` (`HANDHELD_SIMD=avx2` forces the
+    /// latter; `handheld_features::quantized::SIMD_ENV`).
+    #[serde(default)]
+    pub simd: String,
     pub handheld: HandheldSparseRun,
     /// With `colmap`.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -258,6 +262,7 @@ impl SparseBenchReport {
         Self {
             images,
             threads,
+            simd: handheld_features::quantized::simd_path().to_string(),
             meets_target: ratio.as_ref().map(|r| r.total >= TARGET_TOTAL_RATIO),
             handheld,
             colmap,
