@@ -222,9 +222,7 @@ fn a_demo_too_short_to_reconstruct_fails_and_writes_no_model() {
 /// the focal length within 2 %, the relative rotations within 0.5°.
 #[test]
 fn four_frames_too_far_apart_for_the_projective_start_are_right() {
-    demo_is_right(&[
-        "--frames", "4", "--width", "320", "--height", "240", "--until", "sparse",
-    ]);
+    demo_is_right(&["--frames", "4", "--width", "320", "--height", "240"]);
 }
 
 /// Eight frames of an orbit: a short arc, but enough for a sound model. Its adjustments drifted
