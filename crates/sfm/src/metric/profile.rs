@@ -5,7 +5,7 @@
 use std::collections::BTreeSet;
 
 use handheld_bundle::{bundle_adjust_metric, BundleOptions, IntrinsicsMask, MetricBundleConfig};
-use handheld_core::{ImageId, MetricReconstruction};
+use handheld_core::{ImageId, MetricReconstruction, PointId};
 use rayon::prelude::*;
 use serde::Serialize;
 
@@ -33,7 +33,7 @@ pub(crate) fn focal_profile(
     rec: &MetricReconstruction,
     estimate_aspect: bool,
 ) -> Result<[f64; 2], String> {
-    let sample = subsample_points(rec, PROFILE_MAX_POINTS);
+    let sample = subsample_points(rec, PROFILE_MAX_POINTS, 0);
     let free = held_adjustment(ctx, &sample, estimate_aspect, None)?
         .0
         .max(f64::MIN_POSITIVE);
@@ -106,7 +106,7 @@ pub(crate) fn principal_point_spread(
     rec: &MetricReconstruction,
     estimate_aspect: bool,
 ) -> Result<Vec<PrincipalPointSpread>, String> {
-    let sample = subsample_points(rec, PROFILE_MAX_POINTS);
+    let sample = subsample_points(rec, PROFILE_MAX_POINTS, 0);
     let free = held_adjustment(ctx, &sample, estimate_aspect, None)?.1;
     let ids: Vec<ImageId> = sample.views.keys().copied().collect();
     let g = ids.len().min(JACKKNIFE_GROUPS);
@@ -181,20 +181,44 @@ impl PrincipalPointSpread {
 const PROFILE_MAX_POINTS: usize = 1000;
 
 /// `rec` with every k-th point only (by id, so the same model gives the same sample), at most
-/// `max` of them; the observations of the others are detached.
-fn subsample_points(rec: &MetricReconstruction, max: usize) -> MetricReconstruction {
+/// `max` of them, and each view topped up from its own observations to `min_view_obs` (0: none)
+/// so that no camera is left loose; the observations of the others are detached.
+pub(crate) fn subsample_points(
+    rec: &MetricReconstruction,
+    max: usize,
+    min_view_obs: usize,
+) -> MetricReconstruction {
     let mut out = rec.clone();
     let n = out.points.len();
     if n <= max {
         return out;
     }
     let step = n.div_ceil(max);
-    let dropped: Vec<_> = out
+    let mut keep: BTreeSet<PointId> = rec.points.keys().step_by(step).copied().collect();
+    if min_view_obs > 0 {
+        let mut per_view = std::collections::BTreeMap::new();
+        for id in &keep {
+            for el in &rec.points[id].track.elements {
+                *per_view.entry(el.image_id).or_insert(0usize) += 1;
+            }
+        }
+        for (image, view) in &rec.views {
+            let mut have = per_view.get(image).copied().unwrap_or(0);
+            for pid in view.observations.iter().filter_map(|o| o.point_id) {
+                if have >= min_view_obs {
+                    break;
+                }
+                if rec.points.contains_key(&pid) && keep.insert(pid) {
+                    have += 1;
+                }
+            }
+        }
+    }
+    let dropped: Vec<PointId> = rec
         .points
         .keys()
-        .enumerate()
-        .filter(|(k, _)| k % step != 0)
-        .map(|(_, id)| *id)
+        .filter(|id| !keep.contains(id))
+        .copied()
         .collect();
     remove_points(&mut out, dropped);
     out

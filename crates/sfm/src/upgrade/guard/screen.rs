@@ -21,12 +21,11 @@
 //! 6 416 points, screened on 3 000: none of its four candidates was decided there, and its metric
 //! adjustments went from 3.9 s to 6.3 s.)
 
-use std::collections::BTreeSet;
-
-use handheld_core::{MetricReconstruction, PointId};
+use handheld_core::MetricReconstruction;
 
 use super::{judge, observation_count, record_before, CandidateRecord};
-use crate::metric::ba::{remove_points, MetricBaRecord, COLLAPSED_FRACTION};
+use crate::metric::ba::{MetricBaRecord, COLLAPSED_FRACTION};
+use crate::metric::profile::subsample_points;
 
 /// Points of the subsample a candidate is screened on.
 pub const SCREEN_POINTS: usize = 3000;
@@ -43,43 +42,11 @@ pub const MIN_SCREENED_POINTS: usize = 4 * SCREEN_POINTS;
 /// a subsample of 2 805 points and to 709 px with all 39 377, against the kept 711 px.
 pub const SAME_FOCAL: f64 = 0.5 * super::DISTINCT_FOCAL;
 
-/// The points of a subsample of `rec`: every k-th point (ids in order, so spread over the scene
-/// the way the tracks were made), with each view topped up to [`MIN_VIEW_OBSERVATIONS`]. `None`
-/// when `rec` has at most `4 × target` points.
+/// The subsample a candidate is screened on ([`subsample_points`]: every k-th point, each view
+/// topped up to [`MIN_VIEW_OBSERVATIONS`]). `None` when `rec` has at most `4 × target` points.
 pub(crate) fn subsample(rec: &MetricReconstruction, target: usize) -> Option<MetricReconstruction> {
-    let n = rec.points.len();
-    if target == 0 || n <= 4 * target {
-        return None;
-    }
-    let step = n.div_ceil(target);
-    let mut keep: BTreeSet<PointId> = rec.points.keys().step_by(step).copied().collect();
-    let mut per_view = std::collections::BTreeMap::new();
-    for id in &keep {
-        for el in &rec.points[id].track.elements {
-            *per_view.entry(el.image_id).or_insert(0usize) += 1;
-        }
-    }
-    for (image, view) in &rec.views {
-        let mut have = per_view.get(image).copied().unwrap_or(0);
-        for ob in &view.observations {
-            if have >= MIN_VIEW_OBSERVATIONS {
-                break;
-            }
-            let Some(pid) = ob.point_id else { continue };
-            if rec.points.contains_key(&pid) && keep.insert(pid) {
-                have += 1;
-            }
-        }
-    }
-    let mut sub = rec.clone();
-    let out: Vec<PointId> = rec
-        .points
-        .keys()
-        .filter(|id| !keep.contains(id))
-        .copied()
-        .collect();
-    remove_points(&mut sub, out);
-    Some(sub)
+    (target > 0 && rec.points.len() > 4 * target)
+        .then(|| subsample_points(rec, target, MIN_VIEW_OBSERVATIONS))
 }
 
 /// The record of a candidate the subsample decides alone, or `None` when it needs the full
