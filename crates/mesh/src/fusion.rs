@@ -91,7 +91,8 @@ pub struct FusionSummary {
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub levels: Vec<LevelReport>,
     /// The fraction of the depth samples left out of fusion because their uncertainty exceeds
-    /// `max_depth_std` truncations (far background, too little parallax).
+    /// twice `max_depth_std` truncations (far background, too little parallax); those between
+    /// one and two times count with a reduced weight.
     pub uncertain_fraction: f64,
     /// Allocated voxel blocks and the voxels they hold (over the whole scene).
     pub blocks: usize,

@@ -148,16 +148,16 @@ fn voxel_size_follows_the_depth() {
     assert!((centroid(&mesh) - centroid(&again)).norm() < 1e-4);
 }
 
-#[test]
-fn uncertain_far_depths_are_left_out_and_counted() {
+/// The street's views with the far wall's depths uncertain by `far` of the depth (as a stereo
+/// pair with little parallax gives), and the rest by 0.05 %.
+fn noisy_far_wall(far: f32) -> Vec<PosedView> {
     let mut views = street_views(6);
-    // The far wall's depths are uncertain by 20% (as a stereo pair with little parallax gives).
     for v in &mut views {
         let d = v.depth.as_ref().unwrap();
         let mut var = FloatMap::filled(W, H, 1, 0.0);
         for (i, z) in d.data.iter().enumerate() {
             let s = if *z as f64 > 60.0 {
-                0.2 * *z
+                far * *z
             } else {
                 0.0005 * *z
             };
@@ -165,6 +165,26 @@ fn uncertain_far_depths_are_left_out_and_counted() {
         }
         v.variance = Some(var);
     }
+    views
+}
+
+#[test]
+fn noisier_far_depths_count_less_but_still_make_the_surface_nothing_better_sees() {
+    // 20 % of 80 m is 3–6 truncation bands of the far wall's level: down-weighted, not left out.
+    let views = noisy_far_wall(0.2);
+    let (mesh, s) = fuse_depth_maps(&views, &options(), &NoProgress).unwrap();
+    assert_eq!(s.uncertain_fraction, 0.0, "{s:?}");
+    assert!(mesh
+        .vertices
+        .positions
+        .iter()
+        .any(|p| (p[2] as f64 - FAR_Z).abs() < 2.0));
+}
+
+#[test]
+fn uncertain_far_depths_are_left_out_and_counted() {
+    // Uncertain by half the depth: no parallax to speak of.
+    let views = noisy_far_wall(0.5);
     let (mesh, s) = fuse_depth_maps(&views, &options(), &NoProgress).unwrap();
     println!(
         "uncertain fraction {:.3}; {} faces",

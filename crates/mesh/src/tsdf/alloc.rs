@@ -7,6 +7,7 @@ use std::collections::HashSet;
 use nalgebra::{Vector2, Vector3};
 use rayon::prelude::*;
 
+use super::update::noise_weight;
 use super::{depth_quantile, BlockKey, TsdfVolume, BLOCK};
 use crate::error::{MeshError, Result};
 use crate::levels::scale;
@@ -72,7 +73,7 @@ impl TsdfVolume {
                         let s = scale(level as i32);
                         let (block_side, trunc) = (base_vs * s * BLOCK as f64, base_trunc * s);
                         n += 1;
-                        if max_std > 0.0 && view.std(y * w + x) > max_std * trunc {
+                        if noise_weight(view.std(y * w + x), max_std * trunc) <= 0.0 {
                             bad += 1;
                             continue;
                         }

@@ -82,13 +82,16 @@ pub struct TsdfOptions {
     /// The finest and coarsest levels (voxels of `2^level` times the base size). Default 0 and 6.
     pub finest_level: i32,
     pub coarsest_level: i32,
-    /// Depth samples whose standard deviation (from the variance maps, where present) exceeds this
-    /// many truncation half-widths of their voxel size are left out: far background and surfaces
-    /// seen with too little parallax, whose noise is wider than the band that could hold them. A
-    /// surface is seen by about ten views, and their average has about a third of one sample's
-    /// noise, so samples up to three bands wide still average into the band. 0 keeps every
-    /// sample. Default 3 (on the synthetic street, 1 left out 26–29 % of the samples and a quarter
-    /// of the surface; 3 leaves out 5–9 % at the same accuracy, `handheld bench mesh`).
+    /// Depth samples whose standard deviation `σ` (from the variance maps, where present) is at
+    /// most this many truncation half-widths `t` of their voxel size count fully. A surface is
+    /// seen by about ten views, and their average has about a third of one sample's noise, so
+    /// samples up to three bands wide still average into the band. Noisier samples count with
+    /// the weight `(K·t/σ)²` (inverse-variance weighting), so that they shape the surface only
+    /// where nothing better sees it, and beyond `2·K·t` they are left out: far background and
+    /// surfaces seen with too little parallax (even four such samples would average to more than
+    /// K bands). 0 counts every sample fully. Default 3. On the
+    /// synthetic street (`handheld bench mesh`), leaving out every sample beyond `K·t` lost
+    /// 11–13 % of the surface at K = 3 and a quarter at K = 1.
     pub max_depth_std: f64,
 }
 

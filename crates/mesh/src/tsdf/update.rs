@@ -22,13 +22,33 @@ pub(super) struct UpdateContext<'a> {
     pub max_std: f64,
 }
 
+/// Samples noisier than `max_depth_std` bands still count, with the weight of their variance
+/// relative to it, up to this many times `max_depth_std`; beyond, they are left out.
+pub(super) const LEFT_OUT_FACTOR: f64 = 2.0;
+
+/// The factor on a sample's weight for its standard deviation `std`, with `max_std` the band
+/// multiple (in world units) up to which samples count fully: 1 up to it, the ratio of the
+/// variances `(max_std / std)²` beyond (inverse-variance weighting: the weighted average is then
+/// the maximum-likelihood depth of Gaussian samples), and 0 (left out) beyond
+/// [`LEFT_OUT_FACTOR`]` · max_std`. `max_std` 0 counts every sample fully.
+pub(super) fn noise_weight(std: f64, max_std: f64) -> f64 {
+    if max_std <= 0.0 || std <= max_std {
+        1.0
+    } else if std > LEFT_OUT_FACTOR * max_std {
+        0.0
+    } else {
+        (max_std / std).powi(2)
+    }
+}
+
 /// Smallest incidence cosine used (about 78°): beyond it the normal estimate is unreliable.
 const MIN_COS: f64 = 0.2;
 
 /// The update pass of one block for one view (see the module documentation). The distance along
 /// the line of sight is multiplied by the incidence cosine, which turns it into the distance to the
 /// (locally planar) surface, so the band has the same thickness at grazing angles; the sample's
-/// weight is its confidence times that cosine (Curless & Levoy 1996, §4).
+/// weight is its confidence times that cosine (Curless & Levoy 1996, §4), times
+/// [`noise_weight`] where its depth is noisier than the band can hold.
 pub(super) fn update_block(b: &mut Block, ctx: &UpdateContext) {
     let s = scale(b.level as i32);
     let (view, proj, vs, trunc) = (ctx.view, ctx.proj, ctx.vs * s, ctx.trunc * s);
@@ -67,7 +87,8 @@ pub(super) fn update_block(b: &mut Block, ctx: &UpdateContext) {
                 }
                 let pix = ry as usize * w + rx as usize;
                 let conf = view.weight(pix, ctx.min_conf);
-                if conf <= 0.0 || (max_std > 0.0 && view.std(pix) > max_std) {
+                let noise = noise_weight(view.std(pix), max_std);
+                if conf <= 0.0 || noise <= 0.0 {
                     continue;
                 }
                 let Some(d) = sample_depth(view.depth, &px, 0.5 * trunc / pc.z) else {
@@ -80,7 +101,7 @@ pub(super) fn update_block(b: &mut Block, ctx: &UpdateContext) {
                 }
                 let i = x + BLOCK * (y + BLOCK * z);
                 let v = (sdf / trunc).min(1.0) as f32;
-                let (old_w, new_w) = (b.weight[i], (conf * cos) as f32);
+                let (old_w, new_w) = (b.weight[i], (conf * cos * noise) as f32);
                 b.tsdf[i] = (b.tsdf[i] * old_w + v * new_w) / (old_w + new_w);
                 b.weight[i] = (old_w + new_w).min(ctx.max_w);
                 if sdf < trunc {
@@ -88,5 +109,21 @@ pub(super) fn update_block(b: &mut Block, ctx: &UpdateContext) {
                 }
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn noise_weight_is_the_variance_ratio_between_one_and_two_limits() {
+        assert_eq!(noise_weight(0.5, 1.0), 1.0);
+        assert_eq!(noise_weight(1.0, 1.0), 1.0);
+        assert!((noise_weight(1.5, 1.0) - 1.0 / 2.25).abs() < 1e-12);
+        assert!((noise_weight(2.0, 1.0) - 0.25).abs() < 1e-12);
+        assert_eq!(noise_weight(2.01, 1.0), 0.0);
+        // Off: every sample counts fully.
+        assert_eq!(noise_weight(100.0, 0.0), 1.0);
     }
 }

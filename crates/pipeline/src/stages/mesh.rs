@@ -311,7 +311,7 @@ pub fn build(
                 )
                 .advice(
                     "to model the far parts, film them from closer or with more sideways motion; \
-                     `--max-depth-std 0` keeps every sample",
+                     `--max-depth-std 0` counts every sample fully",
                 ),
             );
         }
