@@ -65,6 +65,7 @@ mod pyramid;
 pub mod rectify;
 mod refine;
 mod sgm;
+pub mod sparse_points;
 pub mod stage;
 mod stereo;
 #[cfg(test)]
@@ -83,6 +84,7 @@ pub use pair::{
     grey_image, match_pair, match_pair_with, match_sequence_pairs, PairDisparity, PairOptions,
 };
 pub use rectify::{rectify_pair, Rectification, RectifyMethod, RectifyOptions};
+pub use sparse_points::{SparsePoints, MIN_RANGE_POINTS};
 pub use stage::{
     dense_reconstruct, dense_reconstruct_with, DenseOptions, DenseSummary, DenseViewResult,
     FailedPair,

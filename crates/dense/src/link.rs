@@ -31,9 +31,13 @@ pub struct LinkOptions {
     /// (one left-right-checked pair).
     pub min_visibility: usize,
     /// The `V` a view keeps when it can: if at least half of the pixels that reach
-    /// `min_visibility` also reach this, only those are kept. Views whose neighbours are too far
-    /// apart to link further (an object ring, wide baselines) keep `min_visibility`. Default 3;
-    /// at or below `min_visibility` it changes nothing.
+    /// `min_visibility` also reach this, a depth linked through fewer views is dropped where a
+    /// view could have confirmed it and did not (a chain stopped by the gate, or ended unmatched
+    /// in a view whose image holds the point). A depth whose chains ended because the point
+    /// leaves the other views' images (the frame's edge under forward motion, the sequence's
+    /// ends) stays. Views whose neighbours are too far apart to link further (an object ring,
+    /// wide baselines) keep `min_visibility`. Default 3; at or below `min_visibility` it changes
+    /// nothing.
     pub preferred_visibility: usize,
     /// Most links followed in each direction.
     pub max_links: usize,
@@ -119,6 +123,22 @@ impl LinkedDepth {
 }
 
 /// Precomputed geometry of one view.
+/// Whether view `g`'s image holds the world point `p` (in front of the camera, inside the frame).
+fn holds(g: &Geo, p: &Vector3<f64>) -> bool {
+    let pc = g.rot * p + g.trans;
+    if pc.z <= 0.0 {
+        return false;
+    }
+    let m = g
+        .camera
+        .intrinsics
+        .normalized_to_pixel(Vector2::new(pc.x / pc.z, pc.y / pc.z));
+    m.x >= 0.0
+        && m.y >= 0.0
+        && m.x <= g.camera.width as f64 - 1.0
+        && m.y <= g.camera.height as f64 - 1.0
+}
+
 struct Geo {
     camera: Camera,
     rot: Matrix3<f64>,
@@ -207,13 +227,17 @@ pub fn link_depth(
     let mut depth = FloatMap::filled(w, h, 1, f32::NAN);
     let mut variance = FloatMap::filled(w, h, 1, f32::NAN);
     let mut visibility = FloatMap::filled(w, h, 1, 0.0);
+    // Depths a view could have confirmed and did not: a chain stopped by the gate, or one that
+    // ended unmatched in a view whose image holds the point.
+    let mut doubted = vec![false; w * h];
     depth
         .data
         .par_chunks_mut(w)
         .zip(variance.data.par_chunks_mut(w))
         .zip(visibility.data.par_chunks_mut(w))
+        .zip(doubted.par_chunks_mut(w))
         .enumerate()
-        .for_each(|(y, ((drow, vrow), visrow))| {
+        .for_each(|(y, (((drow, vrow), visrow), crow))| {
             for x in 0..w {
                 let m = Vector2::new(x as f64, y as f64);
                 let n = r.camera.intrinsics.pixel_to_normalized(m);
@@ -223,6 +247,8 @@ pub fn link_depth(
                 let mut chains = [(reference, m, 0.0f64, true), (reference, m, 0.0f64, true)];
                 let mut fused: Option<(f64, f64)> = None;
                 let mut vis = 1usize;
+                // Views where a chain ended without a match although the pair was matched.
+                let mut unmatched_in: [Option<usize>; 2] = [None, None];
                 for _ in 0..opts.max_links {
                     for (dir, chain) in chains.iter_mut().enumerate() {
                         if !chain.3 {
@@ -249,6 +275,11 @@ pub fn link_depth(
                                 .flatten()
                         };
                         let Some((b, q, scale)) = step else {
+                            let next = if dir == 0 { a + 1 } else { a.wrapping_sub(1) };
+                            let pair = if dir == 0 { a } else { a.wrapping_sub(1) };
+                            if next < views.len() && pairs[pair].is_some() {
+                                unmatched_in[dir] = Some(next);
+                            }
                             chain.3 = false;
                             continue;
                         };
@@ -267,6 +298,7 @@ pub fn link_depth(
                             None => fused = Some((z, var)),
                             Some((zf, vf)) => {
                                 if (z - zf).abs() > opts.gate * (vf + var).sqrt() {
+                                    crow[x] = true; // contradicted
                                     chain.3 = false;
                                     continue;
                                 }
@@ -279,6 +311,10 @@ pub fn link_depth(
                     }
                 }
                 if let Some((z, v)) = fused {
+                    // A chain that ended unmatched in a view whose image holds the point: that
+                    // view could have confirmed the depth and did not.
+                    let p = c_ref + ray * z;
+                    crow[x] |= unmatched_in.iter().flatten().any(|&b| holds(&geo[b], &p));
                     if vis >= opts.min_visibility {
                         drow[x] = z as f32;
                         vrow[x] = v as f32;
@@ -292,13 +328,14 @@ pub fn link_depth(
         let kept = visibility.data.iter().filter(|&&v| v > 0.0).count();
         let strong = visibility.data.iter().filter(|&&v| v >= v_pref).count();
         if 2 * strong >= kept {
-            for ((d, var), v) in depth
+            for (((d, var), v), doubted) in depth
                 .data
                 .iter_mut()
                 .zip(variance.data.iter_mut())
                 .zip(visibility.data.iter_mut())
+                .zip(doubted.iter())
             {
-                if *v > 0.0 && *v < v_pref {
+                if *v > 0.0 && *v < v_pref && *doubted {
                     (*d, *var, *v) = (f32::NAN, f32::NAN, 0.0);
                 }
             }

@@ -14,6 +14,7 @@ use serde::{Deserialize, Serialize};
 use crate::error::{DenseError, Result};
 use crate::link::{link_depth, LinkOptions, LinkedDepth};
 use crate::pair::{match_pair_with, PairDisparity, PairOptions};
+use crate::sparse_points::SparsePoints;
 use crate::stereo::StereoMatcher;
 
 /// Options of [`dense_reconstruct`].
@@ -99,12 +100,13 @@ pub struct DenseSummary {
 }
 
 /// Depth of every view of a sequence (each view's camera, pose and image are read; its maps are
-/// ignored). `points` are the sparse points (for disparity ranges). `on_view` receives each
+/// ignored). `points` are the sparse points (for disparity ranges, [`SparsePoints::for_pair`]),
+/// their observers given as positions in `views`. `on_view` receives each
 /// view's result as soon as it is ready (to be written out), and the fused cloud is returned with
 /// the summary.
 pub fn dense_reconstruct(
     views: &[PosedView],
-    points: &[Point3<f64>],
+    points: &SparsePoints,
     opts: &DenseOptions,
     progress: &dyn Progress,
     on_view: impl FnMut(DenseViewResult) -> Result<()>,
@@ -113,12 +115,12 @@ pub fn dense_reconstruct(
 }
 
 /// [`dense_reconstruct`], with the pairs matched elsewhere: `matched(p)` gives the outcome of the
-/// pair `(p, p + 1)` when it was matched already (by [`crate::match_pair`] with `opts.pair`, on another
-/// machine: a failure as its message), and `None` to match it here. The result is the same
-/// either way.
+/// pair `(p, p + 1)` when it was matched already (by [`crate::match_pair`] with `opts.pair` and
+/// `points.for_pair(p, p + 1)`, on another machine: a failure as its message), and `None` to
+/// match it here. The result is the same either way.
 pub fn dense_reconstruct_with(
     views: &[PosedView],
-    points: &[Point3<f64>],
+    points: &SparsePoints,
     opts: &DenseOptions,
     progress: &dyn Progress,
     matched: impl Fn(usize) -> Option<std::result::Result<PairDisparity, String>>,
@@ -162,7 +164,8 @@ pub fn dense_reconstruct_with(
             let (a, b) = (&views[p], &views[p + 1]);
             let tp = Instant::now();
             let outcome = matched(p).unwrap_or_else(|| {
-                match_pair_with(&mut matcher, a, b, points, &opts.pair).map_err(|e| e.to_string())
+                match_pair_with(&mut matcher, a, b, &points.for_pair(p, p + 1), &opts.pair)
+                    .map_err(|e| e.to_string())
             });
             match outcome {
                 Ok(pd) => {

@@ -73,13 +73,20 @@ fn linking_fills_the_reference_view_and_gets_better_with_more_views() {
         "N = 11: fill {fill}, error {err}"
     );
     // The defaults (V_min 2, preferred V 3): with ten neighbours most depths reach V = 3, so the
-    // view keeps only those, exactly as V_min = 3 does.
+    // view keeps those, and of the rest only the depths no other view could confirm (the point
+    // leaves their images): at least V_min 3's fill, within the same error bound.
     let defaults = LinkOptions {
         max_links: 5,
         ..Default::default()
     };
     let adaptive = link_depth(&link_views, &pairs, reference, &defaults).expect("link");
-    assert_eq!(score(&adaptive, &seq.depths[reference]), curve[4]);
+    let (a_fill, a_err) = score(&adaptive, &seq.depths[reference]);
+    eprintln!(
+        "defaults: fill {:.1} %, error {:.3} %",
+        a_fill * 100.0,
+        a_err * 100.0
+    );
+    assert!(a_fill >= fill && a_err <= 0.005, "{a_fill} {a_err}");
     // The last view with one link: no depth can reach V = 3 (a view with no close neighbours, as in
     // an object ring). V_min = 3 leaves it empty; the defaults keep its pair depths.
     let last = link_views.len() - 1;

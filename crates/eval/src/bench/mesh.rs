@@ -14,8 +14,8 @@
 
 use std::time::Instant;
 
-use handheld_core::{FloatMap, NoProgress, PosedView};
-use handheld_dense::{dense_reconstruct, DenseOptions};
+use handheld_core::{FloatMap, ImageId, NoProgress, PosedView};
+use handheld_dense::{dense_reconstruct, DenseOptions, SparsePoints};
 use handheld_mesh::{fuse_depth_maps, FusionOptions, FusionSummary, MeshIndex};
 use handheld_testkit::path::PathOptions;
 use handheld_testkit::render::{render_sequence_with_scene, SequenceOptions, SyntheticSequence};
@@ -183,16 +183,15 @@ fn run_path(
     render_seconds: f64,
     o: &MeshBenchOptions,
 ) -> Result<StreetRun> {
-    let views: Vec<PosedView> = (0..seq.images.len())
+    let (ids, views): (Vec<ImageId>, Vec<PosedView>) = (0..seq.images.len())
         .filter_map(|i| {
-            Some(PosedView::from_posed(
-                format!("{i:03}"),
-                seq.frame(i)?,
-                seq.images[i].clone(),
-            ))
+            let view =
+                PosedView::from_posed(format!("{i:03}"), seq.frame(i)?, seq.images[i].clone());
+            Some((ImageId(i as u32), view))
         })
-        .collect();
-    let points: Vec<Point3<f64>> = seq.gt.points.values().map(|p| p.xyz).collect();
+        .unzip();
+    // The exact points with the views that see them, as a model's tracks give them.
+    let points = SparsePoints::from_tracks(seq.gt.points.values(), &ids);
     let t = Instant::now();
     let mut dense: Vec<PosedView> = Vec::new();
     dense_reconstruct(

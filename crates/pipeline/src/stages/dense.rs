@@ -18,7 +18,7 @@ use std::path::{Path, PathBuf};
 
 use handheld_core::{ImageId, MetricReconstruction, PosedView, Progress};
 use handheld_dense::{
-    dense_reconstruct_with, DenseOptions, PairDisparity, StereoMethod, StereoOptions,
+    dense_reconstruct_with, DenseOptions, PairDisparity, SparsePoints, StereoMethod, StereoOptions,
 };
 use handheld_io::dense_folder::{write_cameras, write_view, MapKind, CAMERAS_FILE};
 use handheld_io::images::{load_image, ImageIngestOptions};
@@ -255,7 +255,9 @@ impl Stage for Dense {
             )));
         };
         let views = load_views(&ctx.ws.image_paths()?, &rec, pair, ids.len(), &self.options)?;
-        let points: Vec<_> = rec.points.values().map(|p| p.xyz).collect();
+        // The range's points as the whole sequence selects them (`SparsePoints::for_pair`), so
+        // that a pair matched here is the pair the single-machine run matches.
+        let points = SparsePoints::from_tracks(rec.points.values(), &ids).for_pair(k, k + 1);
         let outcome =
             handheld_dense::match_pair(&views[0], &views[1], &points, &self.options.dense.pair)
                 .map_err(|e| e.to_string());
@@ -421,7 +423,7 @@ fn densify_with(
             );
         }
     }
-    let points: Vec<_> = rec.points.values().map(|p| p.xyz).collect();
+    let points = SparsePoints::from_tracks(rec.points.values(), ids);
     for sub in MapKind::ALL
         .iter()
         .map(|k| k.dir_name())
