@@ -40,6 +40,9 @@ fn street_depth_and_mesh_hold_against_the_truth() {
             run.path,
             run.depth
         );
+        // Most of the surface two views see is meshed within 1 % of its distance (#35 asks 90 %
+        // of the full-size bench; this small version, 12 frames of 480 px, holds 83–90 %).
+        assert!(m.completeness >= 0.8, "{}: {}", run.path, m.completeness);
         // The near surfaces get depth (they did not while the disparity range trimmed 1 % of the
         // sparse points, most of which are far).
         let near = &run.depth.by_depth[0];
