@@ -298,9 +298,8 @@ pub struct MeshArgs {
     /// lengths (0: leave every hole open). The outline where the views stop always stays open.
     #[arg(long, default_value_t = defaults().mesh.fusion.max_hole_perimeter_voxels)]
     pub max_hole_perimeter: f64,
-    /// Mesh: depth samples whose standard deviation exceeds this many truncation bands of their
-    /// voxel size count with a weight that falls with their variance, and beyond twice it
-    /// are left out (far background, too little parallax); 0 counts every sample fully.
+    /// Mesh: samples with σ over this many truncation bands count with weight (K·t/σ)², and beyond
+    /// twice it are left out (far background, too little parallax); 0 counts every sample fully.
     #[arg(long, default_value_t = defaults().mesh.fusion.tsdf.max_depth_std)]
     pub max_depth_std: f64,
 }
