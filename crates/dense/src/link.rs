@@ -122,7 +122,6 @@ impl LinkedDepth {
     }
 }
 
-/// Precomputed geometry of one view.
 /// Whether view `g`'s image holds the world point `p` (in front of the camera, inside the frame).
 fn holds(g: &Geo, p: &Vector3<f64>) -> bool {
     let pc = g.rot * p + g.trans;
@@ -139,6 +138,7 @@ fn holds(g: &Geo, p: &Vector3<f64>) -> bool {
         && m.y <= g.camera.height as f64 - 1.0
 }
 
+/// Precomputed geometry of one view.
 struct Geo {
     camera: Camera,
     rot: Matrix3<f64>,
