@@ -73,6 +73,10 @@ pub struct ScaleRun {
     pub timings_s: std::collections::BTreeMap<String, f64>,
     /// Split-and-merge's report (clusters, merges, what stayed apart and why).
     pub split: Option<split::SplitReport>,
+    /// The metric frames the largest model's stratified start tried (or the calibrated
+    /// incremental starts), as `summary.json` lists them.
+    #[serde(default)]
+    pub candidates: Vec<handheld_sfm::CandidateRecord>,
 }
 
 /// The report: every run, and the growth of each mode.
@@ -213,6 +217,7 @@ fn scored(
                 error: None,
                 timings_s,
                 split: r.split.clone(),
+                candidates: r.models[0].summary.self_calibration.candidates.clone(),
             }
         }
         Err(e) => ScaleRun {
@@ -229,6 +234,7 @@ fn scored(
             error: Some(e),
             timings_s: Default::default(),
             split: None,
+            candidates: Vec::new(),
         },
     }
 }

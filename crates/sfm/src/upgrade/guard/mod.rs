@@ -48,7 +48,7 @@ pub const RMS_SLACK_PX: f64 = 1.0;
 pub const MIN_IN_FRONT: f64 = 0.5;
 
 /// One metric frame that was tried, for the summary.
-#[derive(Clone, Debug, Default, Serialize, serde::Deserialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, serde::Deserialize)]
 pub struct CandidateRecord {
     /// `self-calibration`, `known calibration`, `priors` or `focal hypothesis`.
     pub source: String,
@@ -201,7 +201,9 @@ pub(crate) fn judge(
 
 /// Adjusts the candidates in the order given and returns the first one [`judge`] accepts, with its
 /// adjusted model and adjustments; every candidate tried is recorded in `tried`. `adjust` is the
-/// full metric bundle adjustment.
+/// full metric bundle adjustment. A candidate of a large model is first adjusted on a subsample
+/// ([`screen`]), which rejects it when it collapses there, and otherwise gives its full adjustment
+/// a start from the subsample's cameras.
 pub(crate) fn first_sound<'a, C>(
     candidates: impl IntoIterator<Item = (&'a C, &'a str, &'a MetricReconstruction)>,
     projective_rms_px: Option<f64>,
@@ -209,36 +211,66 @@ pub(crate) fn first_sound<'a, C>(
     tried: &mut Vec<CandidateRecord>,
 ) -> Option<(&'a C, MetricReconstruction, Vec<MetricBaRecord>)> {
     for (c, source, rec) in candidates {
-        let mut record = record_before(source, rec);
-        record.tried = true;
-        let mut adjusted = rec.clone();
-        let why = match adjust(&mut adjusted) {
-            Ok(adjustments) => {
-                match judge(&mut record, &adjusted, &adjustments, projective_rms_px) {
-                    None => {
-                        record.sound = true;
-                        tried.push(record);
-                        return Some((c, adjusted, adjustments));
-                    }
-                    Some(why) => why,
-                }
+        let start = match screen::screen(source, rec, projective_rms_px, &mut adjust, tried, false)
+        {
+            Screened::Decided(r) => {
+                tracing::warn!(
+                    "metric frame from {source} rejected: {}",
+                    r.rejected.as_deref().unwrap_or("decided on a subsample")
+                );
+                tried.push(r);
+                continue;
             }
-            Err(e) => {
-                record.rejected = Some(e.clone());
-                e
-            }
+            Screened::Warm(w) => Some(w),
+            Screened::Cold => None,
         };
-        tracing::warn!("metric frame from {source} rejected: {why}");
-        tried.push(record);
+        if let Some((adjusted, adjustments)) =
+            adjust_in_full(source, rec, start, projective_rms_px, &mut adjust, tried)
+        {
+            return Some((c, adjusted, adjustments));
+        }
     }
+    None
+}
+
+/// The full adjustment of one candidate `rec`, from `start` when given (its warm start, with the
+/// same observations), judged; its record goes to `tried`. The adjusted model when it is sound.
+fn adjust_in_full(
+    source: &str,
+    rec: &MetricReconstruction,
+    start: Option<MetricReconstruction>,
+    projective_rms_px: Option<f64>,
+    adjust: &mut impl FnMut(&mut MetricReconstruction) -> Result<Vec<MetricBaRecord>, String>,
+    tried: &mut Vec<CandidateRecord>,
+) -> Option<(MetricReconstruction, Vec<MetricBaRecord>)> {
+    let mut record = record_before(source, rec);
+    record.tried = true;
+    let mut adjusted = start.unwrap_or_else(|| rec.clone());
+    let why = match adjust(&mut adjusted) {
+        Ok(adjustments) => match judge(&mut record, &adjusted, &adjustments, projective_rms_px) {
+            None => {
+                record.sound = true;
+                tried.push(record);
+                return Some((adjusted, adjustments));
+            }
+            Some(why) => why,
+        },
+        Err(e) => {
+            record.rejected = Some(e.clone());
+            e
+        }
+    };
+    tracing::warn!("metric frame from {source} rejected: {why}");
+    tried.push(record);
     None
 }
 
 /// Adjusts every candidate and returns the accepted one with the best score after its full
 /// adjustment (ties: the earlier), the paper's "let the full adjustment decide" among the frames
 /// that critical motion leaves open. Every candidate is recorded in `tried`. A candidate of a large
-/// model is first adjusted on a subsample ([`screen`]), which rejects it when it collapses there and
-/// passes over it when it comes to the calibration of a frame already adjusted.
+/// model is first adjusted on a subsample ([`screen`]), which rejects it when it collapses there,
+/// passes over it when it comes to the calibration of a frame already adjusted, and otherwise
+/// gives its full adjustment a start from the subsample's cameras.
 pub(crate) fn best_sound<'a, C>(
     candidates: impl IntoIterator<Item = (&'a C, &'a str, &'a MetricReconstruction)>,
     projective_rms_px: Option<f64>,
@@ -247,25 +279,23 @@ pub(crate) fn best_sound<'a, C>(
 ) -> Option<(&'a C, MetricReconstruction, Vec<MetricBaRecord>)> {
     let mut best: Option<(f64, usize, &'a C, MetricReconstruction, Vec<MetricBaRecord>)> = None;
     for (c, source, rec) in candidates {
-        if let Some(r) = screen::screen(source, rec, projective_rms_px, &mut adjust, tried, true) {
-            tried.push(r);
-            continue;
-        }
-        let mut found = Vec::new();
-        let Some((c, adjusted, adjustments)) = first_sound(
-            std::iter::once((c, source, rec)),
-            projective_rms_px,
-            &mut adjust,
-            &mut found,
-        ) else {
-            tried.append(&mut found);
+        let start = match screen::screen(source, rec, projective_rms_px, &mut adjust, tried, true) {
+            Screened::Decided(r) => {
+                tried.push(r);
+                continue;
+            }
+            Screened::Warm(w) => Some(w),
+            Screened::Cold => None,
+        };
+        let Some((adjusted, adjustments)) =
+            adjust_in_full(source, rec, start, projective_rms_px, &mut adjust, tried)
+        else {
             continue;
         };
-        let full = found
+        let full = tried
             .last()
             .and_then(|r| r.score)
             .unwrap_or(f64::NEG_INFINITY);
-        tried.append(&mut found);
         if best.as_ref().is_none_or(|b| full > b.0) {
             best = Some((full, tried.len() - 1, c, adjusted, adjustments));
         }
@@ -440,7 +470,7 @@ pub(crate) fn challenge<'a, C>(
     lost: &str,
     won: &str,
 ) -> Option<(&'a C, MetricReconstruction, Vec<MetricBaRecord>)> {
-    if let Some(mut r) = screen::screen(
+    let start = match screen::screen(
         candidate.1,
         candidate.2,
         projective_rms_px,
@@ -448,22 +478,29 @@ pub(crate) fn challenge<'a, C>(
         tried,
         probe,
     ) {
-        r.probe |= probe;
-        tried.push(r);
-        return None;
-    }
+        Screened::Decided(mut r) => {
+            r.probe |= probe;
+            tried.push(r);
+            return None;
+        }
+        Screened::Warm(w) => Some(w),
+        Screened::Cold => None,
+    };
     let kept_score = tried
         .iter()
         .find(|r| r.accepted)
         .and_then(|r| r.score)
         .unwrap_or(f64::NEG_INFINITY);
     let mut records = Vec::new();
-    let found = first_sound(
-        std::iter::once(candidate),
+    let found = adjust_in_full(
+        candidate.1,
+        candidate.2,
+        start,
         projective_rms_px,
-        adjust,
+        &mut adjust,
         &mut records,
-    );
+    )
+    .map(|(r, a)| (candidate.0, r, a));
     let better = records
         .last()
         .filter(|r| r.accepted)
@@ -487,5 +524,6 @@ pub(crate) fn challenge<'a, C>(
 }
 
 mod screen;
+use screen::Screened;
 #[cfg(test)]
 mod tests;
