@@ -486,13 +486,29 @@ fn calibrated_core(
 /// two-view focal length, a focal hypothesis), which the stratified route keeps only after the
 /// frames before it failed. A phone's 13 photos of a box: the self-calibrated frame and four more
 /// lost 41–100 % of their observations, and the two-view focal length kept was 30 % off.
+///
+/// A fallback kept after it came to the calibration of a sound self-calibrated frame (every focal
+/// length within `guard::SAME_FOCAL`) does not need it: the two are one frame reached from two
+/// starts, and the self-calibration stands. kitti-seq1's probes of its forward motion: the priors'
+/// frame came to 705 px against the self-calibration's 708 px and scored 0.02 % above it, and the
+/// two calibrated starts then added 17 s to a 25 s stage to find 707 and 710 px.
 fn needs_challenge(ctx: &Context, report: &SelfCalibrationReport) -> bool {
-    ctx.opts.known_intrinsics.is_none()
-        && report
-            .candidates
-            .iter()
-            .find(|c| c.accepted)
-            .is_some_and(|c| c.source != "self-calibration" && c.source != "known calibration")
+    ctx.opts.known_intrinsics.is_none() && unconfirmed_fallback(&report.candidates)
+}
+
+/// Whether the kept frame is a fallback that no sound self-calibrated frame confirms (see
+/// [`needs_challenge`]).
+fn unconfirmed_fallback(candidates: &[guard::CandidateRecord]) -> bool {
+    let Some(kept) = candidates.iter().find(|c| c.accepted) else {
+        return false;
+    };
+    let fallback = kept.source != "self-calibration" && kept.source != "known calibration";
+    let confirmed = candidates.iter().any(|c| {
+        c.source == "self-calibration"
+            && c.sound
+            && guard::same_focal(&c.focal_after_px, &kept.focal_after_px)
+    });
+    fallback && !confirmed
 }
 
 /// The calibrated incremental candidate built on the views of the stratified model, scored like
@@ -558,5 +574,48 @@ fn calibrated_challenge(
         if let Some(w) = &report.focal_ambiguity {
             tracing::warn!("{w}");
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::unconfirmed_fallback;
+    use crate::upgrade::guard::CandidateRecord;
+
+    fn frame(source: &str, f: f64, sound: bool, accepted: bool) -> CandidateRecord {
+        CandidateRecord {
+            source: source.into(),
+            focal_after_px: vec![f],
+            tried: true,
+            sound,
+            accepted,
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn a_fallback_needs_the_calibrated_challenge_unless_the_self_calibration_came_to_its_focal_length(
+    ) {
+        // The self-calibration kept: no challenge.
+        assert!(!unconfirmed_fallback(&[frame(
+            "self-calibration",
+            708.0,
+            true,
+            true
+        )]));
+        // A probe kept at the self-calibration's calibration (0.4 % away): it is confirmed.
+        assert!(!unconfirmed_fallback(&[
+            frame("self-calibration", 708.0, true, false),
+            frame("priors", 705.0, true, true),
+        ]));
+        // A fallback 13 % away from it, or kept after the self-calibration failed: challenged.
+        assert!(unconfirmed_fallback(&[
+            frame("self-calibration", 708.0, true, false),
+            frame("priors", 800.0, true, true),
+        ]));
+        assert!(unconfirmed_fallback(&[
+            frame("self-calibration", 1845.0, false, false),
+            frame("two-view focal length", 1845.0, true, true),
+        ]));
     }
 }

@@ -523,6 +523,16 @@ pub(crate) fn challenge<'a, C>(
     found.filter(|_| better)
 }
 
+/// Whether two frames' focal lengths (one per intrinsics group) are all within
+/// [`screen::SAME_FOCAL`] of each other: one calibration, reached from two starts.
+pub(crate) fn same_focal(a: &[f64], b: &[f64]) -> bool {
+    !a.is_empty()
+        && a.len() == b.len()
+        && a.iter()
+            .zip(b)
+            .all(|(x, y)| (y / x - 1.0).abs() <= screen::SAME_FOCAL)
+}
+
 mod screen;
 use screen::Screened;
 #[cfg(test)]

@@ -196,14 +196,7 @@ fn same_calibration<'a>(focal: &[f64], tried: &'a [CandidateRecord]) -> Option<(
     tried
         .iter()
         .filter(|r| r.sound && r.screened_points.is_none() && r.score.is_some())
-        .find(|r| {
-            r.focal_after_px.len() == focal.len()
-                && !focal.is_empty()
-                && r.focal_after_px
-                    .iter()
-                    .zip(focal)
-                    .all(|(a, b)| (b / a - 1.0).abs() <= SAME_FOCAL)
-        })
+        .find(|r| super::same_focal(&r.focal_after_px, focal))
         .map(|r| (r.source.as_str(), r.focal_after_px[0]))
 }
 
