@@ -191,6 +191,50 @@ fn uncalibrated_sfm_recovers_cameras_and_focal() {
     }
 }
 
+/// A model of more than 12 000 points: its frame is first adjusted on a subsample of 3 000, and the
+/// full adjustment starts from the subsample's cameras with every point triangulated again under
+/// them (the warm start, `upgrade/guard/screen.rs`). Judged against the truth like the small
+/// ball's.
+#[test]
+fn a_large_model_starts_its_full_adjustment_from_a_subsample() {
+    let set = MultiViewOptions {
+        num_points: 20_000,
+        ..ball_scene(3)
+    };
+    let (input, gt) = input_from(&set);
+    let sfm = SfmOptions {
+        distortion: Distortion::K1K2,
+        refine_principal_point: false,
+        ..Default::default()
+    };
+    let out = reconstruct(&input, &sfm, &NoProgress).expect("reconstruction");
+    let model = &out.models[0];
+    let rec = &model.reconstruction;
+    assert_eq!(rec.views.len(), 10, "{:?}", out.unregistered);
+    assert!(rec.points.len() > 12_000, "{} points", rec.points.len());
+    let kept = model
+        .summary
+        .self_calibration
+        .candidates
+        .iter()
+        .find(|c| c.accepted)
+        .expect("a kept frame");
+    assert!(
+        kept.warm_start_points.is_some_and(|n| n <= 3_000),
+        "the kept frame's full adjustment started from a subsample: {kept:?}"
+    );
+    let f_true = gt.cameras.values().next().unwrap().intrinsics.f;
+    let f_est = rec.cameras.values().next().unwrap().intrinsics.f;
+    let focal_err = (f_est / f_true - 1.0).abs();
+    let rot = median_aligned_rotation_error_deg(rec, &gt);
+    eprintln!(
+        "focal error {:.3} %, rotation error {rot:.4}°",
+        100.0 * focal_err
+    );
+    assert!(focal_err < 0.01, "focal error {focal_err}");
+    assert!(rot < 0.5, "rotation error {rot}°");
+}
+
 #[test]
 fn too_few_images_and_bad_options_are_clear_errors() {
     let (mut input, _) = input_from(&MultiViewOptions {

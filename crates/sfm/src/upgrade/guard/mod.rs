@@ -80,6 +80,9 @@ pub struct CandidateRecord {
     /// or came to the calibration of a frame already adjusted in full. `None`: the full adjustment
     /// judged it (or it was not tried).
     pub screened_points: Option<usize>,
+    /// Points of the subsample whose adjusted cameras the full adjustment started from (the warm
+    /// start, [`screen`]). `None`: it started from the frame itself.
+    pub warm_start_points: Option<usize>,
 }
 
 /// Observations of the model's points.
@@ -221,7 +224,7 @@ pub(crate) fn first_sound<'a, C>(
                 tried.push(r);
                 continue;
             }
-            Screened::Warm(w) => Some(w),
+            Screened::Warm(w, n) => Some((w, n)),
             Screened::Cold => None,
         };
         if let Some((adjusted, adjustments)) =
@@ -234,18 +237,19 @@ pub(crate) fn first_sound<'a, C>(
 }
 
 /// The full adjustment of one candidate `rec`, from `start` when given (its warm start, with the
-/// same observations), judged; its record goes to `tried`. The adjusted model when it is sound.
+/// same observations, and the subsample's points), judged; its record goes to `tried`. The adjusted model when it is sound.
 fn adjust_in_full(
     source: &str,
     rec: &MetricReconstruction,
-    start: Option<MetricReconstruction>,
+    start: Option<(MetricReconstruction, usize)>,
     projective_rms_px: Option<f64>,
     adjust: &mut impl FnMut(&mut MetricReconstruction) -> Result<Vec<MetricBaRecord>, String>,
     tried: &mut Vec<CandidateRecord>,
 ) -> Option<(MetricReconstruction, Vec<MetricBaRecord>)> {
     let mut record = record_before(source, rec);
     record.tried = true;
-    let mut adjusted = start.unwrap_or_else(|| rec.clone());
+    record.warm_start_points = start.as_ref().map(|s| s.1);
+    let mut adjusted = start.map_or_else(|| rec.clone(), |s| s.0);
     let why = match adjust(&mut adjusted) {
         Ok(adjustments) => match judge(&mut record, &adjusted, &adjustments, projective_rms_px) {
             None => {
@@ -284,7 +288,7 @@ pub(crate) fn best_sound<'a, C>(
                 tried.push(r);
                 continue;
             }
-            Screened::Warm(w) => Some(w),
+            Screened::Warm(w, n) => Some((w, n)),
             Screened::Cold => None,
         };
         let Some((adjusted, adjustments)) =
@@ -483,7 +487,7 @@ pub(crate) fn challenge<'a, C>(
             tried.push(r);
             return None;
         }
-        Screened::Warm(w) => Some(w),
+        Screened::Warm(w, n) => Some((w, n)),
         Screened::Cold => None,
     };
     let kept_score = tried

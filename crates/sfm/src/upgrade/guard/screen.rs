@@ -64,7 +64,7 @@ pub(crate) enum Screened {
     Decided(CandidateRecord),
     /// The full adjustment decides, and starts from this: the candidate with the subsample's
     /// adjusted cameras and every point triangulated again under them ([`warm_start`]).
-    Warm(MetricReconstruction),
+    Warm(MetricReconstruction, usize),
     /// Not screened (a small model, or the subsample's adjustment failed): the full adjustment
     /// starts from the candidate itself.
     Cold,
@@ -122,7 +122,7 @@ pub(crate) fn screen(
             why,
             "metric frame from {source} on a subsample of {points} points: the full adjustment decides, from the subsample's cameras"
         );
-        return Screened::Warm(warm_start(rec, &sub));
+        return Screened::Warm(warm_start(rec, &sub), points);
     };
     let (sound, why) = verdict;
     tracing::debug!("metric frame from {source} decided on a subsample: {why}");
@@ -405,6 +405,6 @@ mod tests {
 
     /// Whether the full adjustment decides, from the subsample's cameras.
     fn warm(s: Screened) -> bool {
-        matches!(s, Screened::Warm(_))
+        matches!(s, Screened::Warm(..))
     }
 }
