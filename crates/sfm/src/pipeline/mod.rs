@@ -20,10 +20,14 @@
 //!    focal-length warnings (`upgrade/guard/`), and `uncertainty_step`: per-point and intrinsics
 //!    uncertainty (`metric/uncertainty.rs`).
 //!
+//! `calibrated_net.rs` holds the calibrated incremental candidate's part in these steps (the
+//! safety net under step 2, and its challenge of a kept fall-back frame).
+//!
 //! Then the models are merged where they share points (`merge/`), sorted largest first, and their
 //! ids restored to the input's (`canonical.rs`). [`crate::StepError`] says which step stopped a
 //! model and why.
 
+mod calibrated_net;
 pub(crate) mod model;
 pub(crate) mod steps;
 

@@ -224,8 +224,7 @@ pub(crate) fn first_sound<'a, C>(
                 tried.push(r);
                 continue;
             }
-            Screened::Warm(w, n) => Some((w, n)),
-            Screened::Cold => None,
+            s => s.start(),
         };
         if let Some((adjusted, adjustments)) =
             adjust_in_full(source, rec, start, projective_rms_px, &mut adjust, tried)
@@ -237,7 +236,8 @@ pub(crate) fn first_sound<'a, C>(
 }
 
 /// The full adjustment of one candidate `rec`, from `start` when given (its warm start, with the
-/// same observations, and the subsample's points), judged; its record goes to `tried`. The adjusted model when it is sound.
+/// same observations, and the subsample's points), judged; its record goes to `tried`. The
+/// adjusted model when it is sound.
 fn adjust_in_full(
     source: &str,
     rec: &MetricReconstruction,
@@ -288,8 +288,7 @@ pub(crate) fn best_sound<'a, C>(
                 tried.push(r);
                 continue;
             }
-            Screened::Warm(w, n) => Some((w, n)),
-            Screened::Cold => None,
+            s => s.start(),
         };
         let Some((adjusted, adjustments)) =
             adjust_in_full(source, rec, start, projective_rms_px, &mut adjust, tried)
@@ -487,8 +486,7 @@ pub(crate) fn challenge<'a, C>(
             tried.push(r);
             return None;
         }
-        Screened::Warm(w, n) => Some((w, n)),
-        Screened::Cold => None,
+        s => s.start(),
     };
     let kept_score = tried
         .iter()

@@ -70,6 +70,17 @@ pub(crate) enum Screened {
     Cold,
 }
 
+impl Screened {
+    /// Where the full adjustment starts: the warm start and the subsample's points, or `None` for
+    /// the candidate itself.
+    pub(crate) fn start(self) -> Option<(MetricReconstruction, usize)> {
+        match self {
+            Screened::Warm(rec, points) => Some((rec, points)),
+            Screened::Decided(_) | Screened::Cold => None,
+        }
+    }
+}
+
 /// Screens a candidate on a subsample of its points. `tried` holds the frames adjusted so far;
 /// `adjust` is the full metric adjustment, run here on the subsample; `same` asks whether it comes
 /// to a calibration already adjusted.

@@ -1,0 +1,219 @@
+//! The calibrated incremental candidate (`calibrated.rs`) in the model's steps: the model built by
+//! it when no stratified start gave a sound metric frame ([`calibrated_core`]), and its challenge
+//! of a kept fall-back frame that no sound self-calibrated frame confirms ([`needs_challenge`],
+//! [`calibrated_challenge`]). Split from `model.rs`.
+
+use handheld_core::{MetricReconstruction, Progress};
+
+use crate::calibrated;
+use crate::context::Context;
+use crate::error::StepError;
+use crate::metric::ba::MetricBaRecord;
+use crate::projective::model::ProjectiveModel;
+use crate::upgrade::guard;
+use crate::upgrade::transform::SelfCalibrationReport;
+
+use super::steps::Search;
+
+/// The model of the free views built by the calibrated incremental candidate (`calibrated.rs`),
+/// when no stratified start gave a sound metric frame (`failure`, returned when no calibrated
+/// start is sound either). The views it registers are taken from `search`.
+pub(super) fn calibrated_core(
+    ctx: &Context,
+    search: &mut Search,
+    estimate_aspect: bool,
+    failure: StepError,
+    progress: &dyn Progress,
+) -> Result<
+    (
+        ProjectiveModel,
+        (
+            MetricReconstruction,
+            bool,
+            SelfCalibrationReport,
+            Vec<MetricBaRecord>,
+        ),
+    ),
+    StepError,
+> {
+    let allowed = search.allowed.clone();
+    if allowed.iter().filter(|a| **a).count() < 2 {
+        return Err(failure);
+    }
+    tracing::info!(
+        "no stratified start gave a sound metric frame: building the model by calibrated incremental reconstruction"
+    );
+    let mut records = Vec::new();
+    let mut built = calibrated::build_all(ctx, &allowed, estimate_aspect, &mut records, progress);
+    if built.is_empty() {
+        let why = records
+            .iter()
+            .find_map(|r| r.rejected.clone())
+            .unwrap_or_else(|| "no start".into());
+        return Err(failure.with_note(&format!(
+            "the calibrated incremental candidate found no sound model either ({} starts; the first: {why})",
+            records.len()
+        )));
+    }
+    let best = built.swap_remove(0);
+    for r in records.iter_mut() {
+        r.accepted =
+            r.source == best.record.source && r.focal_before_px == best.record.focal_before_px;
+    }
+    let mut report = SelfCalibrationReport {
+        calibrated_incremental: true,
+        focal_ambiguity: guard::focal_ambiguity(&records),
+        ..Default::default()
+    };
+    if let Some(w) = &report.focal_ambiguity {
+        tracing::warn!("{w}");
+    }
+    report.candidates = records;
+    let images: Vec<usize> = (0..ctx.input.images.len())
+        .filter(|&i| best.rec.views.contains_key(&ctx.input.images[i].id))
+        .collect();
+    search.take(&images);
+    let mut model = ProjectiveModel::new(ctx);
+    model.init_pair = best.init_pair;
+    model.order = images;
+    Ok((model, (best.rec, false, report, best.adjustments)))
+}
+
+/// Whether the stratified frame kept needs the calibrated candidate beside it: the frame is not the
+/// first choice (the self-calibration, or a given calibration) but a fallback (the priors, the
+/// two-view focal length, a focal hypothesis), which the stratified route keeps only after the
+/// frames before it failed. A phone's 13 photos of a box: the self-calibrated frame and four more
+/// lost 41–100 % of their observations, and the two-view focal length kept was 30 % off.
+///
+/// A fallback kept after it came to the calibration of a sound self-calibrated frame (every focal
+/// length within `guard::SAME_FOCAL`) does not need it: the two are one frame reached from two
+/// starts, and the self-calibration stands. kitti-seq1's probes of its forward motion: the priors'
+/// frame came to 705 px against the self-calibration's 708 px and scored 0.02 % above it, and the
+/// two calibrated starts then added 17 s to a 25 s stage to find 707 and 710 px.
+pub(super) fn needs_challenge(ctx: &Context, report: &SelfCalibrationReport) -> bool {
+    ctx.opts.known_intrinsics.is_none() && unconfirmed_fallback(&report.candidates)
+}
+
+/// Whether the kept frame is a fallback that no sound self-calibrated frame confirms (see
+/// [`needs_challenge`]).
+fn unconfirmed_fallback(candidates: &[guard::CandidateRecord]) -> bool {
+    let Some(kept) = candidates.iter().find(|c| c.accepted) else {
+        return false;
+    };
+    let fallback = kept.source != "self-calibration" && kept.source != "known calibration";
+    let confirmed = candidates.iter().any(|c| {
+        c.source == "self-calibration"
+            && c.sound
+            && guard::same_focal(&c.focal_after_px, &kept.focal_after_px)
+    });
+    fallback && !confirmed
+}
+
+/// The calibrated incremental candidate built on the views of the stratified model, scored like
+/// every candidate: it replaces the stratified frame when it registers more of the views, or the
+/// same views with a clearly better score (beyond `guard::CLOSE_SCORE`); when the two explain the images about as well with focal
+/// lengths more than 10 % apart, the focal length is undetermined (`guard::focal_ambiguity`).
+pub(super) fn calibrated_challenge(
+    ctx: &Context,
+    model: &ProjectiveModel,
+    rec: &mut MetricReconstruction,
+    report: &mut SelfCalibrationReport,
+    metric_ba: &mut Vec<MetricBaRecord>,
+    estimate_aspect: bool,
+    progress: &dyn Progress,
+) {
+    let mut allowed = vec![false; ctx.input.images.len()];
+    for &i in &model.order {
+        allowed[i] = true;
+    }
+    let mut records = Vec::new();
+    let built = calibrated::build_all(ctx, &allowed, estimate_aspect, &mut records, progress);
+    let kept_score = report
+        .candidates
+        .iter()
+        .find(|c| c.accepted)
+        .and_then(|c| c.score)
+        .unwrap_or(f64::NEG_INFINITY);
+    let best = built.into_iter().next();
+    // Two models that explain the images about as well (scores within `CLOSE_SCORE`) keep the
+    // stratified one; the focal-length check below says when they disagree.
+    let replace = best.as_ref().is_some_and(|b| {
+        b.rec.views.len() > rec.views.len()
+            || (b.rec.views.len() == rec.views.len()
+                && b.record.score.unwrap_or(f64::NEG_INFINITY) * guard::CLOSE_SCORE > kept_score)
+    });
+    if let (Some(b), true) = (best.as_ref(), replace) {
+        for c in report.candidates.iter_mut() {
+            c.accepted = false;
+        }
+        for r in records.iter_mut() {
+            r.accepted =
+                r.source == b.record.source && r.focal_before_px == b.record.focal_before_px;
+        }
+        tracing::info!(
+            "the calibrated incremental model ({}, f = {:.0} px) explains the images better than the stratified frame kept: it replaces it",
+            b.record.source,
+            guard::focal_lengths(&b.rec).first().copied().unwrap_or(0.0)
+        );
+    }
+    if !replace {
+        for r in records.iter_mut() {
+            r.accepted = false;
+        }
+    }
+    report.candidates.extend(records);
+    if let (Some(b), true) = (best, replace) {
+        *rec = b.rec;
+        *metric_ba = b.adjustments;
+        report.calibrated_incremental = true;
+    }
+    if report.focal_ambiguity.is_none() {
+        report.focal_ambiguity = guard::focal_ambiguity(&report.candidates);
+        if let Some(w) = &report.focal_ambiguity {
+            tracing::warn!("{w}");
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::unconfirmed_fallback;
+    use crate::upgrade::guard::CandidateRecord;
+
+    fn frame(source: &str, f: f64, sound: bool, accepted: bool) -> CandidateRecord {
+        CandidateRecord {
+            source: source.into(),
+            focal_after_px: vec![f],
+            tried: true,
+            sound,
+            accepted,
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn a_fallback_needs_the_calibrated_challenge_unless_the_self_calibration_came_to_its_focal_length(
+    ) {
+        // The self-calibration kept: no challenge.
+        assert!(!unconfirmed_fallback(&[frame(
+            "self-calibration",
+            708.0,
+            true,
+            true
+        )]));
+        // A probe kept at the self-calibration's calibration (0.4 % away): it is confirmed.
+        assert!(!unconfirmed_fallback(&[
+            frame("self-calibration", 708.0, true, false),
+            frame("priors", 705.0, true, true),
+        ]));
+        // A fallback 13 % away from it, or kept after the self-calibration failed: challenged.
+        assert!(unconfirmed_fallback(&[
+            frame("self-calibration", 708.0, true, false),
+            frame("priors", 800.0, true, true),
+        ]));
+        assert!(unconfirmed_fallback(&[
+            frame("self-calibration", 1845.0, false, false),
+            frame("two-view focal length", 1845.0, true, true),
+        ]));
+    }
+}
