@@ -6,6 +6,13 @@
 //! Gauge: the first view is held fixed (as in [`crate::MetricBundleConfig`]); the remaining scale
 //! freedom is removed by the pseudo-inverse of the Jacobi-scaled `S` (eigenvalues below `1e-9` of the
 //! largest are dropped). This needs a dense `S`, so it is limited to a few thousand parameters.
+//!
+//! A point whose rays (nearly) coincide, such as one seen only by two shots from the same spot,
+//! has a direction its observations do not constrain: its block `V` is singular. Its observations
+//! say nothing along that direction (`W` vanishes there too), so `V` enters `S` through its
+//! pseudo-inverse (eigenvalues below [`POINT_RCOND`] of its largest dropped) rather than an
+//! inverse of roundoff, and the point gets no covariance: it is counted in
+//! [`MetricUncertainty::undetermined_points`].
 
 use std::collections::BTreeMap;
 
@@ -15,11 +22,16 @@ use nalgebra::{DMatrix, Matrix3, SymmetricEigen};
 use crate::metric::{metric_problem, MetricBundleConfig};
 use crate::options::{BundleError, BundleOptions};
 use crate::residual::NUM_INTRINSICS;
-use crate::schur::{assemble, invert_points, linearize, ReducedMatrix};
+use crate::schur::{assemble, linearize, ReducedMatrix};
 use crate::structure::Structure;
 
 /// Largest reduced system for which covariances are computed.
 pub const MAX_COVARIANCE_DIMENSION: usize = 4000;
+
+/// Smallest ratio of a point block's eigenvalues to its largest that counts as information: below
+/// it the direction is undetermined (in double precision, `1e-12` leaves six digits of the
+/// inverse).
+pub const POINT_RCOND: f64 = 1e-12;
 
 /// A 3×3 covariance and its summary standard deviation `sqrt(trace/3)`.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -55,6 +67,30 @@ pub struct MetricUncertainty {
     pub variance_factor: f64,
     /// Eigenvalues of the scaled `S` dropped as gauge freedoms.
     pub dropped_directions: usize,
+    /// Points with a direction their observations do not constrain (no entry in `points`).
+    pub undetermined_points: usize,
+}
+
+/// Pseudo-inverse of a symmetric positive semi-definite 3×3 block, and how many directions it
+/// dropped (eigenvalues below [`POINT_RCOND`] of the largest, or not positive).
+fn pseudo_inverse3(v: &Matrix3<f64>) -> (Matrix3<f64>, usize) {
+    let eig = SymmetricEigen::new(*v);
+    let top = eig.eigenvalues.max();
+    if !(top > 0.0) || !top.is_finite() {
+        return (Matrix3::zeros(), 3);
+    }
+    let mut dropped = 0;
+    let inv = nalgebra::Vector3::from_fn(|i, _| {
+        let l = eig.eigenvalues[i];
+        if l > POINT_RCOND * top {
+            1.0 / l
+        } else {
+            dropped += 1;
+            0.0
+        }
+    });
+    let q = eig.eigenvectors;
+    (q * Matrix3::from_diagonal(&inv) * q.transpose(), dropped)
 }
 
 /// Covariances at the current estimate of `rec` (normally right after [`crate::bundle_adjust_metric`]
@@ -77,7 +113,8 @@ pub fn metric_uncertainty(
         });
     }
     let lin = linearize(&p, &st, &options.loss);
-    let vinv = invert_points(&lin, &vec![0.0; 3 * p.points.len()]);
+    let (vinv, point_dropped): (Vec<Matrix3<f64>>, Vec<usize>) =
+        lin.v.iter().map(pseudo_inverse3).unzip();
     let mut m = ReducedMatrix::new(&st, true);
     let mut rhs = vec![0.0; n];
     assemble(&p, &st, &lin, &vinv, &lin.prior_h, &mut m, &mut rhs);
@@ -92,6 +129,11 @@ pub fn metric_uncertainty(
     let scaled = DMatrix::from_fn(n, n, |i, j| s[(i, j)] * d[i] * d[j]);
     let eig = SymmetricEigen::new(scaled);
     let top = eig.eigenvalues.iter().fold(0.0f64, |a, v| a.max(*v));
+    if !(top > 0.0) || !top.is_finite() {
+        return Err(BundleError::Linear(format!(
+            "the reduced camera system of the covariance has no positive eigenvalue (largest {top:e})"
+        )));
+    }
     let mut dropped = 0;
     let inv_vals: Vec<f64> = eig
         .eigenvalues
@@ -113,7 +155,8 @@ pub fn metric_uncertainty(
             cov[(i, j)] *= d[i] * d[j];
         }
     }
-    let dof = (2 * p.num_observations()) as f64 - (n + 3 * p.points.len()) as f64 + dropped as f64;
+    let free_point_params = 3 * p.points.len() - point_dropped.iter().sum::<usize>();
+    let dof = (2 * p.num_observations()) as f64 - (n + free_point_params) as f64 + dropped as f64;
     let sum_sq: f64 = (0..p.num_observations())
         .map(|o| p.weighted_residual(o))
         .map(|r| r[0] * r[0] + r[1] * r[1])
@@ -122,6 +165,9 @@ pub fn metric_uncertainty(
 
     let mut points = BTreeMap::new();
     for (pt, id) in index.points.iter().enumerate() {
+        if point_dropped[pt] > 0 {
+            continue;
+        }
         let vi = vinv[pt];
         let mut c = vi;
         let range = st.point_inc.ptr[pt]..st.point_inc.ptr[pt + 1];
@@ -189,5 +235,6 @@ pub fn metric_uncertainty(
         intrinsics,
         variance_factor,
         dropped_directions: dropped,
+        undetermined_points: point_dropped.iter().filter(|d| **d > 0).count(),
     })
 }

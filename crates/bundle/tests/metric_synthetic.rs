@@ -405,3 +405,109 @@ fn longer_steps_reach_the_same_optimum_sooner_under_a_tight_loss() {
         "rotation {rot_l}° against {rot_p}°, focal {f_l} against {f_p}"
     );
 }
+
+/// A second shot from the first view's spot, whose points are seen from there only: their depth
+/// is undetermined (their 3×3 block is singular). They must not turn the covariance into roundoff
+/// (it once gave a focal σ of 0 and points millions of units long), and the points and
+/// intrinsics measured by the other views keep their σ.
+#[test]
+fn points_seen_from_one_spot_leave_the_covariance_of_the_rest_alone() {
+    use handheld_core::{ImageId, Observation, Point3D, PointId, Track, TrackElement};
+    let (mut rec, _) = scene(0.5, 0.0);
+    perturb(&mut rec, 1.01);
+    let opts = BundleOptions {
+        num_threads: 2,
+        ..Default::default()
+    };
+    bundle_adjust_metric(&mut rec, &config(), &opts).expect("runs");
+    let before = metric_uncertainty(&rec, &config(), &opts).expect("small problem");
+
+    // The repeat: view `a`'s pose under a new id, and 30 points seen by `a` and the repeat alone.
+    let (&a, view) = rec.views.iter().nth(3).expect("16 views");
+    let view = view.clone();
+    let mut repeat = view.clone();
+    let rid = ImageId(1000);
+    repeat.id = rid;
+    repeat.name = "repeat".into();
+    repeat.observations.clear();
+    let cam = rec.cameras[&view.camera_id].clone();
+    let centre = view.center();
+    let mut added = Vec::new();
+    for k in 0..30 {
+        let s = k as f64;
+        // Points at 2–5 units in front of the view, spread across its image.
+        let dir_cam = Vector3::new((s * 0.7).sin() * 0.3, (s * 1.3).cos() * 0.2, 1.0).normalize();
+        let dir = view.cam_from_world.rotation.inverse() * dir_cam;
+        let xyz = centre + dir * (2.0 + 3.0 * ((s * 0.37).sin() * 0.5 + 0.5));
+        let Some(px) = cam.project(&view.cam_from_world, &xyz) else {
+            continue;
+        };
+        let pid = PointId(1_000_000 + k);
+        let ia = rec.views[&a].observations.len() as u32;
+        let ir = repeat.observations.len() as u32;
+        rec.views
+            .get_mut(&a)
+            .unwrap()
+            .observations
+            .push(Observation {
+                xy: px,
+                point_id: Some(pid),
+            });
+        repeat.observations.push(Observation {
+            xy: px,
+            point_id: Some(pid),
+        });
+        rec.points.insert(
+            pid,
+            Point3D {
+                xyz,
+                color: [0; 3],
+                error: 0.0,
+                track: Track {
+                    elements: vec![
+                        TrackElement {
+                            image_id: a,
+                            point2d_idx: ia,
+                        },
+                        TrackElement {
+                            image_id: rid,
+                            point2d_idx: ir,
+                        },
+                    ],
+                },
+            },
+        );
+        added.push(pid);
+    }
+    rec.views.insert(rid, repeat);
+    let after = metric_uncertainty(&rec, &config(), &opts).expect("small problem");
+    assert_eq!(
+        after.undetermined_points,
+        added.len(),
+        "the repeat's points"
+    );
+    assert!(added.iter().all(|p| !after.points.contains_key(p)));
+    let (id, sd_before) = before.intrinsics.iter().next().expect("one group");
+    let sd_after = after.intrinsics[id];
+    let f = |sd: &[Option<f64>]| sd[IntrinsicParam::F.index()].expect("f is refined");
+    println!(
+        "focal σ {:.4} px before the repeat, {:.4} px after",
+        f(sd_before),
+        f(&sd_after)
+    );
+    assert!(
+        (f(&sd_after) / f(sd_before) - 1.0).abs() < 0.05,
+        "focal σ {} before, {} after",
+        f(sd_before),
+        f(&sd_after)
+    );
+    let worst = |u: &handheld_bundle::MetricUncertainty| {
+        u.points.values().map(|p| p.sigma).fold(0.0, f64::max)
+    };
+    assert!(
+        worst(&after) < 1.5 * worst(&before),
+        "{} vs {}",
+        worst(&after),
+        worst(&before)
+    );
+}

@@ -50,6 +50,10 @@ pub struct ModelSummary {
     #[serde(default)]
     pub planar_resections: Vec<String>,
     pub metric_ba: Vec<MetricBaRecord>,
+    /// Points taken out of the finished model because their rays were parallel within their noise
+    /// (`metric/depthless.rs`).
+    #[serde(default)]
+    pub points_without_depth: usize,
     pub uncertainty: Option<UncertaintyReport>,
     /// Why uncertainty statistics are missing, when they are.
     pub uncertainty_note: Option<String>,
@@ -125,6 +129,7 @@ pub(crate) fn summarize(
             .map(|&i| names[i].name.clone())
             .collect(),
         metric_ba,
+        points_without_depth: 0,
         uncertainty,
         uncertainty_note,
         view_consistency: Default::default(),

@@ -215,6 +215,7 @@ fn model(rec: MetricReconstruction) -> SfmModel {
         projective_ba: Vec::new(),
         planar_resections: Vec::new(),
         metric_ba: Vec::new(),
+        points_without_depth: 0,
         uncertainty: None,
         uncertainty_note: None,
         view_consistency: Default::default(),

@@ -24,10 +24,13 @@
 //!   `E = K_bᵀ F K_a` against the model's, H&Z §9.6.2); the pipeline takes out a view that
 //!   disagrees, builds the model again without it and registers it again; `pair_rotation.rs`: each
 //!   pair's rotation refined on its inliers and its uncertainty, which widens what the pair allows.
+//! - `depthless.rs`: points whose rays are parallel within their noise (no measured depth), taken
+//!   out of the finished model.
 //! - `uncertainty.rs`: per-point and intrinsics uncertainty from the adjustment's covariance.
 
 pub mod ba;
 pub mod consistency;
+pub(crate) mod depthless;
 pub(crate) mod noise;
 pub(crate) mod pair_rotation;
 pub(crate) mod planes;

@@ -12,6 +12,7 @@ use crate::context::Context;
 use crate::error::StepError;
 use crate::metric::ba::MetricBaRecord;
 use crate::metric::consistency::{self, Judged, ViewDisagreement};
+use crate::metric::depthless::take_out_depthless;
 use crate::metric::principal_point::principal_point_test;
 use crate::metric::uncertainty::uncertainty_step;
 use crate::projective::model::ProjectiveModel;
@@ -140,6 +141,7 @@ pub(crate) fn build_model(
         metric_frame_s + t2.elapsed().as_secs_f64(),
     );
     let t3 = Instant::now();
+    let points_without_depth = take_out_depthless(ctx, &mut rec);
     let (uncertainty, uncertainty_note) = uncertainty_step(ctx, &rec);
     record(&mut timings, "uncertainty", t3);
     record(&mut timings, "model", t_all);
@@ -154,6 +156,7 @@ pub(crate) fn build_model(
         timings,
     );
     summary.view_consistency = consistency;
+    summary.points_without_depth = points_without_depth;
     Ok(Some(SfmModel {
         reconstruction: rec,
         summary,
