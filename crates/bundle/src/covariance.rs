@@ -76,7 +76,7 @@ pub struct MetricUncertainty {
 fn pseudo_inverse3(v: &Matrix3<f64>) -> (Matrix3<f64>, usize) {
     let eig = SymmetricEigen::new(*v);
     let top = eig.eigenvalues.max();
-    if !(top > 0.0) || !top.is_finite() {
+    if !top.is_finite() || top <= 0.0 {
         return (Matrix3::zeros(), 3);
     }
     let mut dropped = 0;
@@ -129,7 +129,7 @@ pub fn metric_uncertainty(
     let scaled = DMatrix::from_fn(n, n, |i, j| s[(i, j)] * d[i] * d[j]);
     let eig = SymmetricEigen::new(scaled);
     let top = eig.eigenvalues.iter().fold(0.0f64, |a, v| a.max(*v));
-    if !(top > 0.0) || !top.is_finite() {
+    if !top.is_finite() || top <= 0.0 {
         return Err(BundleError::Linear(format!(
             "the reduced camera system of the covariance has no positive eigenvalue (largest {top:e})"
         )));

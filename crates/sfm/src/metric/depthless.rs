@@ -86,7 +86,7 @@ pub(crate) fn depthless_points(ctx: &Context, rec: &MetricReconstruction) -> Vec
             };
             let d = p.xyz - view.center();
             let norm = d.norm();
-            if !(norm > 0.0) || !(f > 0.0) {
+            if !norm.is_finite() || norm <= 0.0 || !f.is_finite() || f <= 0.0 {
                 continue;
             }
             // The ray's angular σ (radians).
