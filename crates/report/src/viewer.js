@@ -8,13 +8,15 @@
 // on it does), layers=mesh,points,cameras (the layers shown, through their toggles).
 // Frames drawn while the view moves keep to a budget (FRAME_BUDGET_MS): software WebGL pays per
 // pixel, so they are drawn into fewer backing pixels (a resolution scale adapted to the last
-// frames' cost, never below MIN_SCALE) and stretched to the canvas; once the view rests, the
-// still frame is drawn at full resolution.
+// frames' cost, never below MIN_SCALE) and stretched to the canvas, with one sparse point in
+// POINT_STRIDE; once the view rests, the still frame is drawn at full resolution with every point.
 (function () {
   "use strict";
   const status = document.getElementById("hh-status");
   const stats = { errors: [], points: 0, triangles: 0, cameras: 0, frames: 0, ms_per_frame: null, scale: 1, full_ms_per_frame: null, context_lost: false };
   const FRAME_BUDGET_MS = 25, MIN_SCALE = 0.4, REST_MS = 150;
+  // While the view moves, one point in POINT_STRIDE is drawn (every point costs its own setup).
+  const POINT_STRIDE = 4;
   window.handheldStats = stats;
   function report() { if (status) status.textContent = JSON.stringify(stats); }
   window.addEventListener("error", (e) => { stats.errors.push(String(e.message)); report(); });
@@ -82,8 +84,16 @@
   // Layers.
   const layers = {};
   if (S.points && S.points.count > 0) {
-    const pos = b64(S.points.pos, Float32Array), col = b64(S.points.col, Uint8Array);
-    layers.points = { vao: vao(colourProg, [["p", buffer(pos), 3], ["c", buffer(col), 3, gl.UNSIGNED_BYTE, true]]), count: S.points.count, on: true };
+    const pos0 = b64(S.points.pos, Float32Array), col0 = b64(S.points.col, Uint8Array);
+    // Reordered so that the first 1/POINT_STRIDE of the buffer is every POINT_STRIDE-th point.
+    const n = S.points.count, pos = new Float32Array(3 * n), col = new Uint8Array(3 * n);
+    let k = 0;
+    for (let r = 0; r < POINT_STRIDE; r++) {
+      for (let i = r; i < n; i += POINT_STRIDE, k++) {
+        for (let j = 0; j < 3; j++) { pos[3 * k + j] = pos0[3 * i + j]; col[3 * k + j] = col0[3 * i + j]; }
+      }
+    }
+    layers.points = { vao: vao(colourProg, [["p", buffer(pos), 3], ["c", buffer(col), 3, gl.UNSIGNED_BYTE, true]]), count: n, on: true };
   }
   // Camera frusta as lines: centre to the four image corners at a depth, and the rectangle.
   const frusta = []; const fcol = [];
@@ -213,7 +223,8 @@
     gl.useProgram(colourProg); gl.uniformMatrix4fv(gl.getUniformLocation(colourProg, "m"), false, mvp);
     if (layers.points && layers.points.on) {
       gl.uniform1f(gl.getUniformLocation(colourProg, "s"), Math.max(1.0, 2.0 * k));
-      gl.bindVertexArray(layers.points.vao); gl.drawArrays(gl.POINTS, 0, layers.points.count); points = layers.points.count;
+      points = moving ? Math.ceil(layers.points.count / POINT_STRIDE) : layers.points.count;
+      gl.bindVertexArray(layers.points.vao); gl.drawArrays(gl.POINTS, 0, points);
     }
     if (layers.cameras && layers.cameras.on) {
       gl.bindVertexArray(layers.cameras.vao); gl.drawArrays(gl.LINES, 0, layers.cameras.count); cams = S.cameras.length;
