@@ -86,13 +86,9 @@
   if (S.points && S.points.count > 0) {
     const pos0 = b64(S.points.pos, Float32Array), col0 = b64(S.points.col, Uint8Array);
     // Reordered so that the first 1/POINT_STRIDE of the buffer is every POINT_STRIDE-th point.
-    const n = S.points.count, pos = new Float32Array(3 * n), col = new Uint8Array(3 * n);
-    let k = 0;
-    for (let r = 0; r < POINT_STRIDE; r++) {
-      for (let i = r; i < n; i += POINT_STRIDE, k++) {
-        for (let j = 0; j < 3; j++) { pos[3 * k + j] = pos0[3 * i + j]; col[3 * k + j] = col0[3 * i + j]; }
-      }
-    }
+    const n = S.points.count, pos = new Float32Array(3 * n), col = new Uint8Array(3 * n), order = [];
+    for (let r = 0; r !== POINT_STRIDE; r++) for (let i = r; n > i; i += POINT_STRIDE) order.push(i);
+    order.forEach((i, k) => { pos.set(pos0.subarray(3 * i, 3 * i + 3), 3 * k); col.set(col0.subarray(3 * i, 3 * i + 3), 3 * k); });
     layers.points = { vao: vao(colourProg, [["p", buffer(pos), 3], ["c", buffer(col), 3, gl.UNSIGNED_BYTE, true]]), count: n, on: true };
   }
   // Camera frusta as lines: centre to the four image corners at a depth, and the rectangle.
