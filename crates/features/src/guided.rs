@@ -110,12 +110,10 @@ pub fn guided_matches(
         let off = |x2: &Vector2<f64>| ((l.x * x2.x + l.y * x2.y + l.z) / n).abs();
         // The nearest descriptor within the acceptance band, and the second nearest there
         // (taken keypoints included: they are rivals too).
+        // Exactly the keypoints within the band (the grid tests them as `off` would).
         grid.within_band(&l, band, &mut cand);
         let (mut b1, mut s1, mut s2) = (u32::MAX, f32::INFINITY, f32::INFINITY);
         for &b in &cand {
-            if off(&point(f2, b)) > band {
-                continue;
-            }
             let d = dist(d1.row(a as usize), d2.row(b as usize));
             if d < s1 {
                 s2 = s1;
