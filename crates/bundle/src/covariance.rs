@@ -224,8 +224,6 @@ pub fn metric_uncertainty(
             }
             (*id, PointUncertainty::new(c * variance_factor))
         })
-        .collect::<Vec<_>>()
-        .into_iter()
         .collect();
     let mut centers = BTreeMap::new();
     for (i, id) in index.views.iter().enumerate() {
