@@ -187,7 +187,9 @@ pub fn metric_uncertainty(
                 for t in 0..3 {
                     for r in 0..dim {
                         buf.push(
-                            w[r] * vi[(0, t)] + w[dim + r] * vi[(1, t)] + w[2 * dim + r] * vi[(2, t)],
+                            w[r] * vi[(0, t)]
+                                + w[dim + r] * vi[(1, t)]
+                                + w[2 * dim + r] * vi[(2, t)],
                         );
                     }
                 }

@@ -299,7 +299,8 @@ pub struct MeshArgs {
     #[arg(long, default_value_t = defaults().mesh.fusion.max_hole_perimeter_voxels)]
     pub max_hole_perimeter: f64,
     /// Mesh: samples with σ over this many truncation bands count with weight (K·t/σ)², and beyond
-    /// twice it are left out (far background, too little parallax); 0 counts every sample fully.
+    /// max(2, √n) times it, n the views that see the place, are left out (far background, too
+    /// little parallax); 0 counts every sample fully.
     #[arg(long, default_value_t = defaults().mesh.fusion.tsdf.max_depth_std)]
     pub max_depth_std: f64,
 }

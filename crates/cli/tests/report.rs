@@ -230,14 +230,21 @@ fn the_report_opens_in_a_browser_and_draws_its_layers() {
     assert_clean(&status);
     // The frame time of a turning view, at the resolution scale the viewer chose for it, and of
     // the still frame at full resolution (printed, not judged: a test is no benchmark).
-    let ms = status["ms_per_frame"].as_f64().expect("the viewer timed its frames");
-    let full = status["full_ms_per_frame"].as_f64().expect("and its still frame");
+    let ms = status["ms_per_frame"]
+        .as_f64()
+        .expect("the viewer timed its frames");
+    let full = status["full_ms_per_frame"]
+        .as_f64()
+        .expect("and its still frame");
     let scale = status["scale"].as_f64().expect("and says at which scale");
     println!(
         "viewer, templeSparseRing at 1280×720: {ms:.1} ms per frame of a turning view ({:.0} fps) at resolution scale {scale:.2}; still frame {full:.1} ms",
         1000.0 / ms
     );
-    assert!(ms > 0.0 && full > 0.0 && (0.0..=1.0).contains(&scale), "{status}");
+    assert!(
+        ms > 0.0 && full > 0.0 && (0.0..=1.0).contains(&scale),
+        "{status}"
+    );
     assert!(status["points"].as_u64().unwrap() > 1000, "{status}");
     assert!(status["triangles"].as_u64().unwrap() > 1000, "{status}");
     assert_eq!(status["cameras"].as_u64().unwrap(), 16, "{status}");

@@ -71,7 +71,14 @@ impl LevelField {
 
     /// The finest footprint `φ(p)` any view has at `p`, `None` where no frustum holds it.
     pub fn footprint(&self, p: &Point3<f64>) -> Option<f64> {
+        self.footprint_and_views(p).0
+    }
+
+    /// [`Self::footprint`] and the number of views whose frustum holds `p`: how many depth maps
+    /// can at most have measured the surface there (occlusion aside).
+    pub fn footprint_and_views(&self, p: &Point3<f64>) -> (Option<f64>, usize) {
         let mut best = f64::INFINITY;
+        let mut seen = 0;
         for v in &self.views {
             let pc = v.rot * p.coords + v.trans;
             if pc.z <= 0.0 {
@@ -82,9 +89,10 @@ impl LevelField {
             if x < b[0] * pc.z || x > b[1] * pc.z || y < b[2] * pc.z || y > b[3] * pc.z {
                 continue;
             }
+            seen += 1;
             best = best.min(pc.z * v.inv_f);
         }
-        best.is_finite().then_some(best)
+        (best.is_finite().then_some(best), seen)
     }
 
     /// The level of a footprint.

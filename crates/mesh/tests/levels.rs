@@ -144,10 +144,10 @@ fn voxel_size_follows_the_depth() {
     assert!((centroid(&mesh) - centroid(&again)).norm() < 1e-4);
 }
 
-/// The street's views with the far wall's depths uncertain by `far` of the depth (as a stereo
-/// pair with little parallax gives), and the rest by 0.05 %.
-fn noisy_far_wall(far: f32) -> Vec<PosedView> {
-    let mut views = street_views(6);
+/// `n` of the street's views with the far wall's depths uncertain by `far` of the depth (as a
+/// stereo pair with little parallax gives), and the rest by 0.05 %.
+fn noisy_far_wall(far: f32, n: usize) -> Vec<PosedView> {
+    let mut views = street_views(n);
     for v in &mut views {
         let d = v.depth.as_ref().unwrap();
         let mut var = FloatMap::filled(W, H, 1, 0.0);
@@ -175,7 +175,7 @@ fn reaches_far_wall(mesh: &TriMesh, tolerance: f64) -> bool {
 #[test]
 fn noisier_far_depths_count_less_but_still_make_the_surface_nothing_better_sees() {
     // 20 % of 80 m is 3–6 truncation bands of the far wall's level: down-weighted, not left out.
-    let views = noisy_far_wall(0.2);
+    let views = noisy_far_wall(0.2, 6);
     let (mesh, s) = fuse_depth_maps(&views, &options(), &NoProgress).unwrap();
     assert_eq!(s.uncertain_fraction, 0.0, "{s:?}");
     assert!(reaches_far_wall(&mesh, 2.0));
@@ -184,7 +184,7 @@ fn noisier_far_depths_count_less_but_still_make_the_surface_nothing_better_sees(
 #[test]
 fn uncertain_far_depths_are_left_out_and_counted() {
     // Uncertain by half the depth: no parallax to speak of.
-    let views = noisy_far_wall(0.5);
+    let views = noisy_far_wall(0.5, 6);
     let (mesh, s) = fuse_depth_maps(&views, &options(), &NoProgress).unwrap();
     println!(
         "uncertain fraction {:.3}; {} faces",
@@ -199,6 +199,26 @@ fn uncertain_far_depths_are_left_out_and_counted() {
     let (all, k) = fuse_depth_maps(&views, &keep, &NoProgress).unwrap();
     assert_eq!(k.uncertain_fraction, 0.0);
     assert!(reaches_far_wall(&all, 0.5));
+}
+
+#[test]
+fn how_noisy_a_kept_sample_may_be_follows_the_number_of_views_that_average_it() {
+    // 35 % of the far wall's depth is 5–10 truncation bands: beyond the 2·K = 6 that four views
+    // can average into the band, within the √16 · K = 12 that sixteen views can.
+    let few = noisy_far_wall(0.35, 4);
+    let (_, s4) = fuse_depth_maps(&few, &options(), &NoProgress).unwrap();
+    let many = noisy_far_wall(0.35, 16);
+    let (mesh, s16) = fuse_depth_maps(&many, &options(), &NoProgress).unwrap();
+    println!(
+        "left out: {:.4} of 4 views' samples, {:.4} of 16 views'",
+        s4.uncertain_fraction, s16.uncertain_fraction
+    );
+    assert!(s4.uncertain_fraction > 0.01, "{s4:?}");
+    assert!(
+        s16.uncertain_fraction < 0.2 * s4.uncertain_fraction,
+        "{s16:?}"
+    );
+    assert!(reaches_far_wall(&mesh, 2.0));
 }
 
 #[test]

@@ -7,7 +7,7 @@ use std::collections::HashSet;
 use nalgebra::{Vector2, Vector3};
 use rayon::prelude::*;
 
-use super::update::noise_weight;
+use super::update::{left_out_factor, noise_weight};
 use super::{depth_quantile, BlockKey, TsdfVolume, BLOCK};
 use crate::error::{MeshError, Result};
 use crate::levels::scale;
@@ -62,18 +62,20 @@ impl TsdfVolume {
                             .intrinsics
                             .pixel_to_normalized(Vector2::new(x as f64, y as f64));
                         let dir = rt * Vector3::new(nrm.x, nrm.y, 1.0);
-                        let level = match levels {
-                            None => 0,
+                        let (level, seen) = match levels {
+                            None => (0, 0),
                             Some(field) => {
                                 let p = proj.center + dir * z;
-                                let fp = field.footprint(&p).unwrap_or(z / f).min(z / f);
-                                field.level_of_footprint(fp) as i8
+                                let (fp, seen) = field.footprint_and_views(&p);
+                                let fp = fp.unwrap_or(z / f).min(z / f);
+                                (field.level_of_footprint(fp) as i8, seen)
                             }
                         };
                         let s = scale(level as i32);
                         let (block_side, trunc) = (base_vs * s * BLOCK as f64, base_trunc * s);
                         n += 1;
-                        if noise_weight(view.std(y * w + x), max_std * trunc) <= 0.0 {
+                        let left_out = left_out_factor(seen);
+                        if noise_weight(view.std(y * w + x), max_std * trunc, left_out) <= 0.0 {
                             bad += 1;
                             continue;
                         }

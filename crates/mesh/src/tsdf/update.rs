@@ -23,18 +23,30 @@ pub(super) struct UpdateContext<'a> {
 }
 
 /// Samples noisier than `max_depth_std` bands still count, with the weight of their variance
-/// relative to it, up to this many times `max_depth_std`; beyond, they are left out.
+/// relative to it, up to this many times `max_depth_std` at least; beyond, they are left out
+/// (see [`left_out_factor`]).
 pub(super) const LEFT_OUT_FACTOR: f64 = 2.0;
+
+/// How many times `max_depth_std` a sample's standard deviation may reach before it is left out,
+/// where `views` depth maps can have measured the place: `max(2, √views)`. The average of `n`
+/// samples of standard deviation `σ` has `σ/√n`, so a sample up to `√n · K·t` can still average
+/// into the `K·t` that counts fully when every view that sees the place measured it; beyond, even
+/// all of them together could not place the surface within the band (far background, too
+/// little parallax). At least 2: four samples, the fewest a surface is fused from in practice.
+/// `views` 0 (not known: one voxel size everywhere) gives 2.
+pub(super) fn left_out_factor(views: usize) -> f64 {
+    (views as f64).sqrt().max(LEFT_OUT_FACTOR)
+}
 
 /// The factor on a sample's weight for its standard deviation `std`, with `max_std` the band
 /// multiple (in world units) up to which samples count fully: 1 up to it, the ratio of the
 /// variances `(max_std / std)²` beyond (inverse-variance weighting: the weighted average is then
 /// the maximum-likelihood depth of Gaussian samples), and 0 (left out) beyond
-/// [`LEFT_OUT_FACTOR`]` · max_std`. `max_std` 0 counts every sample fully.
-pub(super) fn noise_weight(std: f64, max_std: f64) -> f64 {
+/// `left_out · max_std` ([`left_out_factor`]). `max_std` 0 counts every sample fully.
+pub(super) fn noise_weight(std: f64, max_std: f64, left_out: f64) -> f64 {
     if max_std <= 0.0 || std <= max_std {
         1.0
-    } else if std > LEFT_OUT_FACTOR * max_std {
+    } else if std > left_out * max_std {
         0.0
     } else {
         (max_std / std).powi(2)
@@ -53,6 +65,7 @@ pub(super) fn update_block(b: &mut Block, ctx: &UpdateContext) {
     let s = scale(b.level as i32);
     let (view, proj, vs, trunc) = (ctx.view, ctx.proj, ctx.vs * s, ctx.trunc * s);
     let max_std = ctx.max_std * trunc;
+    let left_out = left_out_factor(b.views as usize);
     let n = BLOCK as f64;
     let origin = Vector3::new(b.key[0] as f64, b.key[1] as f64, b.key[2] as f64) * n * vs;
     let base = proj.rot * origin + proj.trans;
@@ -87,7 +100,7 @@ pub(super) fn update_block(b: &mut Block, ctx: &UpdateContext) {
                 }
                 let pix = ry as usize * w + rx as usize;
                 let conf = view.weight(pix, ctx.min_conf);
-                let noise = noise_weight(view.std(pix), max_std);
+                let noise = noise_weight(view.std(pix), max_std, left_out);
                 if conf <= 0.0 || noise <= 0.0 {
                     continue;
                 }
@@ -118,12 +131,19 @@ mod tests {
 
     #[test]
     fn noise_weight_is_the_variance_ratio_between_one_and_two_limits() {
-        assert_eq!(noise_weight(0.5, 1.0), 1.0);
-        assert_eq!(noise_weight(1.0, 1.0), 1.0);
-        assert!((noise_weight(1.5, 1.0) - 1.0 / 2.25).abs() < 1e-12);
-        assert!((noise_weight(2.0, 1.0) - 0.25).abs() < 1e-12);
-        assert_eq!(noise_weight(2.01, 1.0), 0.0);
+        let two = left_out_factor(0);
+        assert_eq!(noise_weight(0.5, 1.0, two), 1.0);
+        assert_eq!(noise_weight(1.0, 1.0, two), 1.0);
+        assert!((noise_weight(1.5, 1.0, two) - 1.0 / 2.25).abs() < 1e-12);
+        assert!((noise_weight(2.0, 1.0, two) - 0.25).abs() < 1e-12);
+        assert_eq!(noise_weight(2.01, 1.0, two), 0.0);
         // Off: every sample counts fully.
-        assert_eq!(noise_weight(100.0, 0.0), 1.0);
+        assert_eq!(noise_weight(100.0, 0.0, two), 1.0);
+        // Sixteen views can average a sample of four bands into one.
+        assert_eq!(left_out_factor(16), 4.0);
+        assert!((noise_weight(4.0, 1.0, left_out_factor(16)) - 1.0 / 16.0).abs() < 1e-12);
+        assert_eq!(noise_weight(4.01, 1.0, left_out_factor(16)), 0.0);
+        // Fewer than four views keep the floor of two.
+        assert_eq!(left_out_factor(3), 2.0);
     }
 }
