@@ -1,10 +1,12 @@
 //! The volumetric stage of §5.1 as one call: depth maps → TSDF ([`crate::tsdf`], Curless & Levoy
-//! 1996), streamed over spatial tiles ([`crate::tiles`]) → marching cubes ([`crate::marching_cubes`], Lorensen & Cline 1987) → removal of floating
-//! specks → hole filling inside observed surface ([`crate::holes`]) → quadric simplification
-//! ([`mod@crate::simplify`], Garland & Heckbert 1997) → cutting out the non-manifold edges the
-//! collapses leave, and closing those small holes again. The result is watertight where observed:
-//! its only borders are the outlines where the views stop (and holes longer than
-//! [`FusionOptions::max_hole_perimeter_voxels`]).
+//! 1996), streamed over spatial tiles ([`crate::tiles`]) → marching cubes
+//! ([`crate::marching_cubes`], Lorensen & Cline 1987) — twice, the second time with finer voxels,
+//! where the first mesh is under the face budget and the depth precise enough
+//! ([`FusionOptions::finest_footprints`]) → removal of floating specks → hole filling inside
+//! observed surface ([`crate::holes`]) → quadric simplification ([`mod@crate::simplify`], Garland &
+//! Heckbert 1997) → cutting out the non-manifold edges the collapses leave, and closing those
+//! small holes again. The result is watertight where observed: its only borders are the outlines
+//! where the views stop (and holes longer than [`FusionOptions::max_hole_perimeter_voxels`]).
 //!
 //! Bad input fails loudly: a map whose size differs from its camera, an all-empty map, depth maps
 //! that never agree on a surface ([`MeshError::NoOverlap`]) or an empty extraction are errors, never
@@ -21,7 +23,8 @@ use crate::simplify::{compact, simplify, SimplifyOptions};
 use crate::tiles::fuse_tiled;
 use crate::topology::{edge_report, face_components, remove_small_components};
 use crate::tsdf::{
-    resolve_voxel_size, TsdfOptions, TsdfVolume, VoxelSize, BLOCK_BYTES, BLOCK_VOXELS,
+    noise_footprints_quantile, resolve_voxel_size, TsdfOptions, TsdfVolume, VoxelSize, BLOCK_BYTES,
+    BLOCK_VOXELS,
 };
 use crate::view::Depth;
 
@@ -33,15 +36,27 @@ pub struct FusionOptions {
     /// Surface extraction; `min_observations` is clamped to the number of views.
     pub extract: ExtractOptions,
     /// Connected components with fewer faces are dropped as floating specks of noise; 0 keeps
-    /// everything. Default 100.
+    /// everything. Counted at the first pass's voxel size (a finer second pass scales it by the
+    /// ratio of the voxel areas). Default 100.
     pub min_component_faces: usize,
     /// Simplification after extraction; `None` keeps the marching-cubes mesh. Default
     /// `Some(SimplifyOptions::default())`.
     pub simplify: Option<SimplifyOptions>,
     /// Holes inside observed surface ([`crate::holes`]) with a boundary of at most this many voxel
-    /// lengths are closed, before simplification and again after it (where non-manifold edges
-    /// were cut out); 0 leaves every hole open. Default 1000.
+    /// lengths (of the first pass, where there are two) are closed, before simplification and
+    /// again after it (where non-manifold edges were cut out); 0 leaves every hole open. Default
+    /// 1000.
     pub max_hole_perimeter_voxels: f64,
+    /// Where the voxel size is a number of pixel footprints ([`VoxelSize::PixelFootprint`]) and
+    /// the mesh is simplified to a face budget: a model whose marching cubes come out under the
+    /// budget is fused again with finer voxels, as fine as the budget allows (faces grow as the
+    /// inverse square of the voxel size), down to this many footprints, and never finer than the
+    /// depth's standard deviation that 90 % of the samples are within (a voxel finer than the
+    /// noise resolves only the noise; known from the variance maps, and without them there is no
+    /// second pass). A pass less than a tenth finer is not made. 0: one pass. Default 1.5, about
+    /// what a depth map resolves. Small models of precise depth (640×480 rings) get their detail;
+    /// large ones (over the budget) and noisy ones (forward motion, short baselines) keep one pass.
+    pub finest_footprints: f64,
 }
 
 impl FusionOptions {
@@ -57,6 +72,7 @@ impl FusionOptions {
         if let Some(s) = &self.simplify {
             s.validate()?;
         }
+        in_range("finest_footprints", self.finest_footprints, 0.0, 1000.0)?;
         Ok(())
     }
 }
@@ -69,6 +85,7 @@ impl Default for FusionOptions {
             min_component_faces: 100,
             simplify: Some(SimplifyOptions::default()),
             max_hole_perimeter_voxels: 1000.0,
+            finest_footprints: 1.5,
         }
     }
 }
@@ -84,6 +101,10 @@ pub struct FusionSummary {
     pub views_without_depth: Vec<String>,
     /// Voxel edge length used (world units; of level 0 where the size follows the depth).
     pub voxel_size: f64,
+    /// Where a first pass at the default size came out under the face budget and the model was
+    /// fused again finer ([`FusionOptions::finest_footprints`]): that pass's voxel size and faces.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub first_pass: Option<FirstPass>,
     /// Truncation distance (world units; of level 0).
     pub truncation: f64,
     /// Where the voxel size follows the depth: the blocks of each level (level `l` has voxels of
@@ -91,8 +112,9 @@ pub struct FusionSummary {
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub levels: Vec<LevelReport>,
     /// The fraction of the depth samples left out of fusion because their uncertainty exceeds
-    /// twice `max_depth_std` truncations (far background, too little parallax); those between
-    /// one and two times count with a reduced weight.
+    /// `max(2, √n)` times `max_depth_std` truncations, `n` the views that see the place (far
+    /// background, too little parallax); those between one and that many times count with a
+    /// reduced weight.
     pub uncertain_fraction: f64,
     /// Allocated voxel blocks and the voxels they hold (over the whole scene).
     pub blocks: usize,
@@ -131,6 +153,15 @@ pub struct FusionSummary {
     /// Speck removal and hole filling.
     pub extract_seconds: f64,
     pub simplify_seconds: f64,
+}
+
+/// The first fusion pass of a model fused again with finer voxels.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct FirstPass {
+    pub voxel_size: f64,
+    pub faces_extracted: usize,
+    /// Its integration and marching cubes (included in the summary's `integrate_seconds`).
+    pub seconds: f64,
 }
 
 /// The blocks of one resolution level.
@@ -185,12 +216,110 @@ pub fn fuse_depth_maps(
                 .join(", ")
         );
     }
+    let (mut mesh, mut summary) =
+        integrate(views, &used, &without_depth, opts, &opts.tsdf, progress)?;
+    if let Some(finer) = finer_footprints(views, opts, summary.faces_extracted)? {
+        tracing::info!(
+            "fusion: {} faces at voxel size {:.4} is under the budget; fusing again at {finer:.2} pixel footprints",
+            summary.faces_extracted,
+            summary.voxel_size
+        );
+        let tsdf = TsdfOptions {
+            voxel_size: VoxelSize::PixelFootprint(finer),
+            ..opts.tsdf.clone()
+        };
+        let first = FirstPass {
+            voxel_size: summary.voxel_size,
+            faces_extracted: summary.faces_extracted,
+            seconds: summary.integrate_seconds,
+        };
+        (mesh, summary) = integrate(views, &used, &without_depth, opts, &tsdf, progress)?;
+        summary.integrate_seconds += first.seconds;
+        summary.first_pass = Some(first);
+    }
+    let voxel_size = summary.voxel_size;
+    let t1 = Instant::now();
+    // A speck is a piece of the area `min_component_faces` covers at the first pass's voxels:
+    // finer voxels put more faces on it.
+    let min_faces = match &summary.first_pass {
+        Some(first) => {
+            let per_face = (first.voxel_size / voxel_size).powi(2);
+            (opts.min_component_faces as f64 * per_face).round() as usize
+        }
+        None => opts.min_component_faces,
+    };
+    if min_faces > 1 {
+        let kept = remove_small_components(&mesh, min_faces);
+        if kept.is_empty() {
+            return Err(MeshError::EmptyResult {
+                stage: "speck removal",
+                reason: format!("every connected component has fewer than {min_faces} faces"),
+            });
+        }
+        if kept.len() < mesh.faces.len() {
+            mesh = compact(&mesh, &kept);
+        }
+    }
+    summary.faces_cleaned = mesh.faces.len();
+    let hole_opts = HoleFillOptions {
+        // In the first pass's voxels, like the specks: the same holes close at either size.
+        max_perimeter: opts.max_hole_perimeter_voxels
+            * summary
+                .first_pass
+                .as_ref()
+                .map_or(voxel_size, |f| f.voxel_size),
+        ..Default::default()
+    };
+    if opts.max_hole_perimeter_voxels > 0.0 {
+        summary.holes = fill_holes(&mut mesh, &hole_opts);
+        tracing::debug!(holes = ?summary.holes, "holes filled");
+    }
+    summary.extract_seconds = t1.elapsed().as_secs_f64();
+    let t2 = Instant::now();
+    if let Some(s) = &opts.simplify {
+        progress.start("simplification", 0);
+        mesh = simplify(&mesh, s)?.0;
+        let (kept, removed) = remove_non_manifold(&mesh);
+        if removed > 0 {
+            summary.non_manifold_faces_removed = removed;
+            mesh = compact(&mesh, &kept);
+            if opts.max_hole_perimeter_voxels > 0.0 {
+                summary.holes_after_simplify = fill_holes(&mut mesh, &hole_opts);
+            }
+        }
+        progress.finish();
+    }
+    summary.simplify_seconds = t2.elapsed().as_secs_f64();
+    summary.faces_final = mesh.faces.len();
+    summary.vertices_final = mesh.vertices.len();
+    (
+        summary.border_edges,
+        summary.non_manifold_edges,
+        summary.flipped_edges,
+    ) = edge_report(&mesh);
+    summary.components = face_components(&mesh).1;
+    let loops = boundary_loops(&mesh, hole_opts.closed_piece_ratio);
+    summary.open_holes = loops.iter().filter(|l| !l.outer).count();
+    summary.outer_boundaries = loops.len() - summary.open_holes;
+    Ok((mesh, summary))
+}
+
+/// One fusion pass at `tsdf`'s voxel size: integration and marching cubes over tiles, and the
+/// mesh as it comes out of them.
+fn integrate(
+    views: &[PosedView],
+    used: &[(usize, &PosedView)],
+    without_depth: &[usize],
+    opts: &FusionOptions,
+    tsdf: &TsdfOptions,
+    progress: &dyn Progress,
+) -> Result<(TriMesh, FusionSummary)> {
     let t0 = Instant::now();
-    let voxel_size = resolve_voxel_size(views, &opts.tsdf)?;
-    let mut vol = TsdfVolume::new(voxel_size, &opts.tsdf)?;
-    if let (true, VoxelSize::PixelFootprint(factor)) = (opts.tsdf.adaptive, opts.tsdf.voxel_size) {
+    let voxel_size = resolve_voxel_size(views, tsdf)?;
+    let mut vol = TsdfVolume::new(voxel_size, tsdf)?;
+    if let (true, VoxelSize::PixelFootprint(factor)) = (tsdf.adaptive, tsdf.voxel_size) {
         let used_views: Vec<PosedView> = used.iter().map(|&(_, v)| v.clone()).collect();
-        vol.set_levels(&used_views, voxel_size / factor, &opts.tsdf);
+        vol.set_levels(&used_views, voxel_size / factor, tsdf);
     }
     let min_obs = opts.extract.min_observations.clamp(1, used.len());
     let extract = ExtractOptions {
@@ -200,8 +329,8 @@ pub fn fuse_depth_maps(
     let mut welder = Welder::default();
     let pass = fuse_tiled(
         &mut vol,
-        &used,
-        opts.tsdf.tile_blocks,
+        used,
+        tsdf.tile_blocks,
         &extract,
         &mut welder,
         progress,
@@ -248,59 +377,36 @@ pub fn fuse_depth_maps(
     };
     drop(vol);
     tracing::debug!(?summary, "TSDF integrated and meshed over tiles");
-    let t1 = Instant::now();
-    let mut mesh = welder.finish(&extract)?;
+    let mesh = welder.finish(&extract)?;
     summary.faces_extracted = mesh.faces.len();
-    if opts.min_component_faces > 1 {
-        let kept = remove_small_components(&mesh, opts.min_component_faces);
-        if kept.is_empty() {
-            return Err(MeshError::EmptyResult {
-                stage: "speck removal",
-                reason: format!(
-                    "every connected component has fewer than {} faces",
-                    opts.min_component_faces
-                ),
-            });
-        }
-        if kept.len() < mesh.faces.len() {
-            mesh = compact(&mesh, &kept);
-        }
-    }
-    summary.faces_cleaned = mesh.faces.len();
-    let hole_opts = HoleFillOptions {
-        max_perimeter: opts.max_hole_perimeter_voxels * voxel_size,
-        ..Default::default()
-    };
-    if opts.max_hole_perimeter_voxels > 0.0 {
-        summary.holes = fill_holes(&mut mesh, &hole_opts);
-        tracing::debug!(holes = ?summary.holes, "holes filled");
-    }
-    summary.extract_seconds = t1.elapsed().as_secs_f64();
-    let t2 = Instant::now();
-    if let Some(s) = &opts.simplify {
-        progress.start("simplification", 0);
-        mesh = simplify(&mesh, s)?.0;
-        let (kept, removed) = remove_non_manifold(&mesh);
-        if removed > 0 {
-            summary.non_manifold_faces_removed = removed;
-            mesh = compact(&mesh, &kept);
-            if opts.max_hole_perimeter_voxels > 0.0 {
-                summary.holes_after_simplify = fill_holes(&mut mesh, &hole_opts);
-            }
-        }
-        progress.finish();
-    }
-    summary.simplify_seconds = t2.elapsed().as_secs_f64();
-    summary.faces_final = mesh.faces.len();
-    summary.vertices_final = mesh.vertices.len();
-    (
-        summary.border_edges,
-        summary.non_manifold_edges,
-        summary.flipped_edges,
-    ) = edge_report(&mesh);
-    summary.components = face_components(&mesh).1;
-    let loops = boundary_loops(&mesh, hole_opts.closed_piece_ratio);
-    summary.open_holes = loops.iter().filter(|l| !l.outer).count();
-    summary.outer_boundaries = loops.len() - summary.open_holes;
     Ok((mesh, summary))
+}
+
+/// The share of depth samples whose standard deviation the finer voxel size must not go below.
+const NOISE_QUANTILE: f64 = 0.9;
+
+/// The finer voxel size (in pixel footprints) for a second pass, where the first one's
+/// `faces` came out under the face budget ([`FusionOptions::finest_footprints`]); `None` for one
+/// pass.
+fn finer_footprints(
+    views: &[PosedView],
+    opts: &FusionOptions,
+    faces: usize,
+) -> Result<Option<f64>> {
+    let (VoxelSize::PixelFootprint(first), Some(simplify)) = (opts.tsdf.voxel_size, &opts.simplify)
+    else {
+        return Ok(None);
+    };
+    if opts.finest_footprints <= 0.0 || faces == 0 {
+        return Ok(None);
+    }
+    // A voxel finer than the depth's noise resolves only the noise: the size stays above the
+    // standard deviation that 90 % of the samples are within.
+    let Some(noise) = noise_footprints_quantile(views, NOISE_QUANTILE)? else {
+        return Ok(None);
+    };
+    let budget = first * (faces as f64 / simplify.target_faces as f64).sqrt();
+    let finer = budget.max(noise).max(opts.finest_footprints);
+    // A pass for less than a tenth finer is not worth its time.
+    Ok((finer < 0.9 * first).then_some(finer))
 }

@@ -70,7 +70,7 @@ pub use bvh::MeshIndex;
 pub use enhance::{enhance_texture, EnhanceOptions, EnhanceSummary};
 pub use error::{MeshError, Result};
 pub use eval::{evaluate, EvalOptions, MultiViewScores};
-pub use fusion::{fuse_depth_maps, FusionOptions, FusionSummary, LevelReport};
+pub use fusion::{fuse_depth_maps, FirstPass, FusionOptions, FusionSummary, LevelReport};
 pub use handheld_core::PosedView;
 pub use holes::{fill_holes, HoleFillOptions, HoleReport};
 pub use marching_cubes::{extract_mesh, ExtractOptions, Welder};

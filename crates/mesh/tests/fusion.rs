@@ -6,7 +6,9 @@ mod common;
 
 use handheld_core::NoProgress;
 use handheld_mesh::eval::visible_surface_samples;
-use handheld_mesh::{evaluate, fuse_depth_maps, EvalOptions, FusionOptions, SimplifyOptions};
+use handheld_mesh::{
+    evaluate, fuse_depth_maps, EvalOptions, FusionOptions, PosedView, SimplifyOptions,
+};
 use handheld_mesh::{topology::edge_report, VoxelSize};
 
 #[test]
@@ -162,4 +164,50 @@ fn noisy_depth_with_outliers_is_cleaned_by_confidence_and_views() {
     );
     assert!(s.accuracy <= 0.005 * size, "{s:?}");
     assert!(s.completeness >= 0.95, "{s:?}");
+}
+
+/// The sequence's views with every depth given the standard deviation `footprints · z/f`.
+fn views_with_noise(seq: &handheld_testkit::SyntheticSequence, footprints: f32) -> Vec<PosedView> {
+    let mut views = common::views(seq);
+    for v in &mut views {
+        let f = v.posed.camera.intrinsics.f as f32;
+        let d = v.depth.as_ref().unwrap();
+        let mut var = handheld_core::FloatMap::filled(d.width, d.height, 1, f32::NAN);
+        for (o, z) in var.data.iter_mut().zip(&d.data) {
+            let s = footprints * z / f;
+            *o = s * s;
+        }
+        v.variance = Some(var);
+    }
+    views
+}
+
+#[test]
+fn a_model_under_the_face_budget_is_fused_again_finer_where_its_depth_is_precise_enough() {
+    let seq = common::sequence(8, 160);
+    let opts = FusionOptions::default();
+    // Depth within one footprint: the second pass goes to `finest_footprints`, twice as fine.
+    let (fine, s) = fuse_depth_maps(&views_with_noise(&seq, 1.0), &opts, &NoProgress).unwrap();
+    let first = s.first_pass.clone().expect("a second, finer pass");
+    println!(
+        "first pass {:.4} ({} faces), second {:.4} ({} faces)",
+        first.voxel_size, first.faces_extracted, s.voxel_size, s.faces_extracted
+    );
+    assert!(
+        (s.voxel_size / first.voxel_size - 0.5).abs() < 1e-9,
+        "{s:?}"
+    );
+    assert!(s.faces_extracted > 3 * first.faces_extracted);
+    assert!(fine.faces.len() <= opts.simplify.as_ref().unwrap().target_faces);
+    // Depth noisier than 2.7 footprints: a finer voxel would resolve only noise.
+    let (_, noisy) = fuse_depth_maps(&views_with_noise(&seq, 2.8), &opts, &NoProgress).unwrap();
+    assert!(noisy.first_pass.is_none(), "{noisy:?}");
+    // Without variance maps the noise is unknown: one pass.
+    let (_, unknown) = fuse_depth_maps(&common::views(&seq), &opts, &NoProgress).unwrap();
+    assert!(unknown.first_pass.is_none());
+    // Over the budget: one pass.
+    let mut small = opts.clone();
+    small.simplify.as_mut().unwrap().target_faces = first.faces_extracted / 2;
+    let (_, over) = fuse_depth_maps(&views_with_noise(&seq, 1.0), &small, &NoProgress).unwrap();
+    assert!(over.first_pass.is_none());
 }

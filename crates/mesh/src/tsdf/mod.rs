@@ -229,6 +229,35 @@ pub fn resolve_voxel_size(views: &[PosedView], opts: &TsdfOptions) -> Result<f64
     }
 }
 
+/// A quantile `q` over the views' (strided) valid pixels of the depth's standard deviation in
+/// pixel footprints, `σ·f/z`; `None` where no view has a variance map.
+pub fn noise_footprints_quantile(views: &[PosedView], q: f64) -> Result<Option<f64>> {
+    let mut all: Vec<f64> = Vec::new();
+    for (i, v) in views.iter().enumerate() {
+        let v = Depth::of(v, i)?;
+        if v.variance.is_none() {
+            continue;
+        }
+        let f = v.posed.camera.intrinsics.f;
+        let n = v.depth.data.len();
+        let stride = (n / 20_000).max(1);
+        all.extend(
+            (0..n)
+                .step_by(stride)
+                .filter(|&j| v.weight(j, f64::NEG_INFINITY) > 0.0)
+                .filter_map(|j| {
+                    let (z, s) = (v.depth.data[j] as f64, v.std(j));
+                    (s > 0.0).then_some(s * f / z)
+                }),
+        );
+    }
+    if all.is_empty() {
+        return Ok(None);
+    }
+    let k = ((all.len() - 1) as f64 * q.clamp(0.0, 1.0)).round() as usize;
+    Ok(Some(*all.select_nth_unstable_by(k, f64::total_cmp).1))
+}
+
 /// A quantile of the valid depths of a view, from a strided sample of its pixels.
 fn depth_quantile(view: &Depth, q: f64) -> Option<f64> {
     let n = view.depth.data.len();
