@@ -298,9 +298,8 @@ pub struct MeshArgs {
     /// lengths (0: leave every hole open). The outline where the views stop always stays open.
     #[arg(long, default_value_t = defaults().mesh.fusion.max_hole_perimeter_voxels)]
     pub max_hole_perimeter: f64,
-    /// Mesh: samples with σ over this many truncation bands count with weight (K·t/σ)², and beyond
-    /// max(2, √n) times it, n the views that see the place, are left out (far background, too
-    /// little parallax); 0 counts every sample fully.
+    /// Mesh: samples with σ over K truncation bands count with weight (K·t/σ)², beyond max(2, √n)·K·t
+    /// (n views see the place) they are left out (far background); 0 counts every sample fully.
     #[arg(long, default_value_t = defaults().mesh.fusion.tsdf.max_depth_std)]
     pub max_depth_std: f64,
 }

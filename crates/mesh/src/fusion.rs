@@ -397,7 +397,10 @@ fn finer_footprints(
     else {
         return Ok(None);
     };
-    if opts.finest_footprints <= 0.0 || faces == 0 {
+    let budget = first * (faces as f64 / simplify.target_faces as f64).sqrt();
+    let floor = budget.max(opts.finest_footprints);
+    // A pass for less than a tenth finer is not worth its time (nor reading the noise for).
+    if opts.finest_footprints <= 0.0 || faces == 0 || floor >= 0.9 * first {
         return Ok(None);
     }
     // A voxel finer than the depth's noise resolves only the noise: the size stays above the
@@ -405,8 +408,6 @@ fn finer_footprints(
     let Some(noise) = noise_footprints_quantile(views, NOISE_QUANTILE)? else {
         return Ok(None);
     };
-    let budget = first * (faces as f64 / simplify.target_faces as f64).sqrt();
-    let finer = budget.max(noise).max(opts.finest_footprints);
-    // A pass for less than a tenth finer is not worth its time.
+    let finer = floor.max(noise);
     Ok((finer < 0.9 * first).then_some(finer))
 }
