@@ -47,6 +47,7 @@
 //!   resampling that removes distortion;
 //! - `stereo` also keeps the left and right disparities of the left–right check, and bounds memory by bands;
 //! - [`pair`]: one pair end to end, with the disparity range from the sparse points;
+//! - [`order`]: the sequence a set of photos is densified in (a path through the shared-point graph);
 //! - [`link`]: multi-view linking, eq. 28 chains with Kalman fusion, gate and visibility; `LinkedDepth::confidence`;
 //! - [`stage`]: the sequence stage with a sliding pair window and the fused cloud, handing out each view as a
 //!   `PosedView` with its depth, variance, confidence and visibility.
@@ -60,6 +61,7 @@ pub mod error;
 mod fill;
 pub mod link;
 pub mod options;
+pub mod order;
 pub mod pair;
 mod pyramid;
 pub mod rectify;
@@ -80,6 +82,7 @@ pub use options::{
     HoleFill, MatchingCost, ParseStereoMethodError, SgmPaths, StereoMethod, StereoOptions,
     MAX_DISPARITIES,
 };
+pub use order::densify_order;
 pub use pair::{
     grey_image, match_pair, match_pair_with, match_sequence_pairs, PairDisparity, PairOptions,
 };

@@ -10,8 +10,12 @@
 //! from them. So the range comes from, in this order, the first set with at least
 //! [`MIN_RANGE_POINTS`] points:
 //! 1. points seen by at least three views, both views of the pair among them;
-//! 2. points seen by at least three views, one view of the pair among them;
-//! 3. every point (also where the views that saw each point are unknown).
+//! 2. points the pair's own views both observed, two-view points included: verified by this
+//!    pair's geometry, and the only points certain to lie in both views. A view that shares
+//!    points with one other view only (iclnuim-5's 3.png and 1.png share 233 two-view points)
+//!    otherwise got the range of set 3, whose points lay outside its frustum, and no depth;
+//! 3. points seen by at least three views, one view of the pair among them;
+//! 4. every point (also where the views that saw each point are unknown).
 
 use handheld_core::{ImageId, Point3D};
 use nalgebra::Point3;
@@ -84,7 +88,8 @@ impl SparsePoints {
         let either = |s: &Vec<u32>| {
             confirmed(s) && (s.binary_search(&a).is_ok() || s.binary_search(&b).is_ok())
         };
-        for keep in [&both as &dyn Fn(&Vec<u32>) -> bool, &either] {
+        let observed = |s: &Vec<u32>| s.binary_search(&a).is_ok() && s.binary_search(&b).is_ok();
+        for keep in [&both as &dyn Fn(&Vec<u32>) -> bool, &observed, &either] {
             let n = self.seen_by.iter().filter(|s| keep(s)).count();
             if n >= MIN_RANGE_POINTS {
                 return self
@@ -126,6 +131,16 @@ mod tests {
         seen.extend(vec![&[3u32, 4, 5][..]; 30]);
         let p = set(&seen);
         assert_eq!(ids(&p.for_pair(0, 1)), (0..20).collect::<Vec<_>>());
+    }
+
+    #[test]
+    fn a_pair_without_confirmed_points_takes_its_own_two_view_points() {
+        // Views 0 and 1 share only two-view points (25); view 1 has 30 confirmed points with
+        // views 2 and 3 that view 0 may not see.
+        let mut seen: Vec<&[u32]> = vec![&[0, 1]; 25];
+        seen.extend(vec![&[1u32, 2, 3][..]; 30]);
+        let p = set(&seen);
+        assert_eq!(ids(&p.for_pair(0, 1)), (0..25).collect::<Vec<_>>());
     }
 
     #[test]

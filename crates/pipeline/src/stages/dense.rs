@@ -304,17 +304,22 @@ fn pair_file(p: usize) -> String {
     format!("pair-{p}.bin")
 }
 
-/// The views to densify, in sequence order: every registered view, or the key-frames of a video.
+/// The views to densify, in sequence order: every registered view, or the key-frames of a video,
+/// in the given order where it is a good path through the views' shared points, and otherwise
+/// along such a path ([`handheld_dense::densify_order`]: shuffled or renamed photos).
 fn key_views(ws: &Workspace, rec: &MetricReconstruction) -> Result<Vec<ImageId>> {
-    let ids: Vec<ImageId> = rec.views.keys().copied().collect();
+    let mut ids: Vec<ImageId> = rec.views.keys().copied().collect();
     if let Some(tracks) = ws.read_tracks()? {
         let keys: BTreeSet<ImageId> = tracks.keyframes.iter().map(|k| image_id(k.0)).collect();
         let kept: Vec<ImageId> = ids.iter().copied().filter(|i| keys.contains(i)).collect();
         if kept.len() >= 2 {
-            return Ok(kept);
+            ids = kept;
         }
     }
-    Ok(ids)
+    let points = SparsePoints::from_tracks(rec.points.values(), &ids);
+    let centres: Vec<_> = ids.iter().map(|i| rec.views[i].center()).collect();
+    let order = handheld_dense::densify_order(&points, &centres);
+    Ok(order.into_iter().map(|i| ids[i]).collect())
 }
 
 fn load_views(
