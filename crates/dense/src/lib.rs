@@ -82,7 +82,7 @@ pub use options::{
     HoleFill, MatchingCost, ParseStereoMethodError, SgmPaths, StereoMethod, StereoOptions,
     MAX_DISPARITIES,
 };
-pub use order::densify_order;
+pub use order::{densify_order, SequenceOrder};
 pub use pair::{
     grey_image, match_pair, match_pair_with, match_sequence_pairs, PairDisparity, PairOptions,
 };

@@ -27,14 +27,28 @@ use nalgebra::Point3;
 /// 2-opt sweeps at most (each is O(n²); a path settles in a handful).
 const MAX_SWEEPS: usize = 50;
 
+/// What [`densify_order`] found: broken links (neighbours sharing fewer than
+/// [`MIN_RANGE_POINTS`] sparse points with parallax) in the given order and in the one used.
+#[derive(Clone, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
+pub struct SequenceOrder {
+    pub broken_in_given_order: usize,
+    pub broken: usize,
+    /// The views are densified along a path through the shared-point graph, not as given.
+    pub reordered: bool,
+}
+
 /// Views (`0..n`, the observers' indices in `points`; `centres[i]` the centre of view `i`) in the
 /// order to densify them: the given order unless it has broken links and a path with fewer
 /// exists.
-pub fn densify_order(points: &SparsePoints, centres: &[Point3<f64>]) -> Vec<usize> {
+pub fn densify_order(
+    points: &SparsePoints,
+    centres: &[Point3<f64>],
+) -> (Vec<usize>, SequenceOrder) {
     let n = centres.len();
     let given: Vec<usize> = (0..n).collect();
     if n < 3 {
-        return given;
+        return (given, SequenceOrder::default());
     }
     let (shared, natural) = effective_shared_points(points, centres);
     let apart = apart(centres, &natural);
@@ -42,8 +56,13 @@ pub fn densify_order(points: &SparsePoints, centres: &[Point3<f64>]) -> Vec<usiz
     let is_broken = |i: usize, j: usize| weight(i, j) < MIN_RANGE_POINTS as f64;
     let broken = |p: &[usize]| p.windows(2).filter(|w| is_broken(w[0], w[1])).count();
     let broken_given = broken(&given);
+    let kept = SequenceOrder {
+        broken_in_given_order: broken_given,
+        broken: broken_given,
+        reordered: false,
+    };
     if broken_given == 0 {
-        return given;
+        return (given, kept);
     }
     let cost = |i: usize, j: usize| {
         1.0 / (1.0 + weight(i, j)) + if is_broken(i, j) { n as f64 } else { 0.0 }
@@ -59,7 +78,7 @@ pub fn densify_order(points: &SparsePoints, centres: &[Point3<f64>]) -> Vec<usiz
     }
     let broken_path = broken(&path);
     if broken_path >= broken_given {
-        return given;
+        return (given, kept);
     }
     tracing::info!(
         "dense: {broken_given} of the {} pairs of neighbours in file order share fewer than \
@@ -67,7 +86,12 @@ pub fn densify_order(points: &SparsePoints, centres: &[Point3<f64>]) -> Vec<usiz
          shared-point graph instead ({broken_path} such pairs)",
         n - 1
     );
-    path
+    let found = SequenceOrder {
+        broken_in_given_order: broken_given,
+        broken: broken_path,
+        reordered: true,
+    };
+    (path, found)
 }
 
 /// `shared[i * n + j]`: the sparse points views `i` and `j` both observe, each counted by the
@@ -300,7 +324,10 @@ mod tests {
     #[test]
     fn a_ring_in_file_order_keeps_its_order() {
         let order: Vec<usize> = (0..16).collect();
-        assert_eq!(densify_order(&ring(&order, 3, 20), &circle(&order)), order);
+        assert_eq!(
+            densify_order(&ring(&order, 3, 20), &circle(&order)).0,
+            order
+        );
     }
 
     #[test]
@@ -313,13 +340,14 @@ mod tests {
             points.xyz.push(Point3::new(0.0, 0.0, 0.1));
             points.seen_by.push(vec![0, 2]);
         }
-        assert_eq!(densify_order(&points, &circle(&order)), order);
+        assert_eq!(densify_order(&points, &circle(&order)).0, order);
     }
 
     #[test]
     fn shuffled_files_are_put_back_on_the_ring() {
         let order = [10, 9, 13, 4, 6, 15, 7, 2, 1, 11, 3, 12, 0, 14, 8, 5];
-        let got = densify_order(&ring(&order, 3, 20), &circle(&order));
+        let (got, found) = densify_order(&ring(&order, 3, 20), &circle(&order));
+        assert!(found.reordered && found.broken == 0 && found.broken_in_given_order > 0);
         // Every link of the path found joins two views that are neighbours on the ring.
         let pos = |v: usize| order.iter().position(|&o| o == v).unwrap();
         for w in got.windows(2) {
@@ -347,7 +375,7 @@ mod tests {
                 s.push(12);
             }
         }
-        let got = densify_order(&points, &centres);
+        let got = densify_order(&points, &centres).0;
         assert!(is_permutation(&got, 13));
         for w in got.windows(2) {
             assert!(
@@ -388,7 +416,7 @@ mod tests {
                 points.seen_by.push(seen);
             }
         }
-        let got = densify_order(&points, &centres);
+        let got = densify_order(&points, &centres).0;
         assert!(is_permutation(&got, 9));
         for w in got.windows(3) {
             let ends = [w[0], w[2]];
@@ -409,7 +437,7 @@ mod tests {
         points.seen_by.extend(other.seen_by);
         let mut centres = circle(&[0, 2, 4, 6, 8, 1, 3, 5, 7, 9]);
         centres.push(Point3::new(5.0, 0.0, 0.0));
-        let got = densify_order(&points, &centres);
+        let got = densify_order(&points, &centres).0;
         assert!(is_permutation(&got, 11));
     }
 }

@@ -18,7 +18,8 @@ use std::path::{Path, PathBuf};
 
 use handheld_core::{ImageId, MetricReconstruction, PosedView, Progress};
 use handheld_dense::{
-    dense_reconstruct_with, DenseOptions, PairDisparity, SparsePoints, StereoMethod, StereoOptions,
+    dense_reconstruct_with, DenseOptions, PairDisparity, SequenceOrder, SparsePoints, StereoMethod,
+    StereoOptions,
 };
 use handheld_io::dense_folder::{write_cameras, write_view, MapKind, CAMERAS_FILE};
 use handheld_io::images::{load_image, ImageIngestOptions};
@@ -31,6 +32,7 @@ use crate::manifest::Workspace;
 use crate::policy::image_id;
 use crate::preview::write_preview;
 use crate::stage::{Produced, Stage, StageContext, SummaryFile};
+use crate::warning::{code, Warning};
 
 /// Options of the dense stage.
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -208,6 +210,10 @@ pub struct DenseStageSummary {
     pub seconds_per_view: f64,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub per_view: Option<Vec<ViewFill>>,
+    /// The order the views were densified in ([`handheld_dense::densify_order`]); `None` where
+    /// the caller chose the views and their order.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sequence: Option<SequenceOrder>,
 }
 
 /// The dense stage.
@@ -236,7 +242,7 @@ impl Stage for Dense {
     /// the linking and the fused cloud stay with the stage.
     fn units(&self, ctx: &StageContext) -> Result<usize> {
         let rec = ctx.ws.read_sparse_model()?;
-        Ok(key_views(ctx.ws, &rec)?.len().saturating_sub(1))
+        Ok(key_views(ctx.ws, &rec)?.0.len().saturating_sub(1))
     }
 
     fn run_unit(
@@ -246,7 +252,7 @@ impl Stage for Dense {
         k: usize,
     ) -> Result<(Vec<String>, serde_json::Value)> {
         let rec = ctx.ws.read_sparse_model()?;
-        let ids = key_views(ctx.ws, &rec)?;
+        let (ids, _) = key_views(ctx.ws, &rec)?;
         let Some(pair) = ids.get(k..k + 2) else {
             return Err(PipelineError::Graph(format!(
                 "dense: no unit {k} ({} views, {} pairs)",
@@ -274,7 +280,7 @@ impl Stage for Dense {
 
     fn run(&self, ctx: &StageContext, dir: &Path) -> Result<Produced<DenseStageSummary>> {
         let rec = ctx.ws.read_sparse_model()?;
-        let ids = key_views(ctx.ws, &rec)?;
+        let (ids, order) = key_views(ctx.ws, &rec)?;
         let paths = ctx.ws.image_paths()?;
         // Pairs matched apart (work units): read when the sliding window reaches them.
         let matched = |p: usize| -> Option<std::result::Result<PairDisparity, String>> {
@@ -290,7 +296,7 @@ impl Stage for Dense {
         densify_with(
             &rec,
             &paths,
-            &ids,
+            (&ids, Some(order)),
             &self.options,
             dir,
             ctx.progress,
@@ -304,22 +310,27 @@ fn pair_file(p: usize) -> String {
     format!("pair-{p}.bin")
 }
 
-/// The views to densify, in sequence order: every registered view, or the key-frames of a video,
-/// in the given order where it is a good path through the views' shared points, and otherwise
-/// along such a path ([`handheld_dense::densify_order`]: shuffled or renamed photos).
-fn key_views(ws: &Workspace, rec: &MetricReconstruction) -> Result<Vec<ImageId>> {
-    let mut ids: Vec<ImageId> = rec.views.keys().copied().collect();
+/// The views to densify, in sequence order: every registered view, or the key-frames of a video
+/// ([`sequence`]).
+fn key_views(ws: &Workspace, rec: &MetricReconstruction) -> Result<(Vec<ImageId>, SequenceOrder)> {
+    let ids: Vec<ImageId> = rec.views.keys().copied().collect();
     if let Some(tracks) = ws.read_tracks()? {
         let keys: BTreeSet<ImageId> = tracks.keyframes.iter().map(|k| image_id(k.0)).collect();
         let kept: Vec<ImageId> = ids.iter().copied().filter(|i| keys.contains(i)).collect();
         if kept.len() >= 2 {
-            ids = kept;
+            return Ok(sequence(rec, kept));
         }
     }
+    Ok(sequence(rec, ids))
+}
+
+/// `ids` in the given order where it is a good path through the views' shared points, and
+/// otherwise along such a path ([`handheld_dense::densify_order`]: shuffled or renamed photos).
+fn sequence(rec: &MetricReconstruction, ids: Vec<ImageId>) -> (Vec<ImageId>, SequenceOrder) {
     let points = SparsePoints::from_tracks(rec.points.values(), &ids);
     let centres: Vec<_> = ids.iter().map(|i| rec.views[i].center()).collect();
-    let order = handheld_dense::densify_order(&points, &centres);
-    Ok(order.into_iter().map(|i| ids[i]).collect())
+    let (order, found) = handheld_dense::densify_order(&points, &centres);
+    (order.into_iter().map(|i| ids[i]).collect(), found)
 }
 
 fn load_views(
@@ -394,14 +405,14 @@ pub fn densify(
     dir: &Path,
     progress: &dyn Progress,
 ) -> Result<Produced<DenseStageSummary>> {
-    densify_with(rec, paths, ids, opts, dir, progress, |_| None)
+    densify_with(rec, paths, (ids, None), opts, dir, progress, |_| None)
 }
 
 /// [`densify`], with pairs matched elsewhere (`handheld_dense::dense_reconstruct_with`).
 fn densify_with(
     rec: &MetricReconstruction,
     paths: &BTreeMap<String, PathBuf>,
-    ids: &[ImageId],
+    (ids, order): (&[ImageId], Option<SequenceOrder>),
     opts: &DenseStageOptions,
     dir: &Path,
     progress: &dyn Progress,
@@ -492,12 +503,32 @@ fn densify_with(
         seconds_per_view: (summary.seconds_pairs + summary.seconds_linking)
             / summary.views.max(1) as f64,
         per_view: Some(per_view),
+        sequence: order.clone(),
     };
     write_json(&dir.join(SUMMARY_JSON), &s)?;
     outputs.extend([FUSED_PLY.into(), CAMERAS_FILE.into(), SUMMARY_JSON.into()]);
     s.per_view = None;
+    let warnings = order
+        .filter(|o| o.broken > 0)
+        .map(|o| {
+            Warning::new(
+                code::NOTE,
+                format!(
+                    "{} of the {} pairs of neighbouring views share fewer than {} sparse points \
+                     with parallax: their depth is thin or missing",
+                    o.broken,
+                    ids.len().saturating_sub(1),
+                    handheld_dense::MIN_RANGE_POINTS
+                ),
+            )
+            .advice("add photos between the views that the summary's failed pairs name")
+        })
+        .into_iter()
+        .collect();
     // `summary.json` (with the per-view figures) is written here, as `densify_model` needs it too.
-    Ok(Produced::new(outputs, s).summary_file(SummaryFile::Own))
+    Ok(Produced::new(outputs, s)
+        .summary_file(SummaryFile::Own)
+        .warn(warnings))
 }
 
 /// The dense stage on any COLMAP model (text or binary) and the folder of its images, into `out`
@@ -516,9 +547,10 @@ pub fn densify_model(
         .values()
         .map(|v| (v.name.clone(), images.join(&v.name)))
         .collect();
-    let ids: Vec<ImageId> = rec.views.keys().copied().collect();
+    let (ids, order) = sequence(&rec, rec.views.keys().copied().collect());
     std::fs::create_dir_all(out).map_err(|e| handheld_io::IoError::io(out, e))?;
-    Ok(densify(&rec, &paths, &ids, opts, out, progress)?.summary)
+    let (dir, none) = (out, |_| None);
+    Ok(densify_with(&rec, &paths, (&ids, Some(order)), opts, dir, progress, none)?.summary)
 }
 
 #[cfg(test)]
