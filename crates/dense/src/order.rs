@@ -521,7 +521,10 @@ mod tests {
         let order = [5, 2, 7, 0, 3, 6, 1, 4];
         let (points, centres) = overlapping_line(&order);
         let (got, found) = densify_order(&points, &centres);
-        assert!(found.reordered && found.broken_in_given_order == 0, "{found:?}");
+        assert!(
+            found.reordered && found.broken_in_given_order == 0,
+            "{found:?}"
+        );
         let pos: Vec<usize> = got
             .iter()
             .map(|v| order.iter().position(|o| o == v).unwrap())

@@ -125,9 +125,9 @@ pub fn write_view(dir: &Path, view: &PosedView) -> Result<Vec<String>> {
 }
 
 /// Writes `dir/cameras.json` (atomically): the views' names, cameras and poses, in order.
-pub fn write_cameras(dir: &Path, views: &[PosedView]) -> Result<()> {
+pub fn write_cameras<'a>(dir: &Path, views: impl IntoIterator<Item = &'a PosedView>) -> Result<()> {
     let path = dir.join(CAMERAS_FILE);
-    let entries: Vec<CameraEntry> = views.iter().map(CameraEntry::from).collect();
+    let entries: Vec<CameraEntry> = views.into_iter().map(CameraEntry::from).collect();
     // Through a JSON value, so the key order is serde_json's map order (as the file always had).
     let bytes = serde_json::to_value(&entries)
         .and_then(|v| serde_json::to_vec_pretty(&v))

@@ -484,7 +484,10 @@ fn densify_with(
         })
         .context("dense matching")?;
     handheld_io::ply::write_point_cloud(&dir.join(FUSED_PLY), &cloud, Default::default())?;
-    write_cameras(dir, &views)?;
+    // In the model's order (what readers list), whatever order the views were densified in.
+    let mut by_id: Vec<(ImageId, &PosedView)> = ids.iter().copied().zip(&views).collect();
+    by_id.sort_by_key(|(id, _)| *id);
+    write_cameras(dir, by_id.into_iter().map(|(_, v)| v))?;
     let mut s = DenseStageSummary {
         views: summary.views,
         pairs_matched: summary.pairs_matched,
