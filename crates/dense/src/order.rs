@@ -168,14 +168,18 @@ fn effective_shared_points(
     centres: &[Point3<f64>],
 ) -> (Vec<f64>, Vec<Option<usize>>) {
     let n = centres.len();
-    let mut angles: Vec<Vec<f32>> = vec![Vec::new(); n * n];
+    // Only the pairs that share a point hold angles (a few per view, not n² lists).
+    let mut angles: std::collections::HashMap<usize, Vec<f32>> = std::collections::HashMap::new();
     for (x, seen) in points.xyz.iter().zip(&points.seen_by) {
         for (a, &i) in seen.iter().enumerate() {
             for &j in &seen[a + 1..] {
                 let (i, j) = (i as usize, j as usize);
                 if i < n && j < n && i != j {
                     let angle = (x - centres[i]).angle(&(x - centres[j])) as f32;
-                    angles[i.min(j) * n + i.max(j)].push(angle);
+                    angles
+                        .entry(i.min(j) * n + i.max(j))
+                        .or_default()
+                        .push(angle);
                 }
             }
         }
@@ -189,15 +193,13 @@ fn effective_shared_points(
     };
     let mut count = vec![0.0; n * n];
     let mut angle = vec![0.0; n * n];
-    for i in 0..n {
-        for j in i + 1..n {
-            let v = &mut angles[i * n + j];
-            let (c, a) = (v.len() as f64, median(v));
-            count[i * n + j] = c;
-            count[j * n + i] = c;
-            angle[i * n + j] = a;
-            angle[j * n + i] = a;
-        }
+    for (&k, v) in angles.iter_mut() {
+        let (i, j) = (k / n, k % n);
+        let (c, a) = (v.len() as f64, median(v));
+        count[i * n + j] = c;
+        count[j * n + i] = c;
+        angle[i * n + j] = a;
+        angle[j * n + i] = a;
     }
     let natural: Vec<Option<usize>> = (0..n)
         .map(|i| {

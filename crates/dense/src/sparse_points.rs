@@ -82,13 +82,11 @@ impl SparsePoints {
     pub fn for_pair(&self, a: usize, b: usize) -> Vec<Point3<f64>> {
         let (a, b) = (a as u32, b as u32);
         let confirmed = |s: &Vec<u32>| s.len() >= CONFIRMED_VIEWS;
-        let both = |s: &Vec<u32>| {
-            confirmed(s) && s.binary_search(&a).is_ok() && s.binary_search(&b).is_ok()
-        };
+        let observed = |s: &Vec<u32>| s.binary_search(&a).is_ok() && s.binary_search(&b).is_ok();
+        let both = |s: &Vec<u32>| confirmed(s) && observed(s);
         let either = |s: &Vec<u32>| {
             confirmed(s) && (s.binary_search(&a).is_ok() || s.binary_search(&b).is_ok())
         };
-        let observed = |s: &Vec<u32>| s.binary_search(&a).is_ok() && s.binary_search(&b).is_ok();
         for keep in [&both as &dyn Fn(&Vec<u32>) -> bool, &observed, &either] {
             let n = self.seen_by.iter().filter(|s| keep(s)).count();
             if n >= MIN_RANGE_POINTS {
