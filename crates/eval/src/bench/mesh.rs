@@ -3,8 +3,10 @@
 //! relief, parked cars, a building closing it at 150 m; depths from 1.5 to 150 m) is rendered along
 //! a drive down the street and a hand-held walk across it. With the exact cameras, the dense stage
 //! (§4) and the fusion (§5.1, voxel size following the depth) run with their defaults, and:
-//! - **depth**: per view, the fill (pixels with a surface that got a depth) and the median relative
-//!   error against the rendered depth;
+//! - **depth**: per view, the fill (pixels with a surface that got a depth), the same over the
+//!   pixels whose surface another view also sees (no stereo can give the rest a depth: the ground
+//!   leaving the bottom of a drive's first frame), and the median relative error against the
+//!   rendered depth;
 //! - **mesh accuracy**: the 90th percentile over the mesh's vertices of the distance to the true
 //!   surface divided by the vertex's distance from the nearest camera;
 //! - **mesh completeness**: of the true surface that at least two views see (every 4th pixel of
@@ -67,6 +69,17 @@ pub struct DepthFigures {
     pub fill: f64,
     /// The lowest per-view fill.
     pub fill_min: f64,
+    /// Each view's fill, in frame order.
+    #[serde(default)]
+    pub fill_per_view: Vec<f64>,
+    /// Each view's fill over the pixels whose surface another view also sees (every 4th pixel,
+    /// kept where another view's exact depth agrees within 1 %): a pixel no other view sees cannot
+    /// get a depth from stereo (the bottom rows of a drive's first frame).
+    #[serde(default)]
+    pub fill_seen_twice_per_view: Vec<f64>,
+    /// The lowest of those.
+    #[serde(default)]
+    pub fill_seen_twice_min: f64,
     /// Median of |depth − truth| / truth over the filled pixels.
     pub relative_error_median: f64,
     /// The same at the 90th percentile.
@@ -283,6 +296,8 @@ fn percentile(v: &mut [f64], q: f64) -> f64 {
 fn depth_figures(dense: &[PosedView], truth: &[FloatMap]) -> DepthFigures {
     let (mut surface, mut filled) = (0usize, 0usize);
     let mut fill_min = f64::INFINITY;
+    let mut fill_per_view = Vec::with_capacity(dense.len());
+    let mut fill_seen_twice_per_view = Vec::with_capacity(dense.len());
     let mut rel = Vec::new();
     let mut depths = Vec::new();
     let nb = BANDS.len() - 1;
@@ -315,10 +330,18 @@ fn depth_figures(dense: &[PosedView], truth: &[FloatMap]) -> DepthFigures {
         surface += s;
         filled += f;
         fill_min = fill_min.min(f as f64 / s.max(1) as f64);
+        fill_per_view.push(f as f64 / s.max(1) as f64);
+        fill_seen_twice_per_view.push(fill_seen_twice(v, gt, dense, truth));
     }
     DepthFigures {
         fill: filled as f64 / surface.max(1) as f64,
         fill_min,
+        fill_per_view,
+        fill_seen_twice_min: fill_seen_twice_per_view
+            .iter()
+            .copied()
+            .fold(f64::INFINITY, f64::min),
+        fill_seen_twice_per_view,
         relative_error_median: percentile(&mut rel, 0.5),
         relative_error_p90: percentile(&mut rel, 0.9),
         true_depth_range_m: [percentile(&mut depths, 0.01), percentile(&mut depths, 0.99)],
@@ -332,6 +355,51 @@ fn depth_figures(dense: &[PosedView], truth: &[FloatMap]) -> DepthFigures {
             })
             .collect(),
     }
+}
+
+/// `view`'s fill over every 4th pixel whose true surface another view's exact depth confirms
+/// (within 1 %). `views` and `truth` are in the same order.
+fn fill_seen_twice(
+    view: &PosedView,
+    gt: &FloatMap,
+    views: &[PosedView],
+    truth: &[FloatMap],
+) -> f64 {
+    let Some(d) = &view.depth else { return 0.0 };
+    let cam = &view.posed;
+    let world_from_cam = cam.cam_from_world.inverse();
+    let (mut seen, mut filled) = (0usize, 0usize);
+    for (i, &g) in gt.data.iter().enumerate().step_by(4) {
+        if !(g.is_finite() && g > 0.0) {
+            continue;
+        }
+        let px = nalgebra::Vector2::new((i % gt.width) as f64, (i / gt.width) as f64);
+        let ray = cam.camera.ray_in_cam(px);
+        let p = world_from_cam * Point3::from(ray * (g as f64 / ray.z));
+        let other_sees = views.iter().zip(truth).any(|(w, wt)| {
+            if std::ptr::eq(w, view) {
+                return false;
+            }
+            let pc = w.posed.to_cam(&p);
+            let Some(q) = w.posed.project(&p) else {
+                return false;
+            };
+            let (x, y) = (q.x.round(), q.y.round());
+            if x < 0.0 || y < 0.0 || x >= wt.width as f64 || y >= wt.height as f64 {
+                return false;
+            }
+            let z = wt.data[y as usize * wt.width + x as usize] as f64;
+            z > 0.0 && (z - pc.z).abs() < 0.01 * pc.z
+        });
+        if other_sees {
+            seen += 1;
+            let z = d.data[i];
+            if z.is_finite() && z > 0.0 {
+                filled += 1;
+            }
+        }
+    }
+    filled as f64 / seen.max(1) as f64
 }
 
 fn nearest_camera(p: &Point3<f64>, centres: &[Vector3<f64>]) -> f64 {
@@ -445,14 +513,16 @@ impl MeshBenchReport {
     /// The report in a few lines, for people (the CLI prints it without `--json`).
     pub fn summary_text(&self) -> String {
         let mut s = String::from(
-            "path   depth fill  rel err med  mesh acc90 (rel)  complete 1%  faces    left out  dense s  mesh s  peak MB\n",
+            "path   depth fill  lowest view (seen twice)  rel err med  mesh acc90 (rel)  complete 1%  faces    left out  dense s  mesh s  peak MB\n",
         );
         for x in &self.runs {
             let m = x.mesh.as_ref();
             s += &format!(
-                "{:<5}  {:>9.1}%  {:>10.3}%  {:>15}  {:>11}  {:>7}  {:>8}  {:>7.1}  {:>6.1}  {:>7.0}\n",
+                "{:<5}  {:>9.1}%  {:>12.1}% ({:>5.1}%)  {:>10.3}%  {:>15}  {:>11}  {:>7}  {:>8}  {:>7.1}  {:>6.1}  {:>7.0}\n",
                 x.path,
                 100.0 * x.depth.fill,
+                100.0 * x.depth.fill_min,
+                100.0 * x.depth.fill_seen_twice_min,
                 100.0 * x.depth.relative_error_median,
                 m.map_or("-".into(), |m| format!("{:.3}%", 100.0 * m.relative_accuracy_90)),
                 m.map_or("-".into(), |m| format!("{:.1}%", 100.0 * m.completeness)),
