@@ -4,16 +4,31 @@
 //! unit Frobenius norm, sign unspecified.
 
 use handheld_core::ProjectiveCamera;
-use nalgebra::{DMatrix, Matrix3, Matrix3x4, Vector2, Vector3, Vector4};
+use nalgebra::{DMatrix, Matrix3, Matrix3x4, SVector, Vector2, Vector3, Vector4};
 
 use crate::error::{check_pair_lengths, GeometryError, Result};
-use crate::linalg::{full_right_svd, row_to_matrix3};
+use crate::linalg::{full_right_svd, null_space_short, row_to_matrix3};
 use crate::normalize::hartley_normalization;
 use crate::poly::real_roots_cubic;
 use crate::skew::skew;
 
 /// Relative size below which a singular value counts as zero when checking for degeneracy.
 const RANK_TOL: f64 = 1e-10;
+
+/// One row of the design matrix below.
+fn design_row(a: &Vector2<f64>, b: &Vector2<f64>) -> [f64; 9] {
+    [
+        b.x * a.x,
+        b.x * a.y,
+        b.x,
+        b.y * a.x,
+        b.y * a.y,
+        b.y,
+        a.x,
+        a.y,
+        1.0,
+    ]
+}
 
 /// Design matrix of `x2ᵀ F x1 = 0` with `f` read row-major (H&Z eq. 11.3).
 fn design_matrix(x1: &[Vector2<f64>], x2: &[Vector2<f64>]) -> DMatrix<f64> {
@@ -82,14 +97,32 @@ pub fn fundamental_8point(x1: &[Vector2<f64>], x2: &[Vector2<f64>]) -> Result<Ma
 pub fn fundamental_7point(x1: &[Vector2<f64>], x2: &[Vector2<f64>]) -> Result<Vec<Matrix3<f64>>> {
     check_pair_lengths(x1, x2, 7)?;
     let (n1, n2) = (hartley_normalization(x1)?, hartley_normalization(x2)?);
-    let (sv, v_t) =
-        full_right_svd(design_matrix(&n1.points, &n2.points)).ok_or(GeometryError::NonFinite)?;
-    if sv[6] <= RANK_TOL * sv[0] {
-        return Err(GeometryError::Degenerate {
-            reason: "7-point design matrix has rank < 7",
-        });
-    }
-    let (mut g1, mut g2) = (row_to_matrix3(&v_t, 7), row_to_matrix3(&v_t, 8));
+    let (mut g1, mut g2) = if x1.len() == 7 {
+        // The minimal case (every RANSAC sample): the exact null space by elimination.
+        let rows: Vec<[f64; 9]> = n1
+            .points
+            .iter()
+            .zip(&n2.points)
+            .map(|(a, b)| design_row(a, b))
+            .collect();
+        let (null, ratio) = null_space_short(&rows).ok_or(GeometryError::NonFinite)?;
+        if ratio <= RANK_TOL || null.len() != 2 {
+            return Err(GeometryError::Degenerate {
+                reason: "7-point design matrix has rank < 7",
+            });
+        }
+        let g = |v: &SVector<f64, 9>| Matrix3::from_fn(|i, j| v[3 * i + j]);
+        (g(&null[0]), g(&null[1]))
+    } else {
+        let (sv, v_t) = full_right_svd(design_matrix(&n1.points, &n2.points))
+            .ok_or(GeometryError::NonFinite)?;
+        if sv[6] <= RANK_TOL * sv[0] {
+            return Err(GeometryError::Degenerate {
+                reason: "7-point design matrix has rank < 7",
+            });
+        }
+        (row_to_matrix3(&v_t, 7), row_to_matrix3(&v_t, 8))
+    };
     if g2.determinant().abs() < g1.determinant().abs() {
         std::mem::swap(&mut g1, &mut g2);
     }
@@ -111,7 +144,9 @@ pub fn fundamental_7point(x1: &[Vector2<f64>], x2: &[Vector2<f64>]) -> Result<Ve
     if a3.abs() <= 1e-14 * scale {
         candidates.push(g2);
     }
-    let back = |g: &Matrix3<f64>| unit(n2.t.transpose() * enforce_rank2(g) * n1.t);
+    // Each candidate is singular already: a polished root of det(G1 + λ G2) = 0 (and G2 when the
+    // cubic's leading coefficient vanishes), so no SVD projection per candidate.
+    let back = |g: &Matrix3<f64>| unit(n2.t.transpose() * g * n1.t);
     Ok(candidates.iter().filter_map(|g| back(g).ok()).collect())
 }
 

@@ -5,7 +5,7 @@
 use nalgebra::{DMatrix, Matrix3, Vector2, Vector3};
 
 use crate::error::{check_pair_lengths, GeometryError, Result};
-use crate::linalg::{full_right_svd, row_to_matrix3};
+use crate::linalg::{full_right_svd, null_space_short, row_to_matrix3};
 use crate::normalize::hartley_normalization;
 
 /// Relative size below which a singular value counts as zero.
@@ -21,24 +21,52 @@ pub fn homography_dlt(x1: &[Vector2<f64>], x2: &[Vector2<f64>]) -> Result<Matrix
     check_pair_lengths(x1, x2, 4)?;
     let (n1, n2) = (hartley_normalization(x1)?, hartley_normalization(x2)?);
     let n = x1.len();
-    let mut a = DMatrix::<f64>::zeros(2 * n, 9);
-    for (i, (p, q)) in n1.points.iter().zip(&n2.points).enumerate() {
-        let xh = [p.x, p.y, 1.0];
-        for k in 0..3 {
-            // Row 1: [0ᵀ, −xᵀ, y'·xᵀ]; row 2: [xᵀ, 0ᵀ, −x'·xᵀ].
-            a[(2 * i, 3 + k)] = -xh[k];
-            a[(2 * i, 6 + k)] = q.y * xh[k];
-            a[(2 * i + 1, k)] = xh[k];
-            a[(2 * i + 1, 6 + k)] = -q.x * xh[k];
+    let h_hat = if n == 4 {
+        // The minimal case (every RANSAC sample): the exact null vector by elimination.
+        let rows: Vec<[f64; 9]> = n1
+            .points
+            .iter()
+            .zip(&n2.points)
+            .flat_map(|(p, q)| {
+                let xh = [p.x, p.y, 1.0];
+                let mut r1 = [0.0; 9];
+                let mut r2 = [0.0; 9];
+                for k in 0..3 {
+                    r1[3 + k] = -xh[k];
+                    r1[6 + k] = q.y * xh[k];
+                    r2[k] = xh[k];
+                    r2[6 + k] = -q.x * xh[k];
+                }
+                [r1, r2]
+            })
+            .collect();
+        let (null, ratio) = null_space_short(&rows).ok_or(GeometryError::NonFinite)?;
+        if ratio <= RANK_TOL || null.len() != 1 {
+            return Err(GeometryError::Degenerate {
+                reason: "homography design matrix has rank < 8",
+            });
         }
-    }
-    let (sv, v_t) = full_right_svd(a).ok_or(GeometryError::NonFinite)?;
-    if sv[7] <= RANK_TOL * sv[0] {
-        return Err(GeometryError::Degenerate {
-            reason: "homography design matrix has rank < 8",
-        });
-    }
-    let h_hat = row_to_matrix3(&v_t, 8);
+        Matrix3::from_fn(|i, j| null[0][3 * i + j])
+    } else {
+        let mut a = DMatrix::<f64>::zeros(2 * n, 9);
+        for (i, (p, q)) in n1.points.iter().zip(&n2.points).enumerate() {
+            let xh = [p.x, p.y, 1.0];
+            for k in 0..3 {
+                // Row 1: [0ᵀ, −xᵀ, y'·xᵀ]; row 2: [xᵀ, 0ᵀ, −x'·xᵀ].
+                a[(2 * i, 3 + k)] = -xh[k];
+                a[(2 * i, 6 + k)] = q.y * xh[k];
+                a[(2 * i + 1, k)] = xh[k];
+                a[(2 * i + 1, 6 + k)] = -q.x * xh[k];
+            }
+        }
+        let (sv, v_t) = full_right_svd(a).ok_or(GeometryError::NonFinite)?;
+        if sv[7] <= RANK_TOL * sv[0] {
+            return Err(GeometryError::Degenerate {
+                reason: "homography design matrix has rank < 8",
+            });
+        }
+        row_to_matrix3(&v_t, 8)
+    };
     let hs = h_hat.singular_values();
     if hs[2] <= 1e-8 * hs[0] {
         return Err(GeometryError::Degenerate {
