@@ -6,47 +6,44 @@ use nalgebra::Vector3;
 use crate::detector::Features;
 
 /// A uniform grid over the keypoints of one image, for epipolar-band queries, stored compactly
-/// (cell offsets into one index array).
+/// (cell offsets into one index array) twice: row-major for steep lines, column-major for flat
+/// ones, so that the cells a band crosses in one strip are always one range of the index.
 pub(crate) struct Grid {
     cell: f64,
     cols: usize,
     rows: usize,
     /// Centre of the keypoints' extent.
     pub(crate) mid: (f64, f64),
-    /// Keypoints of cell `c` are `index[start[c]..start[c + 1]]`.
+    /// Row-major (`by_row`) and column-major (`by_col`) layouts.
+    by_row: Layout,
+    by_col: Layout,
+}
+
+/// One layout of the grid: the keypoints of cell `c` are `index[start[c]..start[c + 1]]`.
+struct Layout {
     start: Vec<u32>,
     index: Vec<u32>,
     /// The position of `index[k]`, in the same order (the band test reads them in sequence).
     xy: Vec<[f64; 2]>,
 }
 
-impl Grid {
-    pub(crate) fn new(f: &Features, cell: f64) -> Self {
-        let (mut w, mut h) = (1.0f64, 1.0f64);
-        for k in &f.keypoints {
-            w = w.max(k.x as f64 + 1.0);
-            h = h.max(k.y as f64 + 1.0);
-        }
-        let cols = (w / cell).ceil() as usize + 1;
-        let rows = (h / cell).ceil() as usize + 1;
-        let cell_of = |k: &crate::detector::Keypoint| {
-            let (cx, cy) = (
-                (k.x.max(0.0) as f64 / cell) as usize,
-                (k.y.max(0.0) as f64 / cell) as usize,
-            );
-            (cx < cols && cy < rows).then_some(cy * cols + cx)
-        };
-        let mut start = vec![0u32; cols * rows + 1];
+impl Layout {
+    fn new(
+        f: &Features,
+        cells: usize,
+        cell_of: impl Fn(&crate::detector::Keypoint) -> Option<usize>,
+    ) -> Self {
+        let mut start = vec![0u32; cells + 1];
         for k in &f.keypoints {
             if let Some(c) = cell_of(k) {
                 start[c + 1] += 1;
             }
         }
-        for c in 0..cols * rows {
+        for c in 0..cells {
             start[c + 1] += start[c];
         }
         let mut fill = start.clone();
-        let mut index = vec![0u32; start[cols * rows] as usize];
+        let mut index = vec![0u32; start[cells] as usize];
         for (idx, k) in f.keypoints.iter().enumerate() {
             if let Some(c) = cell_of(k) {
                 index[fill[c] as usize] = idx as u32;
@@ -60,14 +57,33 @@ impl Grid {
                 [k.x as f64, k.y as f64]
             })
             .collect();
+        Self { start, index, xy }
+    }
+}
+
+impl Grid {
+    pub(crate) fn new(f: &Features, cell: f64) -> Self {
+        let (mut w, mut h) = (1.0f64, 1.0f64);
+        for k in &f.keypoints {
+            w = w.max(k.x as f64 + 1.0);
+            h = h.max(k.y as f64 + 1.0);
+        }
+        let cols = (w / cell).ceil() as usize + 1;
+        let rows = (h / cell).ceil() as usize + 1;
+        let cell_xy = |k: &crate::detector::Keypoint| {
+            let (cx, cy) = (
+                (k.x.max(0.0) as f64 / cell) as usize,
+                (k.y.max(0.0) as f64 / cell) as usize,
+            );
+            (cx < cols && cy < rows).then_some((cx, cy))
+        };
         Self {
             cell,
             cols,
             rows,
             mid: (w / 2.0, h / 2.0),
-            start,
-            index,
-            xy,
+            by_row: Layout::new(f, cols * rows, |k| cell_xy(k).map(|(x, y)| y * cols + x)),
+            by_col: Layout::new(f, cols * rows, |k| cell_xy(k).map(|(x, y)| x * rows + y)),
         }
     }
 
@@ -79,11 +95,11 @@ impl Grid {
     pub(crate) fn within_band(&self, l: &Vector3<f64>, band: f64, out: &mut Vec<u32>) {
         out.clear();
         let n = (l.x * l.x + l.y * l.y).sqrt();
-        self.walk(l, band, |range| {
+        self.walk(l, band, |layout, range| {
             for k in range {
-                let [x, y] = self.xy[k];
+                let [x, y] = layout.xy[k];
                 if ((l.x * x + l.y * y + l.z) / n).abs() <= band {
-                    out.push(self.index[k]);
+                    out.push(layout.index[k]);
                 }
             }
         });
@@ -94,13 +110,21 @@ impl Grid {
     /// ones) and, in each strip, only the cells the band crosses inside it.
     pub(crate) fn near_line(&self, l: &Vector3<f64>, band: f64, out: &mut Vec<u32>) {
         out.clear();
-        self.walk(l, band, |range| out.extend_from_slice(&self.index[range]));
+        self.walk(l, band, |layout, range| {
+            out.extend_from_slice(&layout.index[range])
+        });
     }
 
     /// Walks the grid in strips across the line `l` (rows for steep lines, columns for flat
-    /// ones) and hands `visit` the keypoints (a range of `index`) of every cell the band of
-    /// `band` pixels crosses inside each strip, in order.
-    fn walk(&self, l: &Vector3<f64>, band: f64, mut visit: impl FnMut(std::ops::Range<usize>)) {
+    /// ones) and hands `visit` the keypoints (a range of the layout's `index`: row-major for
+    /// steep lines, column-major for flat ones) of the cells the band of `band` pixels crosses
+    /// inside each strip, in order, one range per strip.
+    fn walk(
+        &self,
+        l: &Vector3<f64>,
+        band: f64,
+        mut visit: impl FnMut(&Layout, std::ops::Range<usize>),
+    ) {
         let n = (l.x * l.x + l.y * l.y).sqrt();
         if n < 1e-300 {
             return;
@@ -130,16 +154,16 @@ impl Grid {
                 continue;
             }
             let (lo, hi) = (lo as usize, hi as usize);
-            if steep {
-                // The strip's cells are consecutive in the index: one range.
-                let (c0, c1) = (o * self.cols + lo, o * self.cols + hi);
-                visit(self.start[c0] as usize..self.start[c1 + 1] as usize);
+            // The strip's cells are consecutive in the layout that runs along it: one range.
+            let (layout, c0, c1) = if steep {
+                (&self.by_row, o * self.cols + lo, o * self.cols + hi)
             } else {
-                for i in lo..=hi {
-                    let c = i * self.cols + o;
-                    visit(self.start[c] as usize..self.start[c + 1] as usize);
-                }
-            }
+                (&self.by_col, o * self.rows + lo, o * self.rows + hi)
+            };
+            visit(
+                layout,
+                layout.start[c0] as usize..layout.start[c1 + 1] as usize,
+            );
         }
     }
 }

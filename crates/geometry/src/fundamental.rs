@@ -4,10 +4,10 @@
 //! unit Frobenius norm, sign unspecified.
 
 use handheld_core::ProjectiveCamera;
-use nalgebra::{DMatrix, Matrix3, Matrix3x4, SVector, Vector2, Vector3, Vector4};
+use nalgebra::{DMatrix, Matrix3, Matrix3x4, Vector2, Vector3, Vector4};
 
 use crate::error::{check_pair_lengths, GeometryError, Result};
-use crate::linalg::{full_right_svd, null_space_short, row_to_matrix3};
+use crate::linalg::{full_right_svd, right_svd_9, row_to_matrix3};
 use crate::normalize::hartley_normalization;
 use crate::poly::real_roots_cubic;
 use crate::skew::skew;
@@ -98,21 +98,21 @@ pub fn fundamental_7point(x1: &[Vector2<f64>], x2: &[Vector2<f64>]) -> Result<Ve
     check_pair_lengths(x1, x2, 7)?;
     let (n1, n2) = (hartley_normalization(x1)?, hartley_normalization(x2)?);
     let (mut g1, mut g2) = if x1.len() == 7 {
-        // The minimal case (every RANSAC sample): the exact null space by elimination.
+        // The minimal case (every RANSAC sample), on the stack.
         let rows: Vec<[f64; 9]> = n1
             .points
             .iter()
             .zip(&n2.points)
             .map(|(a, b)| design_row(a, b))
             .collect();
-        let (null, ratio) = null_space_short(&rows).ok_or(GeometryError::NonFinite)?;
-        if ratio <= RANK_TOL || null.len() != 2 {
+        let (sv, v_t) = right_svd_9(&rows).ok_or(GeometryError::NonFinite)?;
+        if sv[6] <= RANK_TOL * sv[0] {
             return Err(GeometryError::Degenerate {
                 reason: "7-point design matrix has rank < 7",
             });
         }
-        let g = |v: &SVector<f64, 9>| Matrix3::from_fn(|i, j| v[3 * i + j]);
-        (g(&null[0]), g(&null[1]))
+        let g = |r: usize| Matrix3::from_fn(|i, j| v_t[(r, 3 * i + j)]);
+        (g(7), g(8))
     } else {
         let (sv, v_t) = full_right_svd(design_matrix(&n1.points, &n2.points))
             .ok_or(GeometryError::NonFinite)?;

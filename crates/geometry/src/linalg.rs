@@ -2,7 +2,7 @@
 //! through an SVD that keeps every right singular vector, and, for the minimal solvers' short design
 //! matrices (7 × 9, 8 × 9), by Gaussian elimination on the stack.
 
-use nalgebra::{DMatrix, Matrix3, SVector};
+use nalgebra::{DMatrix, Matrix3, SMatrix, SVector};
 
 /// Singular values (descending) and `Vᵀ` (all `ncols` rows) of `a`.
 ///
@@ -25,13 +25,25 @@ pub(crate) fn full_right_svd(a: DMatrix<f64>) -> Option<(Vec<f64>, DMatrix<f64>)
     Some((sv, v_t))
 }
 
+/// [`full_right_svd`] of a matrix of at most 9 rows and 9 columns, on the stack: the same
+/// algorithm on the same zero-padded 9 × 9 matrix, without the heap.
+pub(crate) fn right_svd_9(rows: &[[f64; 9]]) -> Option<([f64; 9], SMatrix<f64, 9, 9>)> {
+    if rows.len() > 9 || rows.iter().flatten().any(|v| !v.is_finite()) {
+        return None;
+    }
+    let a = SMatrix::<f64, 9, 9>::from_fn(|r, c| rows.get(r).map_or(0.0, |row| row[c]));
+    let svd = a.svd(false, true);
+    let v_t = svd.v_t?;
+    Some((std::array::from_fn(|k| svd.singular_values[k]), v_t))
+}
+
 /// Row `r` of `Vᵀ` (a 9-vector) read row-major into a 3×3 matrix.
 pub(crate) fn row_to_matrix3(v_t: &DMatrix<f64>, r: usize) -> Matrix3<f64> {
     Matrix3::from_fn(|i, j| v_t[(r, 3 * i + j)])
 }
 
 /// The right null space of an `m × 9` matrix with `m < 9` rows (a minimal solver's design matrix:
-/// the 7-point algorithm's 7 × 9, the 4-point homography's 8 × 9), by Gauss–Jordan elimination with
+/// the 4-point homography's 8 × 9), by Gauss–Jordan elimination with
 /// complete pivoting (Golub & Van Loan §3.4.8): the `m` pivot columns are solved for in terms of the
 /// `9 − m` free ones, each free one set to 1 in turn. Returns the unit null vectors and the ratio of
 /// the smallest to the largest pivot, which is zero for a matrix of rank below `m` and, like the
@@ -39,6 +51,11 @@ pub(crate) fn row_to_matrix3(v_t: &DMatrix<f64>, r: usize) -> Matrix3<f64> {
 /// multiply-adds on the stack, where an SVD of the same matrix costs a few microseconds and a heap
 /// allocation; the RANSAC loops call this once per sample. `None` for a non-finite entry or
 /// `m ≥ 9`.
+///
+/// The 7-point solver keeps the SVD ([`right_svd_9`]): its null space by elimination is the same
+/// up to rounding, but the rounding moved a few weak pairs of templeSparseRing (15–40 inliers,
+/// views across the ring) by an inlier or two, and the turntable's metric frame followed them
+/// (AUC@1 77.19 → 15.79; `docs/benchmarks.md`, #34).
 pub(crate) fn null_space_short(rows: &[[f64; 9]]) -> Option<(Vec<SVector<f64, 9>>, f64)> {
     let m = rows.len();
     if m >= 9 || rows.iter().flatten().any(|v| !v.is_finite()) {
@@ -102,7 +119,11 @@ mod tests {
     fn short_null_space_agrees_with_the_svd() {
         // A 7 × 9 matrix with entries of mixed size, and its null space by both routes.
         let rows: Vec<[f64; 9]> = (0..7)
-            .map(|r| std::array::from_fn(|c| (((r * 9 + c) as f64).powi(2) * 0.37).sin() * (1.0 + c as f64)))
+            .map(|r| {
+                std::array::from_fn(|c| {
+                    (((r * 9 + c) as f64).powi(2) * 0.37).sin() * (1.0 + c as f64)
+                })
+            })
             .collect();
         let (vs, ratio) = null_space_short(&rows).expect("finite");
         assert_eq!(vs.len(), 2);
