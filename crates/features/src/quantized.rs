@@ -184,11 +184,14 @@ mod vnni {
         out: &mut [f32],
     ) {
         let groups = b.groups;
-        // Row groups, broadcast once per row block: [row][group].
-        let mut abc = vec![0i32; rows * groups];
+        // Row groups, broadcast once per row block, laid out [row chunk of ROWS][group][row in
+        // chunk] so that one group's ROWS broadcasts read consecutive words; rows past the block
+        // are zero (their sums are computed and not stored).
+        let chunks = rows.div_ceil(ROWS);
+        let mut abc = vec![0i32; chunks * groups * ROWS];
         for r in 0..rows {
             for g in 0..groups {
-                abc[r * groups + g] = group(qa, dim, i0 + r, g);
+                abc[((r / ROWS) * groups + g) * ROWS + r % ROWS] = group(qa, dim, i0 + r, g);
             }
         }
         let t0 = j0 / TILE;
@@ -196,15 +199,17 @@ mod vnni {
         let mut r0 = 0;
         while r0 < rows {
             let nr = ROWS.min(rows - r0);
+            let chunk = &abc[(r0 / ROWS) * groups * ROWS..(r0 / ROWS + 1) * groups * ROWS];
             for t in 0..tiles {
                 let bt = &b.data[(t0 + t) * groups * TILE * 4..(t0 + t + 1) * groups * TILE * 4];
+                // A constant trip count over the rows, so the loop unrolls and the accumulators
+                // stay in registers.
                 let mut acc = [_mm512_setzero_si512(); ROWS];
-                for g in 0..groups {
+                for (g, ag) in chunk.chunks_exact(ROWS).enumerate() {
                     // SAFETY: `bt` holds `groups` runs of 64 bytes.
                     let bv = unsafe { _mm512_loadu_si512(bt.as_ptr().add(g * 64).cast()) };
-                    for (r, a) in acc.iter_mut().enumerate().take(nr) {
-                        let av = _mm512_set1_epi32(abc[(r0 + r) * groups + g]);
-                        *a = _mm512_dpbusd_epi32(*a, av, bv);
+                    for (a, &w) in acc.iter_mut().zip(ag) {
+                        *a = _mm512_dpbusd_epi32(*a, _mm512_set1_epi32(w), bv);
                     }
                 }
                 let c0 = t * TILE;
