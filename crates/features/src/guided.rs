@@ -46,6 +46,9 @@ fn dist(a: &[f32], b: &[f32]) -> f32 {
 /// Where the line is more uncertain than this band allows, no guided match is made.
 pub const GUIDED_RIVAL_BAND_FACTOR: f64 = 4.0;
 
+/// Cell size of the grid the rivals are gathered from (see `guided_matches`).
+const RIVAL_CELL_PX: f64 = 16.0;
+
 /// Table 1 step 4: for every keypoint of image 1 not yet matched, the nearest descriptor among the
 /// keypoints of image 2 within `guided_max_epipolar_px` of its epipolar line `F x1`, with a
 /// distance limit, image-2 keypoints used at most once, and a ratio test against every keypoint
@@ -79,7 +82,12 @@ pub fn guided_matches(
         used1[a as usize] = true;
         used2[b as usize] = true;
     }
-    let grid = Grid::new(f2, 16.0);
+    // The band query tests exactly the keypoints' distance from the line, so its grid is sized for
+    // speed. The rivals are every keypoint of the 16 px cells the wider band crosses that lies
+    // within its own reach of the line (`reach` may pass `rival_band`, and then the cells decide):
+    // that set is kept as it was measured, on its own grid.
+    let grid = Grid::for_keypoints(f2);
+    let rival_grid = Grid::new(f2, RIVAL_CELL_PX);
     let mut cand = Vec::new();
     let mut best: Vec<(f32, u32, u32)> = Vec::new();
     // Visit the keypoints in the order of their epipolar lines across image 2, so consecutive
@@ -140,7 +148,7 @@ pub fn guided_matches(
                 // The line is too uncertain there for its rivals to be seen.
                 continue;
             }
-            grid.near_line(&l, rival_band, &mut wide);
+            rival_grid.near_line(&l, rival_band, &mut wide);
             let mut rejected = false;
             for &b in &wide {
                 let x2 = point(f2, b);
