@@ -83,6 +83,8 @@ struct Best2 {
 /// see `quantized`).
 enum Product {
     Vnni(Vec<u8>, Vec<i32>, quantized::PackedB),
+    /// Without VNNI: the quantised values as f32, B packed once ([`quantized::scores_block_avx2`]).
+    Avx2(Vec<f32>, quantized::PackedF32),
     F32(Vec<f32>, Vec<f32>),
 }
 
@@ -123,6 +125,8 @@ fn match_with(a: &Descriptors, b: &Descriptors, opts: &MatchOptions, vnni: bool)
                 .map(|r| r.iter().map(|&v| i32::from(v)).sum())
                 .collect();
             Product::Vnni(qa, suma, quantized::PackedB::new(&qb, d))
+        } else if quantized::cpu_has_avx2() {
+            Product::Avx2(quantized::dequantized(&qa), quantized::PackedF32::new(&qb, d))
         } else {
             Product::F32(quantized::dequantized(&qa), quantized::dequantized(&qb))
         };
@@ -158,6 +162,9 @@ fn match_with(a: &Descriptors, b: &Descriptors, opts: &MatchOptions, vnni: bool)
                 match &product {
                     Product::Vnni(qa, suma, packed) => {
                         quantized::scores_block(qa, suma, d, i0, rows, packed, j0, cols, s)
+                    }
+                    Product::Avx2(fa, packed) => {
+                        quantized::scores_block_avx2(fa, d, i0, rows, packed, j0, cols, s)
                     }
                     Product::F32(fa, fb) => gemm_abt(
                         &fa[i0 * d..(i0 + rows) * d],

@@ -146,6 +146,147 @@ pub fn scores_block(
     }
 }
 
+/// Columns per tile of the AVX2 kernel: two 256-bit registers of f32 sums.
+const TILE_F32: usize = 16;
+
+/// The second operand of [`scores_block_avx2`], packed once per descriptor set: for each tile of
+/// 16 descriptors and each dimension, the 16 values as f32 (exact integers), zero-padded.
+pub struct PackedF32 {
+    data: Vec<f32>,
+    dim: usize,
+    len: usize,
+}
+
+impl PackedF32 {
+    pub fn new(q: &[u8], dim: usize) -> Self {
+        let len = q.len().checked_div(dim).unwrap_or(0);
+        let tiles = len.div_ceil(TILE_F32);
+        let mut data = vec![0f32; tiles * dim * TILE_F32];
+        for j in 0..len {
+            let (t, c) = (j / TILE_F32, j % TILE_F32);
+            for k in 0..dim {
+                data[(t * dim + k) * TILE_F32 + c] = f32::from(q[j * dim + k]);
+            }
+        }
+        Self { data, dim, len }
+    }
+}
+
+/// Whether this CPU runs the AVX2 kernel (AVX2 and FMA).
+pub fn cpu_has_avx2() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+/// [`scores_block`] for CPUs without VNNI: the same products, as f32 FMAs on the quantised values
+/// (`fa` = [`dequantized`] rows of A, row-major), with `b` packed once per pair instead of the
+/// general GEMM's packing on every call. Every product is an integer below 2²⁴, so the sums are
+/// exact in any order: the scores are the VNNI kernel's. `j0` must be a multiple of 16. Only
+/// call when [`cpu_has_avx2`] is true.
+#[allow(clippy::too_many_arguments)]
+pub fn scores_block_avx2(
+    fa: &[f32],
+    dim: usize,
+    i0: usize,
+    rows: usize,
+    b: &PackedF32,
+    j0: usize,
+    cols: usize,
+    out: &mut [f32],
+) {
+    assert!(j0.is_multiple_of(TILE_F32) && j0 + cols <= b.len && out.len() >= rows * cols);
+    assert!(rows > 0 && fa.len() >= (i0 + rows) * dim && dim == b.dim);
+    assert!(cpu_has_avx2());
+    #[cfg(target_arch = "x86_64")]
+    // SAFETY: the CPU has AVX2 and FMA (asserted above); the asserted lengths cover every element
+    // the kernel addresses (see `avx2::block`).
+    unsafe {
+        avx2::block(fa, dim, i0, rows, b, j0, cols, out)
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+mod avx2 {
+    use super::{PackedF32, TILE_F32};
+    use std::arch::x86_64::*;
+
+    /// Rows per register tile: 6 rows × 2 registers of 8 sums, 12 accumulators (of 16 registers).
+    const ROWS: usize = 6;
+
+    #[allow(clippy::too_many_arguments)]
+    #[target_feature(enable = "avx2,fma")]
+    pub(super) unsafe fn block(
+        fa: &[f32],
+        dim: usize,
+        i0: usize,
+        rows: usize,
+        b: &PackedF32,
+        j0: usize,
+        cols: usize,
+        out: &mut [f32],
+    ) {
+        let t0 = j0 / TILE_F32;
+        let tiles = cols.div_ceil(TILE_F32);
+        let mut r0 = 0;
+        while r0 < rows {
+            let nr = ROWS.min(rows - r0);
+            // Rows past the block repeat its last row: read, summed, not stored.
+            let arow: [&[f32]; ROWS] = std::array::from_fn(|r| {
+                let i = i0 + r0 + r.min(nr - 1);
+                &fa[i * dim..(i + 1) * dim]
+            });
+            for t in 0..tiles {
+                let bt = &b.data[(t0 + t) * dim * TILE_F32..(t0 + t + 1) * dim * TILE_F32];
+                let mut lo = [_mm256_setzero_ps(); ROWS];
+                let mut hi = [_mm256_setzero_ps(); ROWS];
+                for (k, bk) in bt.chunks_exact(TILE_F32).enumerate() {
+                    // SAFETY: `bk` holds 16 floats.
+                    let (b0, b1) = unsafe {
+                        (
+                            _mm256_loadu_ps(bk.as_ptr()),
+                            _mm256_loadu_ps(bk.as_ptr().add(8)),
+                        )
+                    };
+                    for r in 0..ROWS {
+                        // SAFETY: every row slice has `dim` floats and k < dim.
+                        let a = _mm256_set1_ps(unsafe { *arow[r].get_unchecked(k) });
+                        lo[r] = _mm256_fmadd_ps(a, b0, lo[r]);
+                        hi[r] = _mm256_fmadd_ps(a, b1, hi[r]);
+                    }
+                }
+                let c0 = t * TILE_F32;
+                let nc = TILE_F32.min(cols - c0);
+                for r in 0..nr {
+                    let at = (r0 + r) * cols + c0;
+                    let dst = &mut out[at..at + nc];
+                    if nc == TILE_F32 {
+                        // SAFETY: `dst` holds 16 floats.
+                        unsafe {
+                            _mm256_storeu_ps(dst.as_mut_ptr(), lo[r]);
+                            _mm256_storeu_ps(dst.as_mut_ptr().add(8), hi[r]);
+                        }
+                    } else {
+                        let mut tile = [0f32; TILE_F32];
+                        // SAFETY: `tile` holds 16 floats.
+                        unsafe {
+                            _mm256_storeu_ps(tile.as_mut_ptr(), lo[r]);
+                            _mm256_storeu_ps(tile.as_mut_ptr().add(8), hi[r]);
+                        }
+                        dst.copy_from_slice(&tile[..nc]);
+                    }
+                }
+            }
+            r0 += nr;
+        }
+    }
+}
+
 #[cfg(target_arch = "x86_64")]
 mod vnni {
     use super::{PackedB, TILE};
@@ -257,6 +398,47 @@ mod tests {
             let (i0, rows, j0, cols) = (1, n - 2, 16, m - 16);
             let mut out = vec![0f32; rows * cols];
             scores_block(&qa, &suma, dim, i0, rows, &packed, j0, cols, &mut out);
+            for r in 0..rows {
+                for c in 0..cols {
+                    let (i, j) = (i0 + r, j0 + c);
+                    let exact: i64 = (0..dim)
+                        .map(|k| i64::from(qa[i * dim + k]) * i64::from(qb[j * dim + k]))
+                        .sum();
+                    assert_eq!(out[r * cols + c] as i64, exact, "({i}, {j})");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn avx2_scores_equal_the_exact_integer_products() {
+        if !cpu_has_avx2() {
+            eprintln!("skipped: this CPU has no AVX2/FMA");
+            return;
+        }
+        let mut s = 11u64;
+        let mut rnd = || {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (s >> 33) as u32
+        };
+        // Sizes that leave partial row groups (of 6) and partial tiles (of 16); 255s everywhere in
+        // the last case, the largest sums (128 · 255², below 2²⁴).
+        for &(n, m, dim, full) in &[
+            (37usize, 53usize, 128usize, false),
+            (8, 16, 128, false),
+            (5, 37, 10, false),
+            (9, 40, 128, true),
+        ] {
+            let mut draw = || if full { 255u8 } else { rnd() as u8 };
+            let qa: Vec<u8> = (0..n * dim).map(|_| draw()).collect();
+            let qb: Vec<u8> = (0..m * dim).map(|_| draw()).collect();
+            let packed = PackedF32::new(&qb, dim);
+            let fa = dequantized(&qa);
+            let (i0, rows, j0, cols) = (1, n - 2, 16, m - 16);
+            let mut out = vec![0f32; rows * cols];
+            scores_block_avx2(&fa, dim, i0, rows, &packed, j0, cols, &mut out);
             for r in 0..rows {
                 for c in 0..cols {
                     let (i, j) = (i0 + r, j0 + c);
