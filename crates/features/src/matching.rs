@@ -126,7 +126,10 @@ fn match_with(a: &Descriptors, b: &Descriptors, opts: &MatchOptions, vnni: bool)
                 .collect();
             Product::Vnni(qa, suma, quantized::PackedB::new(&qb, d))
         } else if quantized::cpu_has_avx2() {
-            Product::Avx2(quantized::dequantized(&qa), quantized::PackedF32::new(&qb, d))
+            Product::Avx2(
+                quantized::dequantized(&qa),
+                quantized::PackedF32::new(&qb, d),
+            )
         } else {
             Product::F32(quantized::dequantized(&qa), quantized::dequantized(&qb))
         };

@@ -373,6 +373,36 @@ mod vnni {
 mod tests {
     use super::*;
 
+    /// A seeded linear congruential generator of 31-bit values.
+    fn lcg(mut s: u64) -> impl FnMut() -> u32 {
+        move || {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (s >> 33) as u32
+        }
+    }
+
+    /// Every score of the block `(i0, rows, j0, cols)` equals the exact integer product.
+    fn assert_exact(
+        qa: &[u8],
+        qb: &[u8],
+        dim: usize,
+        block: (usize, usize, usize, usize),
+        out: &[f32],
+    ) {
+        let (i0, rows, j0, cols) = block;
+        for r in 0..rows {
+            for c in 0..cols {
+                let (i, j) = (i0 + r, j0 + c);
+                let exact: i64 = (0..dim)
+                    .map(|k| i64::from(qa[i * dim + k]) * i64::from(qb[j * dim + k]))
+                    .sum();
+                assert_eq!(out[r * cols + c] as i64, exact, "({i}, {j})");
+            }
+        }
+    }
+
     #[test]
     #[cfg_attr(
         not(has_vnni),
@@ -380,13 +410,7 @@ mod tests {
     )]
     fn vnni_scores_equal_the_exact_integer_products() {
         assert!(cpu_has_vnni(), "this CPU has no AVX-512 VNNI");
-        let mut s = 7u64;
-        let mut rnd = || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (s >> 33) as u32
-        };
+        let mut rnd = lcg(7);
         for &(n, m, dim) in &[(37usize, 53usize, 128usize), (8, 16, 128), (5, 21, 10)] {
             let qa: Vec<u8> = (0..n * dim).map(|_| rnd() as u8).collect();
             let qb: Vec<u8> = (0..m * dim).map(|_| rnd() as u8).collect();
@@ -398,15 +422,7 @@ mod tests {
             let (i0, rows, j0, cols) = (1, n - 2, 16, m - 16);
             let mut out = vec![0f32; rows * cols];
             scores_block(&qa, &suma, dim, i0, rows, &packed, j0, cols, &mut out);
-            for r in 0..rows {
-                for c in 0..cols {
-                    let (i, j) = (i0 + r, j0 + c);
-                    let exact: i64 = (0..dim)
-                        .map(|k| i64::from(qa[i * dim + k]) * i64::from(qb[j * dim + k]))
-                        .sum();
-                    assert_eq!(out[r * cols + c] as i64, exact, "({i}, {j})");
-                }
-            }
+            assert_exact(&qa, &qb, dim, (i0, rows, j0, cols), &out);
         }
     }
 
@@ -416,13 +432,7 @@ mod tests {
             eprintln!("skipped: this CPU has no AVX2/FMA");
             return;
         }
-        let mut s = 11u64;
-        let mut rnd = || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (s >> 33) as u32
-        };
+        let mut rnd = lcg(11);
         // Sizes that leave partial row groups (of 6) and partial tiles (of 16); 255s everywhere in
         // the last case, the largest sums (128 · 255², below 2²⁴).
         for &(n, m, dim, full) in &[
@@ -439,15 +449,7 @@ mod tests {
             let (i0, rows, j0, cols) = (1, n - 2, 16, m - 16);
             let mut out = vec![0f32; rows * cols];
             scores_block_avx2(&fa, dim, i0, rows, &packed, j0, cols, &mut out);
-            for r in 0..rows {
-                for c in 0..cols {
-                    let (i, j) = (i0 + r, j0 + c);
-                    let exact: i64 = (0..dim)
-                        .map(|k| i64::from(qa[i * dim + k]) * i64::from(qb[j * dim + k]))
-                        .sum();
-                    assert_eq!(out[r * cols + c] as i64, exact, "({i}, {j})");
-                }
-            }
+            assert_exact(&qa, &qb, dim, (i0, rows, j0, cols), &out);
         }
     }
 }
