@@ -12,21 +12,43 @@ use crate::scene::{Primitive, Scene};
 impl Scene {
     /// The default scene for `seed`: ground, back wall, 2–3 boxes and 1–2 spheres on the ground.
     pub fn default_scene(seed: u64) -> Self {
+        Self::objects(seed, true)
+    }
+
+    /// The default scene's objects for `seed` (the same boxes and spheres) on a 12 m × 12 m
+    /// ground without the back wall, to be walked around ([`crate::CameraPath::Ring`],
+    /// [`crate::CameraPath::Hemisphere`]): what lies beyond the ground is the renderer's empty
+    /// background.
+    pub fn turntable_scene(seed: u64) -> Self {
+        Self::objects(seed, false)
+    }
+
+    fn objects(seed: u64, walled: bool) -> Self {
         let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x5CE2_E000);
-        let mut prims = vec![
-            Primitive::Plane {
-                origin: Point3::new(-3.0, -3.5, 0.0),
-                edge_u: Vector3::new(6.0, 0.0, 0.0),
-                edge_v: Vector3::new(0.0, 6.0, 0.0),
-                texture: rng.random(),
-            },
-            Primitive::Plane {
-                origin: Point3::new(-3.0, 2.5, 0.0),
-                edge_u: Vector3::new(6.0, 0.0, 0.0),
-                edge_v: Vector3::new(0.0, 0.0, 2.5),
-                texture: rng.random(),
-            },
-        ];
+        let (ground_texture, wall_texture) = (rng.random(), rng.random());
+        let mut prims = if walled {
+            vec![
+                Primitive::Plane {
+                    origin: Point3::new(-3.0, -3.5, 0.0),
+                    edge_u: Vector3::new(6.0, 0.0, 0.0),
+                    edge_v: Vector3::new(0.0, 6.0, 0.0),
+                    texture: ground_texture,
+                },
+                Primitive::Plane {
+                    origin: Point3::new(-3.0, 2.5, 0.0),
+                    edge_u: Vector3::new(6.0, 0.0, 0.0),
+                    edge_v: Vector3::new(0.0, 0.0, 2.5),
+                    texture: wall_texture,
+                },
+            ]
+        } else {
+            vec![Primitive::Plane {
+                origin: Point3::new(-6.0, -6.0, 0.0),
+                edge_u: Vector3::new(12.0, 0.0, 0.0),
+                edge_v: Vector3::new(0.0, 12.0, 0.0),
+                texture: ground_texture,
+            }]
+        };
         let n_boxes = rng.random_range(2..=3);
         let n_spheres = rng.random_range(1..=2);
         let mut placed: Vec<(f64, f64, f64)> = Vec::new(); // footprint circles (x, y, radius)

@@ -8,6 +8,13 @@
 //!   optical axis, so the epipole is at the image centre up to jitter), starting `distance` in front of
 //!   it at `height`.
 //!
+//! * [`CameraPath::Ring`]: a full turn around `target` at horizontal radius `distance` (frame `i` at
+//!   azimuth `i · 360° / n`, so the ring closes without repeating a view), always looking at
+//!   `target`: an object on a turntable or a sculpture walked around. `sweep` is not used.
+//! * [`CameraPath::Hemisphere`]: three such rings at elevations 15°, 40° and 65° seen from
+//!   `target` (on a sphere of radius `distance`), each turned by half a step against the one below;
+//!   `height` is not used.
+//!
 //! Cameras start at `height` above the ground. On top of the nominal path each frame gets a small walking
 //! bob and seeded i.i.d. Gaussian jitter: `jitter_pos` metres per axis on the centre and `jitter_rot`
 //! degrees per axis on the orientation (applied in the camera frame). An optional linear zoom scales
@@ -28,6 +35,8 @@ pub enum CameraPath {
     Orbit,
     WalkThrough,
     Forward,
+    Ring,
+    Hemisphere,
 }
 
 /// Parameters of a camera path; see the module documentation for the meaning per kind.
@@ -96,6 +105,16 @@ impl PathOptions {
             jitter_rot: 1.0,
             ..Self::base(CameraPath::Orbit, num_frames, 1.7, 1.35, 60.0)
         }
+    }
+
+    /// A full turn at 4 m radius, 2.5 m high (looking down about 20° at the objects).
+    pub fn ring(num_frames: usize) -> Self {
+        Self::base(CameraPath::Ring, num_frames, 4.0, 2.5, 360.0)
+    }
+
+    /// Three rings on a hemisphere of 4.5 m radius around the objects.
+    pub fn hemisphere(num_frames: usize) -> Self {
+        Self::base(CameraPath::Hemisphere, num_frames, 4.5, 0.0, 360.0)
     }
 
     /// A 2.4 m lateral walk, 3.8 m in front of the objects, 1.5 m high.
@@ -189,6 +208,36 @@ impl PathOptions {
                     let eye = start + forward_dir * (s * self.sweep / forward_dir.norm());
                     (eye, eye + forward_dir)
                 }
+                CameraPath::Ring => {
+                    let az = i as f64 / n as f64 * std::f64::consts::TAU;
+                    (
+                        Point3::new(
+                            t.x + self.distance * az.sin(),
+                            t.y - self.distance * az.cos(),
+                            self.height,
+                        ),
+                        t,
+                    )
+                }
+                CameraPath::Hemisphere => {
+                    // Frames split over three rings, the lower rings taking the extra ones.
+                    let ring = (i * 3) / n;
+                    let first = (ring * n).div_ceil(3);
+                    let count = ((ring + 1) * n).div_ceil(3) - first;
+                    let k = i - first;
+                    let elevation = (15.0 + 25.0 * ring as f64).to_radians();
+                    let az = (k as f64 + 0.5 * ring as f64) / count.max(1) as f64
+                        * std::f64::consts::TAU;
+                    let r = self.distance * elevation.cos();
+                    (
+                        Point3::new(
+                            t.x + r * az.sin(),
+                            t.y - r * az.cos(),
+                            t.z + self.distance * elevation.sin(),
+                        ),
+                        t,
+                    )
+                }
             };
             let bob = Vector3::new(0.0, 0.0, 0.01 * (std::f64::consts::TAU * 3.0 * s).sin());
             let eye = eye + bob + gaussian_vec3(&mut rng, self.jitter_pos);
@@ -219,6 +268,8 @@ mod tests {
             PathOptions::orbit(9),
             PathOptions::walk_through(9),
             PathOptions::forward(9),
+            PathOptions::ring(9),
+            PathOptions::hemisphere(9),
         ] {
             let traj = opts.generate().expect("valid");
             assert_eq!(traj.cam_from_world.len(), 9);
@@ -228,8 +279,42 @@ mod tests {
                 // Within ~25° of the optical axis.
                 assert!((p.x.hypot(p.y) / p.z) < 0.5, "{:?}", opts.kind);
                 let c = center_of(pose);
-                assert!((c.z - opts.height).abs() < 0.4);
+                if opts.kind != CameraPath::Hemisphere {
+                    assert!((c.z - opts.height).abs() < 0.4);
+                }
             }
+        }
+    }
+
+    #[test]
+    fn a_ring_closes_and_a_hemisphere_climbs() {
+        let mut ring = PathOptions::ring(8);
+        ring.jitter_pos = 0.0;
+        ring.jitter_rot = 0.0;
+        let centres_of = |o: &PathOptions| -> Vec<Point3<f64>> {
+            let traj = o.generate().expect("valid");
+            traj.cam_from_world.iter().map(center_of).collect()
+        };
+        let centres = centres_of(&ring);
+        // Eight views 45° apart: every step the same chord, the last view next to the first.
+        let chord = 2.0 * ring.distance * (std::f64::consts::PI / 8.0).sin();
+        for k in 0..8 {
+            let d = (centres[(k + 1) % 8] - centres[k]).xy().norm();
+            assert!((d - chord).abs() < 0.05, "{k}: {d} against {chord}");
+        }
+        let mut hemi = PathOptions::hemisphere(10);
+        hemi.jitter_pos = 0.0;
+        let heights: Vec<f64> = centres_of(&hemi)
+            .iter()
+            .map(|c| c.z - hemi.target.z)
+            .collect();
+        // 4 + 3 + 3 frames at 15°, 40° and 65°.
+        let expect = [
+            15.0_f64, 15.0, 15.0, 15.0, 40.0, 40.0, 40.0, 65.0, 65.0, 65.0,
+        ]
+        .map(|e| hemi.distance * e.to_radians().sin());
+        for (h, e) in heights.iter().zip(expect) {
+            assert!((h - e).abs() < 0.05, "{heights:?}");
         }
     }
 

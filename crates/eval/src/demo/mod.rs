@@ -34,6 +34,10 @@ pub enum CameraPath {
     Walk,
     /// Move forwards into the scene.
     Forward,
+    /// Walk all the way round the objects (a full turn, no back wall: a sculpture or a turntable).
+    Ring,
+    /// Three rings round the objects at rising elevations (no back wall).
+    Hemisphere,
 }
 
 /// The synthetic scene.

@@ -27,6 +27,8 @@ pub fn sequence_options(o: &DemoOptions) -> SequenceOptions {
         (_, CameraPath::Orbit) => PathOptions::orbit(n),
         (_, CameraPath::Walk) => PathOptions::walk_through(n),
         (_, CameraPath::Forward) => PathOptions::forward(n),
+        (_, CameraPath::Ring) => PathOptions::ring(n),
+        (_, CameraPath::Hemisphere) => PathOptions::hemisphere(n),
     };
     let path = PathOptions {
         seed: o.seed,
@@ -52,9 +54,12 @@ pub fn sequence_options(o: &DemoOptions) -> SequenceOptions {
 
 /// The testkit scene a demo renders.
 pub fn scene(o: &DemoOptions) -> handheld_testkit::Scene {
-    match o.scene {
-        DemoScene::Objects => handheld_testkit::Scene::default_scene(o.seed),
-        DemoScene::Wall => handheld_testkit::Scene::wall_scene(o.seed),
+    match (o.scene, o.path) {
+        (DemoScene::Objects, CameraPath::Ring | CameraPath::Hemisphere) => {
+            handheld_testkit::Scene::turntable_scene(o.seed)
+        }
+        (DemoScene::Objects, _) => handheld_testkit::Scene::default_scene(o.seed),
+        (DemoScene::Wall, _) => handheld_testkit::Scene::wall_scene(o.seed),
     }
 }
 
