@@ -103,9 +103,22 @@ fn pair_disagreement(
         .unzip();
     let (_, r, t) = crate::projective::init::essential_pose(&e, &xa, &xb)?;
     // E = K_bᵀ F K_a is an essential matrix only up to the model's calibration error and F's
-    // noise: the pose it is projected to is refined on the inliers' Sampson errors first.
+    // noise: the pose it is projected to is refined on the inliers' Sampson errors, and so is the
+    // model's own relative pose; the pair's rotation is the better fit of the two
+    // (`pair_rotation::best_pose`).
     let scale = pair.matches.len() as f64 / xa.len().max(1) as f64;
-    let (r, _, sigma) = pair_rotation::refine_pose(&r, &t, &xa, &xb, scale);
+    let rel = vb.cam_from_world * va.cam_from_world.inverse();
+    let starts = [
+        (r, t),
+        (
+            rel.rotation.to_rotation_matrix().into_inner(),
+            rel.translation
+                .vector
+                .try_normalize(1e-12)
+                .unwrap_or_default(),
+        ),
+    ];
+    let (r, sigma) = pair_rotation::best_pose(&starts, &xa, &xb, scale)?;
     let model =
         (vb.cam_from_world.rotation * va.cam_from_world.rotation.inverse()).to_rotation_matrix();
     let cos = (((r * model.matrix().transpose()).trace() - 1.0) / 2.0).clamp(-1.0, 1.0);
@@ -457,6 +470,29 @@ mod tests {
         };
         assert!(angle(&r1) < 1e-3, "{}° after refinement", angle(&r1));
         assert!(sigma.is_some_and(|s| s < 1e-6), "{sigma:?} without noise");
+    }
+
+    #[test]
+    fn the_better_of_two_starts_gives_the_pairs_rotation() {
+        use crate::metric::pair_rotation::best_pose;
+        let (xa, xb, r, t) = pair(500.0, 0.5);
+        // A start in another basin (as a poorly determined F gives) and the true one, either way
+        // round: the true basin's fit wins.
+        let far = *nalgebra::Rotation3::from_axis_angle(&Vector3::x_axis(), 40f64.to_radians())
+            .matrix()
+            * r;
+        for starts in [
+            [(far, -t), (r, t.normalize())],
+            [(r, t.normalize()), (far, -t)],
+        ] {
+            let (got, sigma) = best_pose(&starts, &xa, &xb, 1.0).expect("a pose");
+            let deg = (((got * r.transpose()).trace() - 1.0) / 2.0)
+                .clamp(-1.0, 1.0)
+                .acos()
+                .to_degrees();
+            assert!(deg < 0.2, "{deg}° from the truth");
+            assert!(sigma.is_some());
+        }
     }
 
     #[test]

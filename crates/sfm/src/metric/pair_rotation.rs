@@ -1,6 +1,7 @@
 //! A verified pair's relative rotation under the model's calibration, and how well the pair fixes
 //! it: the rotation of `E = K_bᵀ F K_a` (H&Z §9.6.2) refined by Gauss–Newton on the inliers'
-//! Sampson errors, and its first-order covariance (H&Z §5.2). Used by the view-consistency check
+//! Sampson errors (and, from a second start, the model's own relative pose: [`best_pose`]), and
+//! its first-order covariance (H&Z §5.2). Used by the view-consistency check
 //! (`consistency.rs`) to widen what a pair allows: a long lens or a short baseline fixes a pair's
 //! rotation only to degrees, a wide pair to a fraction of one.
 
@@ -46,6 +47,36 @@ pub(crate) fn refine_pose(
     }
     let sigma = rotation_sigma(&r, &t, xa, xb, scale);
     (r, t, sigma)
+}
+
+/// The pair's relative pose from several starts, each refined by [`refine_pose`]: the one with
+/// the smallest sum of squared Sampson errors, with its rotation's standard deviation; `None` when
+/// no start is usable.
+///
+/// The pose is calibrated (five parameters under the model's `K`), which a plane does not make
+/// degenerate; the fundamental matrix it starts from is not: where most inliers lie on one plane
+/// (a ground seen from across an object, a façade) or the field of view is narrow, `F` is poorly
+/// determined and the pose projected from `E = K_bᵀ F K_a` can lie tens of degrees away, in another
+/// basin of the pose's cost that a few Gauss–Newton steps do not leave. The model's own relative
+/// pose is then the second start: where the model is right it reaches the deeper minimum, where a
+/// view is misplaced its start descends to a shallower one and the pair's own pose wins.
+pub(crate) fn best_pose(
+    starts: &[(nalgebra::Matrix3<f64>, nalgebra::Vector3<f64>)],
+    xa: &[Vector2<f64>],
+    xb: &[Vector2<f64>],
+    scale: f64,
+) -> Option<(nalgebra::Matrix3<f64>, Option<f64>)> {
+    starts
+        .iter()
+        .filter(|(_, t)| t.norm() > 1e-12)
+        .map(|(r, t)| {
+            let (r, t, sigma) = refine_pose(r, t, xa, xb, scale);
+            let cost = sampson_cost(&(handheld_geometry::skew(&t) * r), xa, xb);
+            (r, sigma, cost)
+        })
+        .filter(|x| x.2.is_finite())
+        .min_by(|a, b| a.2.total_cmp(&b.2))
+        .map(|(r, sigma, _)| (r, sigma))
 }
 
 /// One Gauss–Newton step of [`refine_pose`] and the covariance at its start.
