@@ -37,6 +37,8 @@ pub mod code {
     pub const SEPARATE_MODELS: &str = "separate_models";
     /// A merge of two pieces that no verified pair between them confirms.
     pub const UNCONFIRMED_MERGE: &str = "unconfirmed_merge";
+    /// Views whose only checkable pairs were with views taken out as misplaced.
+    pub const UNCONFIRMED_VIEWS: &str = "unconfirmed_views";
     /// Split-and-merge: the clusters' own focal lengths disagree, or views of the merged model
     /// disagree with their verified pairs.
     pub const SPLIT_DISAGREEMENT: &str = "split_disagreement";

@@ -401,6 +401,24 @@ impl Stage for Sparse {
             )
             .details("sparse/summary.json, merged"));
         }
+        let alone = &best.view_consistency.unconfirmed;
+        if !alone.is_empty() {
+            warnings.push(
+                Warning::new(
+                    code::UNCONFIRMED_VIEWS,
+                    format!(
+                        "no verified pair confirms the pose of {}: the only views it could be checked against were taken out of the model as misplaced, and it may be misplaced too",
+                        if alone.len() <= 4 {
+                            alone.join(", ")
+                        } else {
+                            format!("{} views (listed in the details)", alone.len())
+                        }
+                    ),
+                )
+                .advice("add photos between them and the rest of the scene, or check them in the report")
+                .details(alone.join(", ")),
+            );
+        }
         let kept = best
             .self_calibration
             .candidates

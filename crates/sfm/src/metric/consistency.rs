@@ -68,6 +68,52 @@ pub struct ConsistencyReport {
     /// without them, then they were registered into it by calibrated resection where possible
     /// (and judged again).
     pub rebuilt_without: Vec<ViewDisagreement>,
+    /// Views kept whose every checkable pair is with a view taken out ([`unconfirmed`]): nothing
+    /// confirms their poses, which were found beside misplaced views.
+    #[serde(default)]
+    pub unconfirmed: Vec<String>,
+}
+
+/// The registered views of `rec` that have a pair the check can use (general, enough inliers)
+/// with a view of `removed` and none with a view kept: registered beside misplaced views, often
+/// through their points, and confirmed by nothing once those are gone. A synthetic hemisphere at an
+/// 11° field of view kept one 50° off this way, silently. Flagging them instead of warning sent
+/// that model down another path that kept two other views wrong (2026-11-28), so they are only
+/// named.
+pub(crate) fn unconfirmed(
+    ctx: &Context,
+    rec: &MetricReconstruction,
+    removed: &BTreeSet<usize>,
+) -> Vec<usize> {
+    if removed.is_empty() {
+        return Vec::new();
+    }
+    let registered = |i: usize| rec.views.contains_key(&ctx.input.images[i].id);
+    // Per kept view: (a usable pair with a removed view, a usable pair with a kept view).
+    let mut seen: BTreeMap<usize, (bool, bool)> = BTreeMap::new();
+    for p in &ctx.input.pairs {
+        if p.configuration != TwoViewConfiguration::General
+            || p.matches.len() < MIN_PAIR_INLIERS
+            || p.f.is_none()
+        {
+            continue;
+        }
+        for (me, other) in [(p.a, p.b), (p.b, p.a)] {
+            if !registered(me) || removed.contains(&me) {
+                continue;
+            }
+            let e = seen.entry(me).or_default();
+            if removed.contains(&other) {
+                e.0 = true;
+            } else if registered(other) {
+                e.1 = true;
+            }
+        }
+    }
+    seen.into_iter()
+        .filter(|(_, (with_removed, with_kept))| *with_removed && !*with_kept)
+        .map(|(i, _)| i)
+        .collect()
 }
 
 /// The angle (degrees) between the relative rotation of views `a` → `b` in `rec` and the one of
@@ -493,6 +539,23 @@ mod tests {
             assert!(deg < 0.2, "{deg}° from the truth");
             assert!(sigma.is_some());
         }
+    }
+
+    #[test]
+    fn a_view_checked_only_against_removed_views_is_unconfirmed() {
+        let (mut input, rec) = scene();
+        // View 3 keeps its usable pairs with view 2 alone; views 4 and 5 keep theirs too.
+        input.pairs.retain(|p| {
+            let (a, b) = (p.a.min(p.b), p.a.max(p.b));
+            (a != 3 && b != 3) || (a, b) == (2, 3)
+        });
+        let graph = CorrespondenceGraph::build(&input, 8);
+        let opts = SfmOptions::default();
+        let ctx = Context::new(&input, &graph, &opts);
+        assert!(unconfirmed(&ctx, &rec, &BTreeSet::new()).is_empty());
+        assert_eq!(unconfirmed(&ctx, &rec, &BTreeSet::from([2])), vec![3]);
+        // Removing a view with many partners leaves every other view a kept partner.
+        assert!(unconfirmed(&ctx, &rec, &BTreeSet::from([5])).is_empty());
     }
 
     #[test]

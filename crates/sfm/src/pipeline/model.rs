@@ -3,7 +3,7 @@
 //! initial pair when none survives, calibrated registration and the predicted matches), builds it
 //! again without the views the consistency check flags, then runs the steps on the finished model.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::time::Instant;
 
 use handheld_core::{MetricReconstruction, Progress};
@@ -116,6 +116,22 @@ pub(crate) fn build_model(
     let (mut consistency, records) =
         consistency::take_out(ctx, &mut rec, &mut search.failures, estimate_aspect, judged);
     consistency.rebuilt_without = banned.into_iter().map(|(_, d)| d).collect();
+    let removed: BTreeSet<usize> = consistency
+        .removed
+        .iter()
+        .filter_map(|d| ctx.input.images.iter().position(|im| im.name == d.image))
+        .collect();
+    let alone = consistency::unconfirmed(ctx, &rec, &removed);
+    if !alone.is_empty() {
+        consistency.unconfirmed = alone
+            .iter()
+            .map(|&i| ctx.input.images[i].name.clone())
+            .collect();
+        tracing::info!(
+            "no verified pair confirms the poses of {}: their only checkable partners were taken out",
+            consistency.unconfirmed.join(", ")
+        );
+    }
     metric_ba.extend(records);
     record(&mut timings, "view_consistency", t_con);
     let t_frames = Instant::now();
