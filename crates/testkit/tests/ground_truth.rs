@@ -374,11 +374,15 @@ fn other_paths_and_zoom_give_valid_ground_truth() {
         (CameraPath::WalkThrough, None),
         (CameraPath::Forward, Some((1.0, 1.3))),
         (CameraPath::Orbit, Some((1.2, 0.9))),
+        (CameraPath::Ring, None),
+        (CameraPath::Hemisphere, None),
     ] {
         let path = match kind {
             CameraPath::Orbit => PathOptions::orbit(4),
             CameraPath::WalkThrough => PathOptions::walk_through(4),
             CameraPath::Forward => PathOptions::forward(4),
+            CameraPath::Ring => PathOptions::ring(4),
+            CameraPath::Hemisphere => PathOptions::hemisphere(4),
         };
         let opts = SequenceOptions {
             width: 80,
