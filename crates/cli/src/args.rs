@@ -96,8 +96,7 @@ pub struct DemoArgs {
     /// Seed of the scene, the path and the noise.
     #[arg(long, default_value_t = demo_defaults().seed)]
     pub seed: u64,
-    /// Camera path: orbit, walk, forward, ring (a full turn round the objects, no back wall) or
-    /// hemisphere (three such rings at rising elevations).
+    /// Camera path: orbit, walk, forward, ring (full turn, no back wall), hemisphere (three rings).
     #[arg(long, default_value = choice_name(&demo_defaults().path), value_parser = choice::<handheld_eval::CameraPath>)]
     pub path: handheld_eval::CameraPath,
     /// Redo every stage even when its outputs are up to date.

@@ -11,8 +11,8 @@
 //! reads sparse, and the mesh when it is there.
 //!
 //! A stage is one file here (its name, reads, options and their check, summary and body: see
-//! [`crate::Stage`]) and one `register` line below; its options are checked when it is
-//! registered.
+//! [`crate::Stage`]; the sparse stage keeps what it reads in `sparse/input.rs`) and one
+//! `register` line below; its options are checked when it is registered.
 
 pub mod augment;
 pub mod dense;
