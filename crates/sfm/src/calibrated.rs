@@ -39,8 +39,11 @@ use crate::upgrade::hypotheses::two_view_focal_among;
 const GROWTH: f64 = 1.2;
 /// Fewest views of a calibrated model.
 const MIN_VIEWS: usize = 3;
-/// Initial pairs tried per focal length.
+/// Initial pairs grown per focal length.
 const MAX_PAIRS: usize = 3;
+/// Initial pairs whose two-view model is set up per focal length, at most: a pair that gives too
+/// few points under the start's focal length costs one triangulation and is passed over.
+const MAX_TWO_VIEW: usize = 60;
 /// Focal lengths of the starts without other information, as multiples of the longer image side:
 /// 0.8 (a 64° field of view across it, a phone's main camera), 1.2 (COLMAP's default prior) and 2.
 pub const SPREAD: [f64; 3] = [0.8, 1.2, 2.0];
@@ -191,9 +194,15 @@ fn score(b: &Built) -> f64 {
     b.record.score.unwrap_or(f64::NEG_INFINITY)
 }
 
-/// One start: the initial pair (up to [`MAX_PAIRS`] tried), growth by calibrated resection with
+/// One start: the initial pair (up to [`MAX_PAIRS`] grown), growth by calibrated resection with
 /// adjustments as the model grows, the views still missing by calibrated registration, and the
 /// full metric adjustment; judged like every metric candidate.
+///
+/// A pair whose two-view model gives too few points under the start's focal length is passed
+/// over without counting against [`MAX_PAIRS`]. The wide-baseline pairs that rank first by eq. 14
+/// are the ones a focal length a few per cent off cannot triangulate (their reprojection errors
+/// grow with the baseline): along a corridor, the three best pairs all shared one view 4–5 m up
+/// the corridor from the other, gave 0–12 points each, and no start was ever grown.
 fn build(
     ctx: &Context,
     allowed: &[bool],
@@ -201,7 +210,11 @@ fn build(
     estimate_aspect: bool,
 ) -> Result<Built, String> {
     let mut last = String::from("no initial pair");
-    for (a, b) in initial_pairs(ctx, allowed).into_iter().take(MAX_PAIRS) {
+    let mut grown = 0;
+    for (a, b) in initial_pairs(ctx, allowed).into_iter().take(MAX_TWO_VIEW) {
+        if grown == MAX_PAIRS {
+            break;
+        }
         let mut rec = match two_view(ctx, allowed, a, b, start.focal_px) {
             Ok(r) => r,
             Err(e) => {
@@ -209,6 +222,7 @@ fn build(
                 continue;
             }
         };
+        grown += 1;
         adjust(ctx, &mut rec, estimate_aspect, false)?;
         grow(ctx, &mut rec, allowed, estimate_aspect)?;
         // Two views do not determine the calibration: a model of two would report the focal

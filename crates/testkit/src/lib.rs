@@ -20,6 +20,7 @@
 //! benchmark); `ring.rs`: the large sparse ring scene for bundle-adjustment scaling.
 
 pub mod correspondences;
+pub mod corridor;
 pub mod default_scene;
 pub mod mesh;
 pub mod multiview;
@@ -46,6 +47,6 @@ pub use render::{
     render_sequence, render_sequence_with_scene, RayTable, SequenceOptions, SyntheticSequence,
 };
 pub use ring::{ring_set, RingOptions, RingSet};
-pub use scene::{FaceRect, Hit, Landmark, Primitive, Scene};
+pub use scene::{FaceRect, Finish, Hit, Landmark, Primitive, Scene};
 pub use street::{street_set, StreetOptions, StreetPair, StreetSet};
 pub use texture::{FaceTexture, LANDMARK_HALF_SQUARE, LANDMARK_RADIUS};

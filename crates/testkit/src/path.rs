@@ -37,6 +37,9 @@ pub enum CameraPath {
     Forward,
     Ring,
     Hemisphere,
+    /// The walk through [`crate::Scene::corridor_scene`] (see [`crate::corridor`]): `sweep` metres
+    /// of it, at `height`; `distance` and `target` are not used.
+    Corridor,
 }
 
 /// Parameters of a camera path; see the module documentation for the meaning per kind.
@@ -237,6 +240,11 @@ impl PathOptions {
                         ),
                         t,
                     )
+                }
+                CameraPath::Corridor => {
+                    let (p, u) = crate::corridor::corridor_walk_at(s * self.sweep);
+                    let eye = Point3::new(p.x, p.y, self.height);
+                    (eye, eye + Vector3::new(u.x, u.y, -0.18))
                 }
             };
             let bob = Vector3::new(0.0, 0.0, 0.01 * (std::f64::consts::TAU * 3.0 * s).sin());

@@ -110,6 +110,28 @@ pub struct Scene {
     landmarks: Vec<Landmark>,
     /// Per primitive: the strength of its specular (Blinn–Phong) highlight, 0 for matte.
     gloss: Vec<f64>,
+    /// Per primitive: how its albedo is drawn from its texture.
+    finish: Vec<Finish>,
+}
+
+/// How a primitive's albedo is drawn from its procedural texture: the rich block texture, or the
+/// surfaces of a building's interior that give a tracker little (plain paint, a tiled floor).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub enum Finish {
+    /// The multi-scale block texture with its landmarks ([`crate::texture`]).
+    #[default]
+    Textured,
+    /// Paint: the block texture's contrast scaled by `contrast` (about 0.05–0.15) around a light
+    /// grey, so that only faint blotches are left; no landmark disks are drawn.
+    Plain { contrast: f64 },
+    /// Square tiles of side `size` metres, each a nearly uniform shade (a faint copy of the
+    /// texture), separated by dark grout lines 1 cm wide: a repeated pattern.
+    Tiles { size: f64 },
+}
+
+/// `rgb` pulled towards `base`, keeping `contrast` of its deviation from mid-grey.
+fn faint(rgb: [f64; 3], base: f64, contrast: f64) -> [f64; 3] {
+    rgb.map(|c| base + contrast * (c - 0.5))
 }
 
 /// Tangent axes of box face `face`: (normal axis, positive side, u axis, v axis), with `u × v` outward.
@@ -216,12 +238,14 @@ impl Scene {
             }
         }
         let gloss = vec![0.0; primitives.len()];
+        let finish = vec![Finish::Textured; primitives.len()];
         let mut scene = Self {
             primitives,
             prepared,
             textures,
             landmarks: Vec::new(),
             gloss,
+            finish,
         };
         scene.landmarks = scene.place_landmarks();
         Ok(scene)
@@ -238,6 +262,20 @@ impl Scene {
             *g = strength.max(0.0);
         }
         self
+    }
+
+    /// Gives primitive `k` the finish `f` (plain paint, tiles). Its landmarks stay in
+    /// [`Scene::landmarks`] (the ground truth's points) but are not drawn, or drawn faintly.
+    pub fn with_finish(mut self, k: usize, f: Finish) -> Self {
+        if let Some(x) = self.finish.get_mut(k) {
+            *x = f;
+        }
+        self
+    }
+
+    /// The finish of primitive `k` (textured for an invalid index).
+    pub fn finish(&self, k: usize) -> Finish {
+        self.finish.get(k).copied().unwrap_or_default()
     }
 
     /// The specular strength of the primitive a ray hit.
@@ -525,7 +563,26 @@ impl Scene {
             .get(hit.primitive)
             .and_then(|f| f.get(hit.face as usize))
         {
-            Some(t) => t.albedo(&hit.uv),
+            Some(t) => match self.finish(hit.primitive) {
+                Finish::Textured => t.albedo(&hit.uv),
+                Finish::Plain { contrast } => faint(t.blocks(&hit.uv), 0.72, contrast),
+                Finish::Tiles { size } => {
+                    let s = size.max(0.02);
+                    let (fu, fv) = ((hit.uv.x / s).fract(), (hit.uv.y / s).fract());
+                    let grout = 0.005 / s;
+                    if fu < grout || fu > 1.0 - grout || fv < grout || fv > 1.0 - grout {
+                        return [0.22, 0.21, 0.2];
+                    }
+                    // One shade per tile, from the texture at the tile's centre.
+                    let centre = Vector2::new(
+                        ((hit.uv.x / s).floor() + 0.5) * s,
+                        ((hit.uv.y / s).floor() + 0.5) * s,
+                    );
+                    let shade = faint(t.albedo(&centre), 0.6, 0.08);
+                    let grain = faint(t.blocks(&hit.uv), 0.0, 0.05);
+                    [0, 1, 2].map(|c| (shade[c] + grain[c]).clamp(0.0, 1.0))
+                }
+            },
             None => [0.5; 3],
         }
     }

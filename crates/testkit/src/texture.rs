@@ -161,6 +161,11 @@ impl FaceTexture {
                 return [g, g, g];
             }
         }
+        self.blocks(uv)
+    }
+
+    /// The RGB albedo of the block texture alone at `uv`, without the landmarks.
+    pub fn blocks(&self, uv: &Vector2<f64>) -> [f64; 3] {
         let qu = (uv.x * (1.0 / QUANTUM)).floor() as i64;
         let qv = (uv.y * (1.0 / QUANTUM)).floor() as i64;
         let mut g = 0.5;

@@ -7,8 +7,9 @@ use std::sync::OnceLock;
 use handheld_core::pose::center_of;
 use handheld_core::ImageId;
 use handheld_testkit::{
-    distance_to_mesh, pixel_ray, render_sequence, CameraPath, PathOptions, Primitive,
-    SequenceOptions, SyntheticSequence, LANDMARK_HALF_SQUARE, LANDMARK_RADIUS,
+    distance_to_mesh, pixel_ray, render_sequence, render_sequence_with_scene, CameraPath,
+    PathOptions, Primitive, Scene, SequenceOptions, SyntheticSequence, LANDMARK_HALF_SQUARE,
+    LANDMARK_RADIUS,
 };
 use nalgebra::{Point3, Vector2};
 use rand::{Rng, SeedableRng};
@@ -376,6 +377,7 @@ fn other_paths_and_zoom_give_valid_ground_truth() {
         (CameraPath::Orbit, Some((1.2, 0.9))),
         (CameraPath::Ring, None),
         (CameraPath::Hemisphere, None),
+        (CameraPath::Corridor, None),
     ] {
         let path = match kind {
             CameraPath::Orbit => PathOptions::orbit(4),
@@ -383,6 +385,11 @@ fn other_paths_and_zoom_give_valid_ground_truth() {
             CameraPath::Forward => PathOptions::forward(4),
             CameraPath::Ring => PathOptions::ring(4),
             CameraPath::Hemisphere => PathOptions::hemisphere(4),
+            // The first metre of the walk: four frames that see the same walls.
+            CameraPath::Corridor => PathOptions {
+                sweep: 1.0,
+                ..PathOptions::corridor_walk(4)
+            },
         };
         let opts = SequenceOptions {
             width: 80,
@@ -392,7 +399,12 @@ fn other_paths_and_zoom_give_valid_ground_truth() {
             path: PathOptions { zoom, ..path },
             ..SequenceOptions::default()
         };
-        let seq = render_sequence(&opts).expect("valid");
+        let seq = if kind == CameraPath::Corridor {
+            render_sequence_with_scene(Scene::corridor_scene(opts.seed), &opts)
+        } else {
+            render_sequence(&opts)
+        }
+        .expect("valid");
         seq.gt.validate().expect("consistent GT");
         assert!(seq.gt.mean_reprojection_error() < 1e-9);
         assert_eq!(

@@ -50,6 +50,9 @@ pub enum DemoScene {
     /// A phone's capture: a patterned wall filling most of every frame (a dominant plane) with an
     /// object mounted on it, orbited at 1.7 m (the path is always this orbit).
     Wall,
+    /// An indoor walk: a U-shaped corridor with plain walls and a tiled floor, walked with two
+    /// quick turns (the path is always this walk; about 14.7 m).
+    Corridor,
 }
 
 /// What the demo renders and how it reconstructs it.
@@ -245,11 +248,12 @@ pub fn run_demo(o: &DemoOptions, progress: &dyn Progress) -> Result<DemoReport> 
         tracing::info!("synthetic sequence in {} is up to date", o.output.display());
     } else {
         tracing::info!(
-            "rendering {} frames of {}×{} ({:?} path, seed {})",
+            "rendering {} frames of {}×{} ({:?} scene, {:?} path, seed {})",
             o.frames,
             o.width,
             o.height,
-            o.path,
+            o.scene,
+            seq_opts.path.kind,
             o.seed
         );
         progress.start("rendering", 0);

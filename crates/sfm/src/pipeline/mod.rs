@@ -79,11 +79,14 @@ pub fn reconstruct(
         if search.free() < 2 {
             break;
         }
+        let before = search.allowed.clone();
         match model::build_model(&ctx, &mut search, progress) {
             Ok(Some(model)) => models.push(model),
             Ok(None) => break,
             Err(e) => {
-                let ends = e.ends_search();
+                // A failure that took no view would be met again, step for step, by the next
+                // attempt on the same free views (a corridor walk: five identical failures).
+                let ends = e.ends_search() || search.allowed == before;
                 last_err = Some(e);
                 if ends {
                     break;

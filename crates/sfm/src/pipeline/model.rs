@@ -318,6 +318,8 @@ fn core_model(
     let entry = (search.allowed.clone(), search.failures.clone());
     // The calibrated candidate tried after the first failed start, when it held fewer views.
     let mut early = None;
+    // Its failure, when it found no sound model: it is not built again on the same views.
+    let mut early_failed: Option<StepError> = None;
     let stratified = loop {
         let saved = (search.allowed.clone(), search.failures.clone());
         let t0 = Instant::now();
@@ -366,12 +368,15 @@ fn core_model(
                     let found =
                         calibrated_core(ctx, &mut trial, estimate_aspect, e.clone(), progress);
                     add(&mut timings, "calibrated_incremental", t);
-                    if let Ok(found) = found {
-                        if found.0.order.len() >= model.order.len() {
-                            *search = trial;
-                            break Ok(found);
+                    match found {
+                        Ok(found) => {
+                            if found.0.order.len() >= model.order.len() {
+                                *search = trial;
+                                break Ok(found);
+                            }
+                            early = Some((found, trial));
                         }
-                        early = Some((found, trial));
+                        Err(e) => early_failed = Some(e),
                     }
                 }
                 if rejected.len() >= MAX_STARTS {
@@ -393,6 +398,10 @@ fn core_model(
         (Err(e), None) => {
             search.allowed = entry.0;
             search.failures = entry.1;
+            // Built from the same views after the first failed start: the same failure.
+            if let Some(failed) = early_failed {
+                return Err(failed);
+            }
             let t = Instant::now();
             let found = calibrated_core(ctx, search, estimate_aspect, e, progress);
             add(&mut timings, "calibrated_incremental", t);
