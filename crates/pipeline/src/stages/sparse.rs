@@ -17,6 +17,7 @@ use crate::policy::{focal_verdict, FocalVerdict};
 use crate::stage::{Produced, Stage, StageContext, SummaryFile};
 use crate::warning::{code, Warning};
 
+mod gaps;
 mod input;
 pub use input::load_input;
 use input::{colorize, load_input_and_colours, refine_input};
@@ -312,23 +313,25 @@ impl Stage for Sparse {
                 outputs.push(format!("{MODELS_DIR}/{k}"));
             }
         }
-        let mut warnings: Vec<Warning> = unregistered
-            .iter()
-            .map(|u| {
-                Warning::new(
-                    code::UNREGISTERED,
-                    format!("{}: not registered ({})", u.image, u.reason),
-                )
-            })
-            .collect();
+        let names: Vec<String> = input.images.iter().map(|im| im.name.clone()).collect();
+        let mut warnings = gaps::unregistered_warnings(&names, &unregistered);
         if result.models.len() > 1 {
-            warnings.push(
-                Warning::new(
-                    code::SEPARATE_MODELS,
-                    format!("the images form {} separate models; the largest is in sparse/, the others in sparse/models/", result.models.len()),
-                )
-                .advice("add photos that link the pieces (overlapping views between them)"),
-            );
+            let members: Vec<Vec<usize>> = result
+                .models
+                .iter()
+                .map(|m| {
+                    let held: std::collections::BTreeSet<&str> = m
+                        .reconstruction
+                        .views
+                        .values()
+                        .map(|v| v.name.as_str())
+                        .collect();
+                    (0..names.len())
+                        .filter(|&i| held.contains(names[i].as_str()))
+                        .collect()
+                })
+                .collect();
+            warnings.push(gaps::separate_models_warning(&names, &members));
         }
         let copies: Vec<String> = result
             .duplicates
