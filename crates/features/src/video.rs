@@ -133,9 +133,14 @@ pub const MIN_TRACK_SURVIVAL: f64 = 0.5;
 pub const MIN_TRACKS_PER_FRAME: usize = 100;
 
 /// Whether KLT tracking held over a video, or why not: too few tracks per frame (see
-/// [`MIN_TRACKS_PER_FRAME`]), too few kept from frame to frame (see [`MIN_TRACK_SURVIVAL`]), or
-/// key-frames that stop long before the end.
-pub fn tracking_verdict(tracks: &VideoTracks) -> Result<(), String> {
+/// [`MIN_TRACKS_PER_FRAME`]), too few kept from frame to frame (see [`MIN_TRACK_SURVIVAL`]),
+/// key-frames that stop long before the end, or a key-frame that shares fewer than
+/// `min_shared_tracks` tracks with the one before it (the fewest for a key-frame pair to be
+/// verified, [`VideoTrackingOptions::min_shared_tracks`]): no pair links the two, and the sequence
+/// breaks there into separate models. A corridor walked past plain walls kept a median of 158
+/// tracks per frame, but its key-frames shared 1–32 tracks at a dozen places (the turns, a blank
+/// stretch of wall), and gave four models of 20–51 frames.
+pub fn tracking_verdict(tracks: &VideoTracks, min_shared_tracks: usize) -> Result<(), String> {
     let n = tracks.num_frames();
     if n < 2 {
         return Ok(());
@@ -169,6 +174,17 @@ pub fn tracking_verdict(tracks: &VideoTracks) -> Result<(), String> {
         // The tracks held and no frame moved far enough from the first: a still camera, which
         // descriptor matching cannot reconstruct either (the tracks stage says so).
         return Ok(());
+    }
+    let broken: Vec<(usize, usize, usize)> = keys
+        .windows(2)
+        .map(|w| (w[0], w[1], tracks.shared(w[0], w[1]).len()))
+        .filter(|&(_, _, shared)| shared < min_shared_tracks)
+        .collect();
+    if let Some(&(a, b, shared)) = broken.first() {
+        return Err(format!(
+            "KLT loses the thread between key-frames at {} place(s), first between frames {a} and {b} ({shared} shared tracks, need {min_shared_tracks} to link them)",
+            broken.len()
+        ));
     }
     let widest = keys.windows(2).map(|w| w[1] - w[0]).max().unwrap_or(1);
     let last = keys[keys.len() - 1];
@@ -313,9 +329,24 @@ mod tests {
 
     #[test]
     fn few_tracks_per_frame_fail_the_verdict_like_lost_ones() {
-        assert_eq!(tracking_verdict(&steady(12, 400)), Ok(()));
-        let e = tracking_verdict(&steady(12, 67)).unwrap_err();
+        assert_eq!(tracking_verdict(&steady(12, 400), 30), Ok(()));
+        let e = tracking_verdict(&steady(12, 67), 30).unwrap_err();
         assert!(e.contains("only 67 tracks per frame"), "{e}");
+    }
+
+    #[test]
+    fn key_frames_that_share_too_few_tracks_fail_the_verdict() {
+        // Every track replaced at frame 7 but 20: key-frames 6 and 9 share 20 tracks.
+        let mut t = steady(12, 400);
+        for k in 7..12 {
+            t.ids[k] = (0..400u64).map(|i| if i < 20 { i } else { 1000 + i }).collect();
+        }
+        let e = tracking_verdict(&t, 30).unwrap_err();
+        assert!(
+            e.contains("between frames 6 and 9 (20 shared tracks, need 30"),
+            "{e}"
+        );
+        assert_eq!(tracking_verdict(&t, 20), Ok(()));
     }
 
     #[test]

@@ -159,9 +159,9 @@ impl Stage for Features {
         let ingest = ctx.ws.read_ingest()?;
         let mut warnings = Vec::new();
         if self.options.uses_klt(ingest.kind) {
-            let tracks =
-                super::tracks::track(&ingest, &self.options.video_tracking(), ctx.progress)?;
-            match tracking_verdict(&tracks) {
+            let tracking = self.options.video_tracking();
+            let tracks = super::tracks::track(&ingest, &tracking, ctx.progress)?;
+            match tracking_verdict(&tracks, tracking.min_shared_tracks) {
                 // Asked for KLT, or KLT held: the tracks are the features.
                 Ok(()) => return write_tracking(&tracks, dir),
                 Err(why) if self.options.tracking == TrackingMode::Klt => {
