@@ -82,7 +82,7 @@ pub(crate) fn build_model(
     let estimate_aspect = ctx.opts.estimate_aspect.unwrap_or(ctx.input.video);
     let t_all = Instant::now();
     let entry = (search.allowed.clone(), search.failures.clone());
-    let Some(mut core) = core_model(ctx, search, progress)? else {
+    let Some(mut core) = core_model(ctx, search, true, progress)? else {
         return Ok(None);
     };
     // Views misplaced in the model: build it again without them, then try to register them into
@@ -207,14 +207,23 @@ fn rebuild_without_flagged(
             .map(|(_, d)| format!("{} ({:.1}°)", d.image, d.median_deg))
             .collect::<Vec<_>>()
             .join(", ");
-        match core_model(ctx, search, progress) {
-            Ok(Some(rebuilt))
+        // A model that the calibrated candidate built after a stratified start had failed is
+        // built again by it alone: what sank the start (a dominant plane, critical motion,
+        // distortion) belongs to the images, not to the views taken out (a corridor walk spent
+        // its rebuild's first minutes on a projective model and candidates that failed again).
+        let stratified =
+            !(core.report.calibrated_incremental && !core.report.rejected_starts.is_empty());
+        match core_model(ctx, search, stratified, progress) {
+            Ok(Some(mut rebuilt))
                 if rebuilt.rec.views.len() + flagged.len() >= core.rec.views.len() =>
             {
                 tracing::info!(
                     "the model was built again without the views whose poses disagreed with their verified image pairs: {names}"
                 );
                 banned.extend(flagged);
+                if !stratified {
+                    rebuilt.report.rejected_starts = core.report.rejected_starts.clone();
+                }
                 *core = rebuilt;
             }
             // The views cannot be spared: keep the model; the check below takes them out.
@@ -306,9 +315,11 @@ fn focal_warnings(
 /// Steps 1–5 on the free views of `search`: the projective model, its metric frame (started again
 /// from the next initial pair when none survives, up to [`MAX_STARTS`]), calibrated registration
 /// and the predicted matches. `Ok(None)` when the projective model holds fewer than 2 views.
+/// Without `try_stratified`, the model is the calibrated incremental candidate's alone.
 fn core_model(
     ctx: &Context,
     search: &mut Search,
+    try_stratified: bool,
     progress: &dyn Progress,
 ) -> Result<Option<Core>, StepError> {
     let estimate_aspect = ctx.opts.estimate_aspect.unwrap_or(ctx.input.video);
@@ -321,6 +332,11 @@ fn core_model(
     // Its failure, when it found no sound model: it is not built again on the same views.
     let mut early_failed: Option<StepError> = None;
     let stratified = loop {
+        if !try_stratified {
+            break Err(StepError::MetricUpgrade(
+                "no stratified start gave a sound metric frame on these images before".into(),
+            ));
+        }
         let saved = (search.allowed.clone(), search.failures.clone());
         let t0 = Instant::now();
         let model = match projective_step(ctx, search, &excluded, progress) {
