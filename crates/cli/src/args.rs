@@ -113,9 +113,8 @@ pub struct DemoArgs {
     /// projection against the exact cameras (use with --video).
     #[arg(long)]
     pub augment: bool,
-    /// The scene: `objects` (boxes and spheres on a ground), `wall` (a phone's capture: a
-    /// patterned wall filling most of each frame, an object mounted on it, orbited at 1.7 m) or
-    /// `corridor` (an indoor walk: plain walls, a tiled floor, two quick turns).
+    /// The scene: `objects` (boxes on a ground), `wall` (a phone orbiting an object on a patterned
+    /// wall) or `corridor` (an indoor walk: plain walls, a tiled floor, two quick turns).
     #[arg(long, default_value = choice_name(&demo_defaults().scene), value_parser = choice::<handheld_eval::DemoScene>)]
     pub scene: handheld_eval::DemoScene,
     /// Field of view across the longer image side, degrees (a phone: 65–70); default: the focal

@@ -339,7 +339,9 @@ mod tests {
         // Every track replaced at frame 7 but 20: key-frames 6 and 9 share 20 tracks.
         let mut t = steady(12, 400);
         for k in 7..12 {
-            t.ids[k] = (0..400u64).map(|i| if i < 20 { i } else { 1000 + i }).collect();
+            t.ids[k] = (0..400u64)
+                .map(|i| if i < 20 { i } else { 1000 + i })
+                .collect();
         }
         let e = tracking_verdict(&t, 30).unwrap_err();
         assert!(

@@ -22,6 +22,7 @@
 pub mod correspondences;
 pub mod corridor;
 pub mod default_scene;
+pub mod finish;
 pub mod mesh;
 pub mod multiview;
 pub mod needs;

@@ -8,6 +8,7 @@
 use nalgebra::{Matrix3, Point3, UnitQuaternion, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
+pub use crate::finish::Finish;
 use crate::texture::{FaceTexture, LANDMARK_HALF_SQUARE};
 
 /// Smallest accepted ray parameter (self-intersection guard), in units of the ray direction.
@@ -112,26 +113,6 @@ pub struct Scene {
     gloss: Vec<f64>,
     /// Per primitive: how its albedo is drawn from its texture.
     finish: Vec<Finish>,
-}
-
-/// How a primitive's albedo is drawn from its procedural texture: the rich block texture, or the
-/// surfaces of a building's interior that give a tracker little (plain paint, a tiled floor).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub enum Finish {
-    /// The multi-scale block texture with its landmarks ([`crate::texture`]).
-    #[default]
-    Textured,
-    /// Paint: the block texture's contrast scaled by `contrast` (about 0.05–0.15) around a light
-    /// grey, so that only faint blotches are left; no landmark disks are drawn.
-    Plain { contrast: f64 },
-    /// Square tiles of side `size` metres, each a nearly uniform shade (a faint copy of the
-    /// texture), separated by dark grout lines 1 cm wide: a repeated pattern.
-    Tiles { size: f64 },
-}
-
-/// `rgb` pulled towards `base`, keeping `contrast` of its deviation from mid-grey.
-fn faint(rgb: [f64; 3], base: f64, contrast: f64) -> [f64; 3] {
-    rgb.map(|c| base + contrast * (c - 0.5))
 }
 
 /// Tangent axes of box face `face`: (normal axis, positive side, u axis, v axis), with `u × v` outward.
@@ -563,26 +544,7 @@ impl Scene {
             .get(hit.primitive)
             .and_then(|f| f.get(hit.face as usize))
         {
-            Some(t) => match self.finish(hit.primitive) {
-                Finish::Textured => t.albedo(&hit.uv),
-                Finish::Plain { contrast } => faint(t.blocks(&hit.uv), 0.72, contrast),
-                Finish::Tiles { size } => {
-                    let s = size.max(0.02);
-                    let (fu, fv) = ((hit.uv.x / s).fract(), (hit.uv.y / s).fract());
-                    let grout = 0.005 / s;
-                    if fu < grout || fu > 1.0 - grout || fv < grout || fv > 1.0 - grout {
-                        return [0.22, 0.21, 0.2];
-                    }
-                    // One shade per tile, from the texture at the tile's centre.
-                    let centre = Vector2::new(
-                        ((hit.uv.x / s).floor() + 0.5) * s,
-                        ((hit.uv.y / s).floor() + 0.5) * s,
-                    );
-                    let shade = faint(t.albedo(&centre), 0.6, 0.08);
-                    let grain = faint(t.blocks(&hit.uv), 0.0, 0.05);
-                    [0, 1, 2].map(|c| (shade[c] + grain[c]).clamp(0.0, 1.0))
-                }
-            },
+            Some(t) => self.finish(hit.primitive).albedo(t, &hit.uv),
             None => [0.5; 3],
         }
     }
