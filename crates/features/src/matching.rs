@@ -78,13 +78,18 @@ struct Best2 {
     s2: f32,
 }
 
-/// How the score blocks are computed: the VNNI kernel on the quantised first set (with its row
-/// sums) and the packed second set, or the f32 GEMM (on the quantised values, the same numbers;
-/// see `quantized`).
+/// How the score blocks are computed: a VNNI kernel (512- or 256-bit, `wide`) on the quantised
+/// first set (with its row sums) and the packed second set, the AVX2 kernel, or the f32 GEMM (on
+/// the quantised values, the same numbers; see `quantized`).
 enum Product {
-    Vnni(Vec<u8>, Vec<i32>, quantized::PackedB),
-    /// Without VNNI: the quantised values as f32, B packed once ([`quantized::scores_block_avx2`]).
-    Avx2(Vec<f32>, quantized::PackedF32),
+    Vnni {
+        qa: Vec<u8>,
+        suma: Vec<i32>,
+        packed: quantized::PackedB,
+        wide: bool,
+    },
+    /// Without VNNI: A's rows as pairs of i16, B packed once ([`quantized::scores_block_avx2`]).
+    Avx2(Vec<i32>, quantized::PackedI16),
     F32(Vec<f32>, Vec<f32>),
 }
 
@@ -95,11 +100,17 @@ type BlockResult = (Vec<Best2>, Vec<(f32, u32)>);
 /// mutual check and `max_distance`. Returns matches sorted by `i`. Mismatched dimensions or invalid
 /// options give no matches (with a warning).
 pub fn match_descriptors(a: &Descriptors, b: &Descriptors, opts: &MatchOptions) -> Vec<Match> {
-    match_with(a, b, opts, quantized::have_vnni())
+    match_with(a, b, opts, quantized::kernel())
 }
 
-/// [`match_descriptors`], with the VNNI kernel or without it.
-fn match_with(a: &Descriptors, b: &Descriptors, opts: &MatchOptions, vnni: bool) -> Vec<Match> {
+/// [`match_descriptors`] with the given brute-force kernel (one the CPU has).
+fn match_with(
+    a: &Descriptors,
+    b: &Descriptors,
+    opts: &MatchOptions,
+    kernel: quantized::Kernel,
+) -> Vec<Match> {
+    use quantized::Kernel;
     if let Err(e) = opts.validate() {
         tracing::warn!("invalid match options: {e}");
         return Vec::new();
@@ -119,19 +130,23 @@ fn match_with(a: &Descriptors, b: &Descriptors, opts: &MatchOptions, vnni: bool)
         let sq = |v: &[u8]| v.iter().map(|&x| u32::from(x) * u32::from(x)).sum::<u32>() as f32;
         let na: Vec<f32> = qa.chunks_exact(d).map(sq).collect();
         let nb: Vec<f32> = qb.chunks_exact(d).map(sq).collect();
-        let product = if vnni {
-            let suma = qa
-                .chunks_exact(d)
-                .map(|r| r.iter().map(|&v| i32::from(v)).sum())
-                .collect();
-            Product::Vnni(qa, suma, quantized::PackedB::new(&qb, d))
-        } else if quantized::cpu_has_avx2() {
-            Product::Avx2(
-                quantized::dequantized(&qa),
-                quantized::PackedF32::new(&qb, d),
-            )
-        } else {
-            Product::F32(quantized::dequantized(&qa), quantized::dequantized(&qb))
+        let product = match kernel {
+            Kernel::Avx512Vnni | Kernel::AvxVnni => Product::Vnni {
+                suma: qa
+                    .chunks_exact(d)
+                    .map(|r| r.iter().map(|&v| i32::from(v)).sum())
+                    .collect(),
+                packed: quantized::PackedB::new(&qb, d),
+                wide: kernel == Kernel::Avx512Vnni,
+                qa,
+            },
+            Kernel::Avx2 => Product::Avx2(
+                quantized::pairs_of(&qa, d),
+                quantized::PackedI16::new(&qb, d),
+            ),
+            Kernel::Portable => {
+                Product::F32(quantized::dequantized(&qa), quantized::dequantized(&qb))
+            }
         };
         (product, na, nb, quantized::SCALE)
     } else {
@@ -163,11 +178,22 @@ fn match_with(a: &Descriptors, b: &Descriptors, opts: &MatchOptions, vnni: bool)
                 let cols = COL_BLOCK.min(m - j0);
                 let s = &mut scores[..rows * cols];
                 match &product {
-                    Product::Vnni(qa, suma, packed) => {
-                        quantized::scores_block(qa, suma, d, i0, rows, packed, j0, cols, s)
+                    Product::Vnni {
+                        qa,
+                        suma,
+                        packed,
+                        wide: true,
+                    } => quantized::scores_block(qa, suma, d, i0, rows, packed, j0, cols, s),
+                    Product::Vnni {
+                        qa,
+                        suma,
+                        packed,
+                        wide: false,
+                    } => {
+                        quantized::scores_block_avx_vnni(qa, suma, d, i0, rows, packed, j0, cols, s)
                     }
-                    Product::Avx2(fa, packed) => {
-                        quantized::scores_block_avx2(fa, d, i0, rows, packed, j0, cols, s)
+                    Product::Avx2(pa, packed) => {
+                        quantized::scores_block_avx2(pa, d, i0, rows, packed, j0, cols, s)
                     }
                     Product::F32(fa, fb) => gemm_abt(
                         &fa[i0 * d..(i0 + rows) * d],
@@ -369,7 +395,7 @@ mod tests {
         not(has_vnni),
         ignore = "needs a CPU with AVX-512 VNNI (this one has none)"
     )]
-    fn the_vnni_kernel_and_the_f32_product_give_the_same_matches() {
+    fn every_kernel_gives_the_same_matches() {
         assert!(quantized::cpu_has_vnni(), "this CPU has no AVX-512 VNNI");
         let mut s = 11u64;
         let mut rnd = || {
@@ -404,8 +430,17 @@ mod tests {
         };
         let (a, b) = (flat(&a), flat(&b));
         let o = MatchOptions::default();
-        let (x, y) = (match_with(&a, &b, &o, true), match_with(&a, &b, &o, false));
+        let x = match_with(&a, &b, &o, quantized::Kernel::Avx512Vnni);
         assert!(x.len() >= 250, "{} matches", x.len());
-        assert_eq!(x, y);
+        let mut others = vec![quantized::Kernel::Portable];
+        if quantized::cpu_has_avx2() {
+            others.push(quantized::Kernel::Avx2);
+        }
+        if quantized::cpu_has_avx_vnni() {
+            others.push(quantized::Kernel::AvxVnni);
+        }
+        for k in others {
+            assert_eq!(x, match_with(&a, &b, &o, k), "{k:?}");
+        }
     }
 }

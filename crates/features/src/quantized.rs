@@ -4,8 +4,9 @@
 //! clamped to 255, as COLMAP stores SIFT descriptors. Every product `qa · qb` is then an integer
 //! below 2²⁰ (‖q‖² ≈ 512²), so it is exact in f32 as well: the scores are the same numbers whether
 //! they come from the AVX-512 VNNI kernel here (`vpdpbusd`, 64 byte products per instruction,
-//! four times the f32 FMA rate) or from the f32 GEMM on the quantised values, and the matches do
-//! not depend on the machine.
+//! eight times an AVX2 f32 FMA's), from the AVX2 kernel (`vpmaddwd` on pairs of i16, 16 products
+//! per instruction) or from the f32 GEMM on the quantised values, and the matches do not depend on
+//! the machine.
 //!
 //! `vpdpbusd` multiplies unsigned by signed bytes, so the second operand is stored as `qb − 128`
 //! (signed) and `qa · qb = qa · (qb − 128) + 128 Σ qa`.
@@ -61,20 +62,46 @@ impl PackedB {
     }
 }
 
-/// The environment variable that picks the matching kernel: `avx2` runs the AVX2 path (the f32
-/// product on the same integers, with the same matches) even where the CPU has AVX-512 VNNI, so
-/// that both paths are measured on one machine; `auto` (or unset) takes the best the CPU has.
+/// The environment variable that picks the matching kernel: `avx2` runs the AVX2 path (the same
+/// integer products, with the same matches) and `avx-vnni` the 256-bit VNNI path, even where the
+/// CPU has AVX-512 VNNI, so that every path is measured on one machine; `auto` (or unset) takes
+/// the best the CPU has.
 pub const SIMD_ENV: &str = "HANDHELD_SIMD";
 
 /// The values [`SIMD_ENV`] takes.
-pub const SIMD_VALUES: [&str; 2] = ["auto", "avx2"];
+pub const SIMD_VALUES: [&str; 3] = ["auto", "avx2", "avx-vnni"];
 
-/// Whether [`SIMD_ENV`] asks for the AVX2 path. Any other value than [`SIMD_VALUES`] is `auto`
-/// here; the CLI refuses it before any work ([`simd_env_error`]).
-fn forced_avx2() -> bool {
-    static FORCED: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-    *FORCED.get_or_init(|| {
-        std::env::var(SIMD_ENV).is_ok_and(|v| v.trim().eq_ignore_ascii_case("avx2"))
+/// The brute-force kernels, fastest first.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Kernel {
+    /// AVX-512 F/BW/VNNI: `vpdpbusd` on 512-bit registers.
+    Avx512Vnni,
+    /// AVX-VNNI (Intel since Alder Lake, AMD since Zen 5): `vpdpbusd` on 256-bit registers.
+    AvxVnni,
+    /// AVX2: `vpmaddwd` on pairs of i16.
+    Avx2,
+    /// Anything else: the f32 GEMM on the quantised values.
+    Portable,
+}
+
+impl Kernel {
+    /// The name `bench` prints.
+    pub fn name(self) -> &'static str {
+        match self {
+            Kernel::Avx512Vnni => "avx512-vnni",
+            Kernel::AvxVnni => "avx-vnni",
+            Kernel::Avx2 => "avx2",
+            Kernel::Portable => "portable",
+        }
+    }
+}
+
+/// The value of [`SIMD_ENV`], lower-cased and trimmed (`auto` when unset).
+fn simd_choice() -> &'static str {
+    static CHOICE: std::sync::OnceLock<String> = std::sync::OnceLock::new();
+    CHOICE.get_or_init(|| {
+        std::env::var(SIMD_ENV)
+            .map_or_else(|_| "auto".to_string(), |v| v.trim().to_ascii_lowercase())
     })
 }
 
@@ -84,24 +111,57 @@ pub fn simd_env_error() -> Option<String> {
     let known = SIMD_VALUES.iter().any(|k| v.trim().eq_ignore_ascii_case(k));
     (!known).then(|| {
         format!(
-            "{SIMD_ENV}={v:?} is not a kernel choice: use `avx2` (the AVX2 path on any CPU) or `auto` (the best this CPU has), or unset it"
+            "{SIMD_ENV}={v:?} is not a kernel choice: use `avx2` (the AVX2 path on any CPU with AVX2), `avx-vnni` (the 256-bit VNNI path, on a CPU with AVX-VNNI) or `auto` (the best this CPU has), or unset it"
         )
     })
 }
 
-/// The matching kernel that runs: `avx512-vnni` or `avx2` (printed by the benchmarks).
-pub fn simd_path() -> &'static str {
-    if have_vnni() {
-        "avx512-vnni"
+/// The brute-force kernel that runs: the best this CPU has, or a slower one [`SIMD_ENV`] asks
+/// for (a kernel the CPU lacks is never run: `avx-vnni` on a CPU without it is `auto`).
+pub fn kernel() -> Kernel {
+    let best = if cpu_has_vnni() {
+        Kernel::Avx512Vnni
+    } else if cpu_has_avx_vnni() {
+        Kernel::AvxVnni
+    } else if cpu_has_avx2() {
+        Kernel::Avx2
     } else {
-        "avx2"
+        Kernel::Portable
+    };
+    let asked = match simd_choice() {
+        "avx2" if cpu_has_avx2() => Kernel::Avx2,
+        "avx-vnni" if cpu_has_avx_vnni() => Kernel::AvxVnni,
+        _ => best,
+    };
+    // Never faster than the CPU allows (the enum is ordered fastest first).
+    if (asked as u8) < (best as u8) {
+        best
+    } else {
+        asked
     }
 }
 
-/// Whether the matcher runs the VNNI kernel: the CPU has AVX-512 F, BW and VNNI, and [`SIMD_ENV`]
-/// does not ask for the AVX2 path.
+/// The matching kernel that runs, by name (printed by the benchmarks).
+pub fn simd_path() -> &'static str {
+    kernel().name()
+}
+
+/// Whether the matcher runs the AVX-512 VNNI kernel.
 pub fn have_vnni() -> bool {
-    cpu_has_vnni() && !forced_avx2()
+    kernel() == Kernel::Avx512Vnni
+}
+
+/// Whether this CPU can run the AVX-VNNI kernel (AVX2 and AVX-VNNI).
+pub fn cpu_has_avx_vnni() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx2")
+            && std::arch::is_x86_feature_detected!("avxvnni")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
 }
 
 /// Whether this CPU can run the VNNI kernel (AVX-512 F, BW and VNNI).
@@ -146,37 +206,82 @@ pub fn scores_block(
     }
 }
 
-/// Columns per tile of the AVX2 kernel: two 256-bit registers of f32 sums.
-const TILE_F32: usize = 16;
-
-/// The second operand of [`scores_block_avx2`], packed once per descriptor set: for each tile of
-/// 16 descriptors and each dimension, the 16 values as f32 (exact integers), zero-padded.
-pub struct PackedF32 {
-    data: Vec<f32>,
+/// [`scores_block`] on 256-bit registers (AVX-VNNI), from the same [`PackedB`]: each 64-byte
+/// group is two registers of 8 columns. Only call when [`cpu_has_avx_vnni`] is true.
+#[allow(clippy::too_many_arguments)]
+pub fn scores_block_avx_vnni(
+    qa: &[u8],
+    suma: &[i32],
     dim: usize,
-    len: usize,
-}
-
-impl PackedF32 {
-    pub fn new(q: &[u8], dim: usize) -> Self {
-        let len = q.len().checked_div(dim).unwrap_or(0);
-        let tiles = len.div_ceil(TILE_F32);
-        let mut data = vec![0f32; tiles * dim * TILE_F32];
-        for j in 0..len {
-            let (t, c) = (j / TILE_F32, j % TILE_F32);
-            for k in 0..dim {
-                data[(t * dim + k) * TILE_F32 + c] = f32::from(q[j * dim + k]);
-            }
-        }
-        Self { data, dim, len }
+    i0: usize,
+    rows: usize,
+    b: &PackedB,
+    j0: usize,
+    cols: usize,
+    out: &mut [f32],
+) {
+    assert!(j0.is_multiple_of(TILE) && j0 + cols <= b.len && out.len() >= rows * cols);
+    assert!(
+        qa.len() >= (i0 + rows) * dim && suma.len() >= i0 + rows && dim.div_ceil(4) == b.groups
+    );
+    assert!(cpu_has_avx_vnni());
+    #[cfg(target_arch = "x86_64")]
+    // SAFETY: the CPU has AVX2 and AVX-VNNI (asserted above); the asserted lengths cover every
+    // element the kernel addresses (see `avx_vnni::block`).
+    unsafe {
+        avx_vnni::block(qa, suma, dim, i0, rows, b, j0, cols, out)
     }
 }
 
-/// Whether this CPU runs the AVX2 kernel (AVX2 and FMA).
+/// Columns per tile of the AVX2 kernel: two 256-bit registers of i32 sums.
+const TILE_I16: usize = 16;
+
+/// The second operand of [`scores_block_avx2`], packed once per descriptor set: for each tile of
+/// 16 descriptors and each pair of dimensions `(2g, 2g + 1)`, the 16 descriptors' two values as
+/// i16 (descriptor-major: 32 values, 64 bytes), zero-padded to whole tiles and pairs.
+pub struct PackedI16 {
+    data: Vec<i16>,
+    pairs: usize,
+    len: usize,
+}
+
+impl PackedI16 {
+    pub fn new(q: &[u8], dim: usize) -> Self {
+        let len = q.len().checked_div(dim).unwrap_or(0);
+        let pairs = dim.div_ceil(2);
+        let tiles = len.div_ceil(TILE_I16);
+        let mut data = vec![0i16; tiles * pairs * TILE_I16 * 2];
+        for j in 0..len {
+            let (t, c) = (j / TILE_I16, j % TILE_I16);
+            for k in 0..dim {
+                let (g, b) = (k / 2, k % 2);
+                data[((t * pairs + g) * TILE_I16 + c) * 2 + b] = i16::from(q[j * dim + k]);
+            }
+        }
+        Self { data, pairs, len }
+    }
+}
+
+/// The rows of A for [`scores_block_avx2`]: row `i`'s dimensions `(2g, 2g + 1)` as two i16 in one
+/// i32 (low half first), `dim.div_ceil(2)` words per row, zero past `dim`.
+pub fn pairs_of(q: &[u8], dim: usize) -> Vec<i32> {
+    let pairs = dim.div_ceil(2);
+    q.chunks_exact(dim.max(1))
+        .flat_map(|row| {
+            (0..pairs).map(move |g| {
+                let lo = u32::from(row[2 * g]);
+                let hi = row.get(2 * g + 1).map_or(0, |&v| u32::from(v));
+                (lo | (hi << 16)) as i32
+            })
+        })
+        .collect()
+}
+
+/// Whether this CPU runs the AVX2 kernel.
 pub fn cpu_has_avx2() -> bool {
     #[cfg(target_arch = "x86_64")]
     {
-        std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+        std::arch::is_x86_feature_detected!("avx2")
     }
     #[cfg(not(target_arch = "x86_64"))]
     {
@@ -184,190 +289,42 @@ pub fn cpu_has_avx2() -> bool {
     }
 }
 
-/// [`scores_block`] for CPUs without VNNI: the same products, as f32 FMAs on the quantised values
-/// (`fa` = [`dequantized`] rows of A, row-major), with `b` packed once per pair instead of the
-/// general GEMM's packing on every call. Every product is an integer below 2²⁴, so the sums are
-/// exact in any order: the scores are the VNNI kernel's. `j0` must be a multiple of 16. Only
-/// call when [`cpu_has_avx2`] is true.
+/// [`scores_block`] for CPUs without VNNI: the same integer products, two dimensions at a time by
+/// `vpmaddwd` (16 products per instruction, twice an f32 FMA's 8, on half the bytes of B), summed
+/// in i32. `pa` holds A's rows by [`pairs_of`] and `b` is packed once per pair of images. The sums
+/// are exact (below 128 · 255² < 2²⁴), so the scores are the VNNI kernel's. `j0` must be a multiple
+/// of 16. Only call when [`cpu_has_avx2`] is true.
 #[allow(clippy::too_many_arguments)]
 pub fn scores_block_avx2(
-    fa: &[f32],
+    pa: &[i32],
     dim: usize,
     i0: usize,
     rows: usize,
-    b: &PackedF32,
+    b: &PackedI16,
     j0: usize,
     cols: usize,
     out: &mut [f32],
 ) {
-    assert!(j0.is_multiple_of(TILE_F32) && j0 + cols <= b.len && out.len() >= rows * cols);
-    assert!(rows > 0 && fa.len() >= (i0 + rows) * dim && dim == b.dim);
+    let pairs = dim.div_ceil(2);
+    assert!(j0.is_multiple_of(TILE_I16) && j0 + cols <= b.len && out.len() >= rows * cols);
+    assert!(rows > 0 && pa.len() >= (i0 + rows) * pairs && pairs == b.pairs);
     assert!(cpu_has_avx2());
     #[cfg(target_arch = "x86_64")]
-    // SAFETY: the CPU has AVX2 and FMA (asserted above); the asserted lengths cover every element
-    // the kernel addresses (see `avx2::block`).
+    // SAFETY: the CPU has AVX2 (asserted above); the asserted lengths cover every element the
+    // kernel addresses (see `avx2::block`).
     unsafe {
-        avx2::block(fa, dim, i0, rows, b, j0, cols, out)
+        avx2::block(pa, i0, rows, b, j0, cols, out)
     }
 }
 
 #[cfg(target_arch = "x86_64")]
-mod avx2 {
-    use super::{PackedF32, TILE_F32};
-    use std::arch::x86_64::*;
-
-    /// Rows per register tile: 6 rows × 2 registers of 8 sums, 12 accumulators (of 16 registers).
-    const ROWS: usize = 6;
-
-    #[allow(clippy::too_many_arguments)]
-    #[target_feature(enable = "avx2,fma")]
-    pub(super) unsafe fn block(
-        fa: &[f32],
-        dim: usize,
-        i0: usize,
-        rows: usize,
-        b: &PackedF32,
-        j0: usize,
-        cols: usize,
-        out: &mut [f32],
-    ) {
-        let t0 = j0 / TILE_F32;
-        let tiles = cols.div_ceil(TILE_F32);
-        let mut r0 = 0;
-        while r0 < rows {
-            let nr = ROWS.min(rows - r0);
-            // Rows past the block repeat its last row: read, summed, not stored.
-            let arow: [&[f32]; ROWS] = std::array::from_fn(|r| {
-                let i = i0 + r0 + r.min(nr - 1);
-                &fa[i * dim..(i + 1) * dim]
-            });
-            for t in 0..tiles {
-                let bt = &b.data[(t0 + t) * dim * TILE_F32..(t0 + t + 1) * dim * TILE_F32];
-                let mut lo = [_mm256_setzero_ps(); ROWS];
-                let mut hi = [_mm256_setzero_ps(); ROWS];
-                for (k, bk) in bt.chunks_exact(TILE_F32).enumerate() {
-                    // SAFETY: `bk` holds 16 floats.
-                    let (b0, b1) = unsafe {
-                        (
-                            _mm256_loadu_ps(bk.as_ptr()),
-                            _mm256_loadu_ps(bk.as_ptr().add(8)),
-                        )
-                    };
-                    for r in 0..ROWS {
-                        // SAFETY: every row slice has `dim` floats and k < dim.
-                        let a = _mm256_set1_ps(unsafe { *arow[r].get_unchecked(k) });
-                        lo[r] = _mm256_fmadd_ps(a, b0, lo[r]);
-                        hi[r] = _mm256_fmadd_ps(a, b1, hi[r]);
-                    }
-                }
-                let c0 = t * TILE_F32;
-                let nc = TILE_F32.min(cols - c0);
-                for r in 0..nr {
-                    let at = (r0 + r) * cols + c0;
-                    let dst = &mut out[at..at + nc];
-                    if nc == TILE_F32 {
-                        // SAFETY: `dst` holds 16 floats.
-                        unsafe {
-                            _mm256_storeu_ps(dst.as_mut_ptr(), lo[r]);
-                            _mm256_storeu_ps(dst.as_mut_ptr().add(8), hi[r]);
-                        }
-                    } else {
-                        let mut tile = [0f32; TILE_F32];
-                        // SAFETY: `tile` holds 16 floats.
-                        unsafe {
-                            _mm256_storeu_ps(tile.as_mut_ptr(), lo[r]);
-                            _mm256_storeu_ps(tile.as_mut_ptr().add(8), hi[r]);
-                        }
-                        dst.copy_from_slice(&tile[..nc]);
-                    }
-                }
-            }
-            r0 += nr;
-        }
-    }
-}
+mod avx2;
 
 #[cfg(target_arch = "x86_64")]
-mod vnni {
-    use super::{PackedB, TILE};
-    use std::arch::x86_64::*;
+mod avx_vnni;
 
-    /// Rows per register tile: 8 accumulators of 16 sums each.
-    const ROWS: usize = 8;
-
-    /// The 4 bytes of row `i`, dimensions `4g..4g+4`, as one i32 (zero past `dim`).
-    #[inline(always)]
-    fn group(qa: &[u8], dim: usize, i: usize, g: usize) -> i32 {
-        let row = &qa[i * dim..(i + 1) * dim];
-        let k = 4 * g;
-        if k + 4 <= dim {
-            i32::from_le_bytes([row[k], row[k + 1], row[k + 2], row[k + 3]])
-        } else {
-            let mut v = [0u8; 4];
-            for (t, x) in v.iter_mut().enumerate() {
-                *x = row.get(k + t).copied().unwrap_or(0);
-            }
-            i32::from_le_bytes(v)
-        }
-    }
-
-    #[allow(clippy::too_many_arguments)]
-    #[target_feature(enable = "avx512f,avx512bw,avx512vnni")]
-    pub(super) unsafe fn block(
-        qa: &[u8],
-        suma: &[i32],
-        dim: usize,
-        i0: usize,
-        rows: usize,
-        b: &PackedB,
-        j0: usize,
-        cols: usize,
-        out: &mut [f32],
-    ) {
-        let groups = b.groups;
-        // Row groups, broadcast once per row block, laid out [row chunk of ROWS][group][row in
-        // chunk] so that one group's ROWS broadcasts read consecutive words; rows past the block
-        // are zero (their sums are computed and not stored).
-        let chunks = rows.div_ceil(ROWS);
-        let mut abc = vec![0i32; chunks * groups * ROWS];
-        for r in 0..rows {
-            for g in 0..groups {
-                abc[((r / ROWS) * groups + g) * ROWS + r % ROWS] = group(qa, dim, i0 + r, g);
-            }
-        }
-        let t0 = j0 / TILE;
-        let tiles = cols.div_ceil(TILE);
-        let mut r0 = 0;
-        while r0 < rows {
-            let nr = ROWS.min(rows - r0);
-            let chunk = &abc[(r0 / ROWS) * groups * ROWS..(r0 / ROWS + 1) * groups * ROWS];
-            for t in 0..tiles {
-                let bt = &b.data[(t0 + t) * groups * TILE * 4..(t0 + t + 1) * groups * TILE * 4];
-                // A constant trip count over the rows, so the loop unrolls and the accumulators
-                // stay in registers.
-                let mut acc = [_mm512_setzero_si512(); ROWS];
-                for (g, ag) in chunk.chunks_exact(ROWS).enumerate() {
-                    // SAFETY: `bt` holds `groups` runs of 64 bytes.
-                    let bv = unsafe { _mm512_loadu_si512(bt.as_ptr().add(g * 64).cast()) };
-                    for (a, &w) in acc.iter_mut().zip(ag) {
-                        *a = _mm512_dpbusd_epi32(*a, _mm512_set1_epi32(w), bv);
-                    }
-                }
-                let c0 = t * TILE;
-                let nc = TILE.min(cols - c0);
-                let mask: __mmask16 = if nc == TILE { 0xffff } else { (1u16 << nc) - 1 };
-                for (r, a) in acc.iter().enumerate().take(nr) {
-                    let corr = _mm512_set1_epi32(128 * suma[i0 + r0 + r]);
-                    let s = _mm512_cvtepi32_ps(_mm512_add_epi32(*a, corr));
-                    let dst = &mut out[(r0 + r) * cols + c0..(r0 + r) * cols + c0 + nc];
-                    // SAFETY: `dst` has `nc` floats and the mask writes only those.
-                    unsafe { _mm512_mask_storeu_ps(dst.as_mut_ptr(), mask, s) };
-                }
-            }
-            r0 += nr;
-        }
-    }
-}
+#[cfg(target_arch = "x86_64")]
+mod vnni;
 
 #[cfg(test)]
 mod tests {
@@ -427,14 +384,12 @@ mod tests {
     }
 
     #[test]
-    fn avx2_scores_equal_the_exact_integer_products() {
-        if !cpu_has_avx2() {
-            eprintln!("skipped: this CPU has no AVX2/FMA");
+    fn avx_vnni_scores_equal_the_exact_integer_products() {
+        if !cpu_has_avx_vnni() {
+            eprintln!("skipped: this CPU has no AVX-VNNI");
             return;
         }
-        let mut rnd = lcg(11);
-        // Sizes that leave partial row groups (of 6) and partial tiles (of 16); 255s everywhere in
-        // the last case, the largest sums (128 · 255², below 2²⁴).
+        let mut rnd = lcg(13);
         for &(n, m, dim, full) in &[
             (37usize, 53usize, 128usize, false),
             (8, 16, 128, false),
@@ -444,11 +399,42 @@ mod tests {
             let mut draw = || if full { 255u8 } else { rnd() as u8 };
             let qa: Vec<u8> = (0..n * dim).map(|_| draw()).collect();
             let qb: Vec<u8> = (0..m * dim).map(|_| draw()).collect();
-            let packed = PackedF32::new(&qb, dim);
-            let fa = dequantized(&qa);
+            let suma: Vec<i32> = qa
+                .chunks_exact(dim)
+                .map(|r| r.iter().map(|&v| i32::from(v)).sum())
+                .collect();
+            let packed = PackedB::new(&qb, dim);
             let (i0, rows, j0, cols) = (1, n - 2, 16, m - 16);
             let mut out = vec![0f32; rows * cols];
-            scores_block_avx2(&fa, dim, i0, rows, &packed, j0, cols, &mut out);
+            scores_block_avx_vnni(&qa, &suma, dim, i0, rows, &packed, j0, cols, &mut out);
+            assert_exact(&qa, &qb, dim, (i0, rows, j0, cols), &out);
+        }
+    }
+
+    #[test]
+    fn avx2_scores_equal_the_exact_integer_products() {
+        if !cpu_has_avx2() {
+            eprintln!("skipped: this CPU has no AVX2");
+            return;
+        }
+        let mut rnd = lcg(11);
+        // Sizes that leave partial row groups (of 6) and partial tiles (of 16); 255s everywhere in
+        // the last case, the largest sums (128 · 255², below 2²⁴).
+        for &(n, m, dim, full) in &[
+            (37usize, 53usize, 128usize, false),
+            (8, 16, 128, false),
+            (5, 37, 10, false),
+            (6, 33, 9, false),
+            (9, 40, 128, true),
+        ] {
+            let mut draw = || if full { 255u8 } else { rnd() as u8 };
+            let qa: Vec<u8> = (0..n * dim).map(|_| draw()).collect();
+            let qb: Vec<u8> = (0..m * dim).map(|_| draw()).collect();
+            let packed = PackedI16::new(&qb, dim);
+            let pa = pairs_of(&qa, dim);
+            let (i0, rows, j0, cols) = (1, n - 2, 16, m - 16);
+            let mut out = vec![0f32; rows * cols];
+            scores_block_avx2(&pa, dim, i0, rows, &packed, j0, cols, &mut out);
             assert_exact(&qa, &qb, dim, (i0, rows, j0, cols), &out);
         }
     }

@@ -86,8 +86,9 @@ impl Scene {
         // Doors (medium contrast) and posters (rich texture), 1 cm proud of the walls: on the
         // outer wall of each leg and on the inner block, at seeded places.
         let mut textured = Vec::new();
-        let walls: [(Point3<f64>, Vector3<f64>, Vector3<f64>, f64); 6] = [
-            // (a point of the wall at floor level, along the wall, into the corridor, length)
+        // (a point of the wall at floor level, along the wall, into the corridor, length)
+        type Wall = (Point3<f64>, Vector3<f64>, Vector3<f64>, f64);
+        let walls: [Wall; 6] = [
             (
                 Point3::new(1.0, -0.5, 0.0),
                 Vector3::y(),
