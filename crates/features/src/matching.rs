@@ -182,16 +182,8 @@ fn match_with(
                         qa,
                         suma,
                         packed,
-                        wide: true,
-                    } => quantized::scores_block(qa, suma, d, i0, rows, packed, j0, cols, s),
-                    Product::Vnni {
-                        qa,
-                        suma,
-                        packed,
-                        wide: false,
-                    } => {
-                        quantized::scores_block_avx_vnni(qa, suma, d, i0, rows, packed, j0, cols, s)
-                    }
+                        wide,
+                    } => quantized::scores_block(*wide, qa, suma, d, i0, rows, packed, j0, cols, s),
                     Product::Avx2(pa, packed) => {
                         quantized::scores_block_avx2(pa, d, i0, rows, packed, j0, cols, s)
                     }

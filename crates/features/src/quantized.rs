@@ -179,10 +179,13 @@ pub fn cpu_has_vnni() -> bool {
 }
 
 /// `out (rows × cols) = qa[i0..i0+rows] · qb[j0..j0+cols]ᵀ` as f32, for `qa` row-major with
-/// `dim` columns, its row sums `suma`, and `b` packed by [`PackedB::new`]. `j0` must be a
-/// multiple of 16. Only call when [`cpu_has_vnni`] is true.
+/// `dim` columns, its row sums `suma`, and `b` packed by [`PackedB::new`], by the AVX-512 VNNI
+/// kernel (`wide`) or the AVX-VNNI one (256-bit registers: each 64-byte group of `b` is two
+/// registers of 8 columns). `j0` must be a multiple of 16. Only call when the CPU has the kernel
+/// ([`cpu_has_vnni`], [`cpu_has_avx_vnni`]).
 #[allow(clippy::too_many_arguments)]
 pub fn scores_block(
+    wide: bool,
     qa: &[u8],
     suma: &[i32],
     dim: usize,
@@ -197,39 +200,20 @@ pub fn scores_block(
     assert!(
         qa.len() >= (i0 + rows) * dim && suma.len() >= i0 + rows && dim.div_ceil(4) == b.groups
     );
-    assert!(cpu_has_vnni());
+    assert!(if wide {
+        cpu_has_vnni()
+    } else {
+        cpu_has_avx_vnni()
+    });
     #[cfg(target_arch = "x86_64")]
-    // SAFETY: the CPU has AVX-512 F/BW/VNNI (asserted above); the asserted lengths cover every
-    // element the kernel addresses (see `vnni::block`).
+    // SAFETY: the CPU has the kernel's instructions (asserted above); the asserted lengths cover
+    // every element the kernels address (see `vnni::block`, `avx_vnni::block`).
     unsafe {
-        vnni::block(qa, suma, dim, i0, rows, b, j0, cols, out)
-    }
-}
-
-/// [`scores_block`] on 256-bit registers (AVX-VNNI), from the same [`PackedB`]: each 64-byte
-/// group is two registers of 8 columns. Only call when [`cpu_has_avx_vnni`] is true.
-#[allow(clippy::too_many_arguments)]
-pub fn scores_block_avx_vnni(
-    qa: &[u8],
-    suma: &[i32],
-    dim: usize,
-    i0: usize,
-    rows: usize,
-    b: &PackedB,
-    j0: usize,
-    cols: usize,
-    out: &mut [f32],
-) {
-    assert!(j0.is_multiple_of(TILE) && j0 + cols <= b.len && out.len() >= rows * cols);
-    assert!(
-        qa.len() >= (i0 + rows) * dim && suma.len() >= i0 + rows && dim.div_ceil(4) == b.groups
-    );
-    assert!(cpu_has_avx_vnni());
-    #[cfg(target_arch = "x86_64")]
-    // SAFETY: the CPU has AVX2 and AVX-VNNI (asserted above); the asserted lengths cover every
-    // element the kernel addresses (see `avx_vnni::block`).
-    unsafe {
-        avx_vnni::block(qa, suma, dim, i0, rows, b, j0, cols, out)
+        if wide {
+            vnni::block(qa, suma, dim, i0, rows, b, j0, cols, out)
+        } else {
+            avx_vnni::block(qa, suma, dim, i0, rows, b, j0, cols, out)
+        }
     }
 }
 
@@ -378,7 +362,7 @@ mod tests {
             let packed = PackedB::new(&qb, dim);
             let (i0, rows, j0, cols) = (1, n - 2, 16, m - 16);
             let mut out = vec![0f32; rows * cols];
-            scores_block(&qa, &suma, dim, i0, rows, &packed, j0, cols, &mut out);
+            scores_block(true, &qa, &suma, dim, i0, rows, &packed, j0, cols, &mut out);
             assert_exact(&qa, &qb, dim, (i0, rows, j0, cols), &out);
         }
     }
@@ -406,7 +390,9 @@ mod tests {
             let packed = PackedB::new(&qb, dim);
             let (i0, rows, j0, cols) = (1, n - 2, 16, m - 16);
             let mut out = vec![0f32; rows * cols];
-            scores_block_avx_vnni(&qa, &suma, dim, i0, rows, &packed, j0, cols, &mut out);
+            scores_block(
+                false, &qa, &suma, dim, i0, rows, &packed, j0, cols, &mut out,
+            );
             assert_exact(&qa, &qb, dim, (i0, rows, j0, cols), &out);
         }
     }

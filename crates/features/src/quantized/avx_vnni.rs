@@ -1,4 +1,4 @@
-//! The AVX-VNNI kernel of [`super::scores_block_avx_vnni`]: `vpdpbusd` on 256-bit registers.
+//! The AVX-VNNI kernel of [`super::scores_block`]: `vpdpbusd` on 256-bit registers.
 
 use super::vnni::row_groups;
 use super::{PackedB, TILE};
