@@ -227,7 +227,18 @@ fn rebuild_without_flagged(
                 *core = rebuilt;
             }
             // The views cannot be spared: keep the model; the check below takes them out.
-            _ => {
+            other => {
+                let why = match other {
+                    Ok(Some(rebuilt)) => format!(
+                        "it held {} views, the model {} less the {} flagged",
+                        rebuilt.rec.views.len(),
+                        core.rec.views.len(),
+                        flagged.len()
+                    ),
+                    Ok(None) => "no model".to_string(),
+                    Err(e) => e.to_string(),
+                };
+                tracing::debug!("the model built again without {names} was not kept: {why}");
                 search.allowed = kept.0;
                 search.failures = kept.1;
                 break;
