@@ -413,6 +413,19 @@ impl Stage for Sparse {
                 .details(alone.join(", ")),
             );
         }
+        if let Some(n) = best.view_consistency.misplaced_majority(best.registered) {
+            warnings.push(
+                Warning::new(
+                    code::MODEL_DOUBTFUL,
+                    format!(
+                        "{n} views were placed where their own verified image pairs disagree, more than the {} the model kept: those were placed the same way from the same matches, so the model may be wrong as a whole",
+                        best.registered
+                    ),
+                )
+                .advice("check the cameras in the report; give the calibration with --intrinsics if it is known, and add photos that overlap more")
+                .details("sparse/summary.json, view_consistency"),
+            );
+        }
         let kept = best
             .self_calibration
             .candidates
