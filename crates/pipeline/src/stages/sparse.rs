@@ -414,7 +414,9 @@ impl Stage for Sparse {
             );
         }
         if let Some(n) = best.view_consistency.misplaced_majority(best.registered) {
-            warnings.push(
+            // First: it is about the whole model, which the images' own warnings above are not.
+            warnings.insert(
+                0,
                 Warning::new(
                     code::MODEL_DOUBTFUL,
                     format!(
