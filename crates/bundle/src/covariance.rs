@@ -20,10 +20,11 @@ use handheld_core::{CameraId, ImageId, MetricReconstruction, PointId};
 use nalgebra::{DMatrix, Matrix3, SymmetricEigen};
 use rayon::prelude::*;
 
+use crate::assembly::assemble;
 use crate::metric::{metric_problem, MetricBundleConfig};
 use crate::options::{BundleError, BundleOptions};
 use crate::residual::NUM_INTRINSICS;
-use crate::schur::{assemble, linearize, ReducedMatrix};
+use crate::schur::{linearize, ReducedMatrix};
 use crate::structure::Structure;
 
 /// Largest reduced system for which covariances are computed.

@@ -24,6 +24,7 @@
 //! σ are part of [`Problem`]; a step that gains more than its model promised is tried again longer
 //! (`lm.rs`, [`BundleOptions::extrapolate`]).
 
+mod assembly;
 pub mod covariance;
 mod linear;
 mod lm;

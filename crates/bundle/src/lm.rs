@@ -10,13 +10,14 @@ use std::time::Instant;
 use handheld_core::Progress;
 use rayon::prelude::*;
 
+use crate::assembly::assemble;
 use crate::linear::Factorizer;
 use crate::loss::RobustLoss;
 use crate::options::{BundleError, BundleOptions, BundleSummary, LinearSolverKind, Termination};
 use crate::problem::{CameraModel, Problem};
 use crate::residual::{pose_plus, sphere_plus, NUM_INTRINSICS};
 use crate::schur::{
-    assemble, back_substitute, invert_points, jacobian_step_norm2, linearize, ReducedMatrix,
+    back_substitute, invert_points, jacobian_step_norm2, linearize, linearize_into, ReducedMatrix,
 };
 use crate::structure::Structure;
 
@@ -299,7 +300,7 @@ fn run(
             radius = (radius / (1.0f64 / 3.0).max(1.0 - (2.0 * ratio - 1.0).powi(3)))
                 .min(opts.max_trust_region_radius);
             decrease_factor = 2.0;
-            lin = linearize(p, &st, &loss);
+            linearize_into(p, &st, &loss, &mut lin);
             x_norm = param_norm(p);
         } else {
             swap_params(p, &mut cand);

@@ -2,18 +2,20 @@
 //!
 //! With the normal equations `[[U, W], [Wᵀ, V]] [δc; δp] = [bc; bp]` (`b = −Jᵀr`), the point blocks
 //! `V` are 3×3 block-diagonal, so `S = U − W V⁻¹ Wᵀ`, `S δc = bc − W V⁻¹ bp` and `δp = V⁻¹(bp − Wᵀδc)`.
-//! `S` is assembled block row by block row in parallel (each worker owns whole rows, so no locks), in
-//! lower-triangular column-major storage shared by the dense and the sparse solver.
+//! `S` is stored as a lower triangle, column-major, dense or in sparse columns (one storage for the
+//! dense and the sparse solver); `assembly.rs` fills it.
 
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 
+use crate::assembly::PointChunks;
 use crate::loss::{Corrector, RobustLoss};
 use crate::problem::{CameraModel, Problem};
 use crate::residual::{metric_jacobian, projective_jacobian, NUM_INTRINSICS};
 use crate::structure::{Structure, MAX_FULL_COLS, NONE};
 
 /// Everything that depends on the linearisation point but not on the damping.
+#[derive(Default)]
 pub(crate) struct Linearization {
     pub cost: f64,
     /// Robust-corrected Jacobians per observation (`jstride` camera columns each).
@@ -27,6 +29,10 @@ pub(crate) struct Linearization {
     pub dc: Vec<f64>,
     /// Prior contributions to the diagonal of `U`.
     pub prior_h: Vec<f64>,
+    /// Scratch kept between linearisations: robust-corrected residuals, and each observation's
+    /// cost (summed in order).
+    res: Vec<[f64; 2]>,
+    terms: Vec<f64>,
 }
 
 /// Splits `data` into consecutive mutable pieces of the given lengths.
@@ -45,14 +51,48 @@ pub(crate) fn js(st: &Structure) -> usize {
 }
 
 pub(crate) fn linearize(p: &Problem, st: &Structure, loss: &RobustLoss) -> Linearization {
+    let mut lin = Linearization::default();
+    linearize_into(p, st, loss, &mut lin);
+    lin
+}
+
+/// Zeroes `v` to length `len`, keeping its allocation.
+fn zeroed<T: Clone>(v: &mut Vec<T>, len: usize, zero: T) {
+    v.clear();
+    v.resize(len, zero);
+}
+
+/// [`linearize`] into the buffers of an earlier linearisation of the same problem. Large buffers
+/// allocated afresh at every iteration cost a page fault per 4 KiB on first write (with a TLB
+/// shootdown to every core where the pages came from a freed arena): half the time of a 50-view
+/// problem's iterations went to the kernel.
+pub(crate) fn linearize_into(
+    p: &Problem,
+    st: &Structure,
+    loss: &RobustLoss,
+    lin: &mut Linearization,
+) {
     let no = p.num_observations();
     let np = p.points.len();
     let js = js(st);
-    let mut res = vec![[0.0; 2]; no];
-    let mut jc = vec![[0.0; 2]; no * js];
-    let mut jp = vec![[[0.0; 2]; 3]; no];
-    let data_cost: f64 = res
-        .par_iter_mut()
+    let Linearization {
+        cost,
+        jc,
+        jp,
+        v,
+        bp,
+        w,
+        bc,
+        dc,
+        prior_h,
+        res,
+        terms,
+    } = lin;
+    zeroed(res, no, [0.0; 2]);
+    zeroed(jc, no * js, [0.0; 2]);
+    zeroed(jp, no, [[0.0; 2]; 3]);
+    let mut data_cost_terms = std::mem::take(terms);
+    res.par_iter_mut()
         .zip(jc.par_chunks_mut(js))
         .zip(jp.par_iter_mut())
         .enumerate()
@@ -115,14 +155,14 @@ pub(crate) fn linearize(p: &Problem, st: &Structure, loss: &RobustLoss) -> Linea
         })
         // Collected, then summed in order: a parallel sum's grouping depends on work stealing,
         // and the last bits of the cost decide LM's accept/reject (same seed, same output).
-        .collect::<Vec<f64>>()
-        .iter()
-        .sum();
+        .collect_into_vec(&mut data_cost_terms);
+    let data_cost: f64 = data_cost_terms.iter().sum();
+    *terms = data_cost_terms;
 
     // Point blocks: V, bp and the W blocks of each incidence.
-    let mut v = vec![Matrix3::zeros(); np];
-    let mut bp = vec![Vector3::zeros(); np];
-    let mut w = vec![0.0; st.w_len];
+    zeroed(v, np, Matrix3::zeros());
+    zeroed(bp, np, Vector3::zeros());
+    zeroed(w, st.w_len, 0.0);
     let pi = &st.point_inc;
     let w_lens = (0..np).map(|pt| {
         let (a, b) = (pi.ptr[pt], pi.ptr[pt + 1]);
@@ -132,7 +172,7 @@ pub(crate) fn linearize(p: &Problem, st: &Structure, loss: &RobustLoss) -> Linea
             st.inc_woff[b - 1] + 3 * st.block_dim[pi.idx[b - 1] as usize] - st.inc_woff[a]
         }
     });
-    let w_parts = split_by(&mut w, w_lens);
+    let w_parts = split_by(w, w_lens);
     v.par_iter_mut()
         .zip(bp.par_iter_mut())
         .zip(w_parts.into_par_iter())
@@ -173,38 +213,39 @@ pub(crate) fn linearize(p: &Problem, st: &Structure, loss: &RobustLoss) -> Linea
             }
         });
 
-    // Camera side: gradient and diagonal, block by block.
+    // Camera side: gradient and diagonal, over fixed ranges of observations in storage order
+    // (each range into its own pair of vectors, added in order: the same sums on any machine). By
+    // block, the observations of a camera lie scattered through the Jacobians.
     let n = st.num_reduced;
-    let mut bc = vec![0.0; n];
-    let mut dc = vec![0.0; n];
-    let bc_parts = split_by(&mut bc, st.block_dim.iter().copied());
-    let dc_parts = split_by(&mut dc, st.block_dim.iter().copied());
-    bc_parts
+    let ranges = (no / 8192).clamp(1, 16);
+    let per = no.div_ceil(ranges);
+    let partial: Vec<Vec<f64>> = (0..ranges)
         .into_par_iter()
-        .zip(dc_parts.into_par_iter())
-        .enumerate()
-        .for_each(|(b, (bcb, dcb))| {
-            for &o in st.block_obs.row(b) {
-                let o = o as usize;
+        .map(|k| {
+            let mut g = vec![0.0; 2 * n];
+            let (gb, gd) = g.split_at_mut(n);
+            for o in k * per..((k + 1) * per).min(no) {
                 let c = p.obs_camera[o] as usize;
                 let (own, sh) = st.cam_ncols[c];
-                // Which of the camera's two blocks `b` is: its own (poses, unshared
-                // intrinsics) or its group's shared intrinsics. A held camera has no own block
-                // (`own` = 0), and its observations still count for the shared one.
-                let (lo, d) = if st.cam_block[c] as usize == b {
-                    (0, own)
-                } else {
-                    (own, sh)
-                };
                 let r = res[o];
-                for k in 0..d {
-                    let col = jc[o * js + lo + k];
-                    bcb[k] -= col[0] * r[0] + col[1] * r[1];
-                    dcb[k] += col[0] * col[0] + col[1] * col[1];
+                for (k, col) in jc[o * js..o * js + own + sh].iter().enumerate() {
+                    let i = st.reduced_index(c, k);
+                    gb[i] -= col[0] * r[0] + col[1] * r[1];
+                    gd[i] += col[0] * col[0] + col[1] * col[1];
                 }
             }
-        });
-    let mut prior_h = vec![0.0; n];
+            g
+        })
+        .collect();
+    zeroed(bc, n, 0.0);
+    zeroed(dc, n, 0.0);
+    for g in &partial {
+        for i in 0..n {
+            bc[i] += g[i];
+            dc[i] += g[n + i];
+        }
+    }
+    zeroed(prior_h, n, 0.0);
     if p.model == CameraModel::Metric {
         for g in 0..p.groups.len() {
             for k in 0..NUM_INTRINSICS {
@@ -217,17 +258,7 @@ pub(crate) fn linearize(p: &Problem, st: &Structure, loss: &RobustLoss) -> Linea
             }
         }
     }
-    Linearization {
-        cost: 0.5 * data_cost + p.prior_cost(),
-        jc,
-        jp,
-        v,
-        bp,
-        w,
-        bc,
-        dc,
-        prior_h,
-    }
+    *cost = 0.5 * data_cost + p.prior_cost();
 }
 
 /// Storage of the reduced matrix (lower triangle, column-major), dense or compressed sparse columns.
@@ -239,12 +270,14 @@ pub(crate) struct ReducedMatrix {
     pub row_idx: Vec<usize>,
     pub values: Vec<f64>,
     /// Start of each block's columns in `values` (`nb + 1` entries).
-    chunk_start: Vec<usize>,
+    pub(crate) chunk_start: Vec<usize>,
     /// Per reduced column: chunk-local base of its off-diagonal rows and of its diagonal block.
-    cb_off: Vec<usize>,
-    cb_diag: Vec<usize>,
+    pub(crate) cb_off: Vec<usize>,
+    pub(crate) cb_diag: Vec<usize>,
     /// Aligned with `block_cols.idx`: row offset of each coupled block within a column.
-    rowoff: Vec<usize>,
+    pub(crate) rowoff: Vec<usize>,
+    /// The point ranges assembled point by point, each into its own accumulator.
+    pub(crate) points: PointChunks,
 }
 
 impl ReducedMatrix {
@@ -294,7 +327,7 @@ impl ReducedMatrix {
             chunk_start.push(row_idx.len());
         }
         let len = *chunk_start.last().unwrap_or(&0);
-        Self {
+        let mut m = Self {
             dense,
             n,
             col_ptr,
@@ -304,7 +337,10 @@ impl ReducedMatrix {
             cb_off,
             cb_diag,
             rowoff,
-        }
+            points: PointChunks::default(),
+        };
+        m.points = PointChunks::new(st, &m);
+        m
     }
 }
 
@@ -322,160 +358,6 @@ pub(crate) fn invert_points(lin: &Linearization, mu_p: &[f64]) -> Vec<Matrix3<f6
             m.try_inverse().unwrap_or_else(Matrix3::zeros)
         })
         .collect()
-}
-
-/// Assembles `S = U + diag(extra) − W V⁻¹ Wᵀ` into `m.values` and `rhs = bc − W V⁻¹ bp`.
-pub(crate) fn assemble(
-    p: &Problem,
-    st: &Structure,
-    lin: &Linearization,
-    vinv: &[Matrix3<f64>],
-    extra_diag: &[f64],
-    m: &mut ReducedMatrix,
-    rhs: &mut [f64],
-) {
-    let nb = st.num_blocks();
-    let js = js(st);
-    let chunk_lens = (0..nb).map(|b| m.chunk_start[b + 1] - m.chunk_start[b]);
-    let chunks = split_by(&mut m.values, chunk_lens);
-    let rhs_parts = split_by(rhs, st.block_dim.iter().copied());
-    let (cb_off, cb_diag, rowoff) = (&m.cb_off, &m.cb_diag, &m.rowoff);
-    chunks
-        .into_par_iter()
-        .zip(rhs_parts.into_par_iter())
-        .enumerate()
-        .for_each_init(
-            || (vec![0usize; nb], Vec::<f64>::new()),
-            |(pos, y), (b, (vals, rb))| {
-                let (off, d) = (st.block_offset[b], st.block_dim[b]);
-                for (q, b2) in st.block_cols.row(b).iter().enumerate() {
-                    pos[*b2 as usize] = rowoff[st.block_cols.ptr[b] + q];
-                }
-                let cbo = &cb_off[off..off + d];
-                let cbd = &cb_diag[off..off + d];
-                vals.fill(0.0);
-                rb.copy_from_slice(&lin.bc[off..off + d]);
-                // U = Σ Jcᵀ Jc over the observations touching this block row.
-                for &o in st.block_obs.row(b) {
-                    let o = o as usize;
-                    let c = p.obs_camera[o] as usize;
-                    let (own, sh) = st.cam_ncols[c];
-                    let cols = &lin.jc[o * js..o * js + own + sh];
-                    let own_row = st.cam_block[c] as usize == b;
-                    let (lo, hi) = if own_row { (0, own) } else { (own, own + sh) };
-                    for jj in lo..hi {
-                        let cj = cols[jj];
-                        let base = cbd[jj - lo];
-                        for ii in jj..hi {
-                            vals[base + ii - lo] += cj[0] * cols[ii][0] + cj[1] * cols[ii][1];
-                        }
-                    }
-                    if own_row && sh > 0 {
-                        let ro = pos[st.cam_shared[c] as usize];
-                        for jj in 0..own {
-                            let cj = cols[jj];
-                            let base = cbo[jj] + ro;
-                            for ii in 0..sh {
-                                vals[base + ii] +=
-                                    cj[0] * cols[own + ii][0] + cj[1] * cols[own + ii][1];
-                            }
-                        }
-                    }
-                }
-                // − W V⁻¹ Wᵀ and − W V⁻¹ bp over the points seen through this block. W blocks are stored
-                // column-major (`d × 3`), so each row of the update is three contiguous AXPYs.
-                y.resize(3 * d, 0.0);
-                for &i in st.block_inc.row(b) {
-                    let i = i as usize;
-                    let pt = st.inc_point[i] as usize;
-                    let vi = &vinv[pt];
-                    let wi = &lin.w[st.inc_woff[i]..st.inc_woff[i] + 3 * d];
-                    let (w0, w1, w2) = (&wi[..d], &wi[d..2 * d], &wi[2 * d..]);
-                    let bpp = &lin.bp[pt];
-                    for jj in 0..d {
-                        for t in 0..3 {
-                            y[3 * jj + t] =
-                                w0[jj] * vi[(0, t)] + w1[jj] * vi[(1, t)] + w2[jj] * vi[(2, t)];
-                        }
-                        rb[jj] -=
-                            y[3 * jj] * bpp[0] + y[3 * jj + 1] * bpp[1] + y[3 * jj + 2] * bpp[2];
-                    }
-                    for i2 in i..st.point_inc.ptr[pt + 1] {
-                        let b2 = st.point_inc.idx[i2] as usize;
-                        let d2 = st.block_dim[b2];
-                        let wj = &lin.w[st.inc_woff[i2]..st.inc_woff[i2] + 3 * d2];
-                        let (v0, v1, v2) = (&wj[..d2], &wj[d2..2 * d2], &wj[2 * d2..]);
-                        if b2 != b {
-                            let ro = pos[b2];
-                            match d2 {
-                                3 => sub_rows::<3>(vals, cbo, ro, &y[..3 * d], wj),
-                                6 => sub_rows::<6>(vals, cbo, ro, &y[..3 * d], wj),
-                                9 => sub_rows::<9>(vals, cbo, ro, &y[..3 * d], wj),
-                                11 => sub_rows::<11>(vals, cbo, ro, &y[..3 * d], wj),
-                                _ => {
-                                    for jj in 0..d {
-                                        let start = cbo[jj] + ro;
-                                        axpy3(
-                                            &mut vals[start..start + d2],
-                                            &y[3 * jj..3 * jj + 3],
-                                            v0,
-                                            v1,
-                                            v2,
-                                        );
-                                    }
-                                }
-                            }
-                            continue;
-                        }
-                        for jj in 0..d {
-                            let start = cbd[jj] + jj;
-                            axpy3(
-                                &mut vals[start..start + d2 - jj],
-                                &y[3 * jj..3 * jj + 3],
-                                &v0[jj..],
-                                &v1[jj..],
-                                &v2[jj..],
-                            );
-                        }
-                    }
-                }
-                for jj in 0..d {
-                    vals[cbd[jj] + jj] += extra_diag[off + jj];
-                }
-            },
-        );
-}
-
-/// `dst −= y₀ v₀ + y₁ v₁ + y₂ v₂` (one row of `−Y Wᵀ`).
-#[inline(always)]
-fn axpy3(dst: &mut [f64], y: &[f64], v0: &[f64], v1: &[f64], v2: &[f64]) {
-    let (y0, y1, y2) = (y[0], y[1], y[2]);
-    for (s, ((a0, a1), a2)) in dst.iter_mut().zip(v0.iter().zip(v1).zip(v2)) {
-        *s -= y0 * a0 + y1 * a1 + y2 * a2;
-    }
-}
-
-/// `−Y Wᵀ` for an off-diagonal block whose column block has the fixed size `D2` (unrolled).
-#[inline(always)]
-fn sub_rows<const D2: usize>(vals: &mut [f64], cbo: &[usize], ro: usize, y: &[f64], w: &[f64]) {
-    let (v0, v1, v2): (&[f64; D2], &[f64; D2], &[f64; D2]) = match (
-        w[..D2].try_into(),
-        w[D2..2 * D2].try_into(),
-        w[2 * D2..3 * D2].try_into(),
-    ) {
-        (Ok(a), Ok(b), Ok(c)) => (a, b, c),
-        _ => return,
-    };
-    for (jj, yr) in y.chunks_exact(3).enumerate() {
-        let start = cbo[jj] + ro;
-        let Some(dst) = vals.get_mut(start..start + D2) else {
-            continue;
-        };
-        let (y0, y1, y2) = (yr[0], yr[1], yr[2]);
-        for ii in 0..D2 {
-            dst[ii] -= y0 * v0[ii] + y1 * v1[ii] + y2 * v2[ii];
-        }
-    }
 }
 
 /// Back-substitution `δp = V⁻¹ (bp − Wᵀ δc)` for every point.
