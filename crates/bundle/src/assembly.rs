@@ -33,9 +33,10 @@ pub(crate) struct PointChunks {
     acc: Vec<Vec<f64>>,
 }
 
-/// Ranges are at least this many points, so that a range's work outweighs zeroing and adding its
-/// accumulator.
-const MIN_POINTS_PER_RANGE: usize = 1024;
+/// A range's products (about `(Σ dims)²` per point) must outweigh zeroing and adding its
+/// accumulator this many times over; a problem that cannot fill two such ranges (a long walk of
+/// views that each see a few of the points: a large, mostly empty matrix) is assembled by rows.
+const WORK_PER_VALUE: usize = 32;
 /// At most this many ranges (parallelism of the assembly).
 const MAX_RANGES: usize = 16;
 /// The accumulators together stay under this many values (128 MB).
@@ -69,23 +70,23 @@ impl PointChunks {
             m.values.len()
         };
         let np = st.point_inc.ptr.len().saturating_sub(1);
-        let ranges = (np / MIN_POINTS_PER_RANGE)
+        // Work of a point: its incidence pairs, weighted by their block sizes.
+        let work = |pt: usize| {
+            let dims: usize = st
+                .point_inc
+                .row(pt)
+                .iter()
+                .map(|b| st.block_dim[*b as usize])
+                .sum();
+            dims * dims + 1
+        };
+        let total: usize = (0..np).map(work).sum();
+        let size = (len + n).max(1);
+        let ranges = (total / (WORK_PER_VALUE * size))
             .min(MAX_RANGES)
-            .min(MAX_ACCUMULATOR_VALUES / (len + n).max(1))
-            .max(1);
+            .min(MAX_ACCUMULATOR_VALUES / size);
         let mut bounds = Vec::new();
-        if MAX_ACCUMULATOR_VALUES / (len + n).max(1) >= 2 || np < 2 * MIN_POINTS_PER_RANGE {
-            // Work of a point: its incidence pairs, weighted by their block sizes.
-            let work = |pt: usize| {
-                let dims: usize = st
-                    .point_inc
-                    .row(pt)
-                    .iter()
-                    .map(|b| st.block_dim[*b as usize])
-                    .sum();
-                dims * dims + 1
-            };
-            let total: usize = (0..np).map(work).sum();
+        if ranges >= 2 {
             bounds.push(0);
             let mut acc = 0;
             for pt in 0..np {
