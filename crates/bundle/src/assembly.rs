@@ -1,9 +1,9 @@
 //! Assembly of the reduced camera system `S = U − W V⁻¹ Wᵀ` and `bc − W V⁻¹ bp` (Triggs et al.
 //! 2000, §6.1 eqs. 6.1–6.3), into the storage of [`ReducedMatrix`].
 //!
-//! Point by point ([`assemble_by_points`]) wherever the accumulators fit: each point's blocks are
-//! read once, in storage order, and summed into its range's accumulator; block row by block row
-//! ([`assemble_by_rows`]) otherwise, each worker owning whole rows.
+//! Point by point ([`assemble_by_points`]) where the points' products outweigh the accumulators:
+//! each point's blocks are read once, in storage order, and summed into its range's accumulator;
+//! block row by block row ([`assemble_by_rows`]) otherwise, each worker owning whole rows.
 
 use nalgebra::Matrix3;
 use rayon::prelude::*;
@@ -18,8 +18,8 @@ use crate::structure::Structure;
 /// its own accumulator, and the ranges are added in order.
 #[derive(Default)]
 pub(crate) struct PointChunks {
-    /// `bounds[k]..bounds[k + 1]` are the points of range `k`; empty when the accumulators would
-    /// not fit ([`assemble_by_rows`] then).
+    /// `bounds[k]..bounds[k + 1]` are the points of range `k`; empty when fewer than two ranges
+    /// would pay for their accumulators ([`assemble_by_rows`] then).
     pub(crate) bounds: Vec<usize>,
     /// Per reduced column `c` of block `b`: where row `off(b) + i` of its diagonal block sits in
     /// an accumulator, less `i`, and where the rows of a coupled block `b' > b` begin, less that
