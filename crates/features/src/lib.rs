@@ -42,6 +42,7 @@ pub mod keyframes;
 pub mod klt;
 mod klt_align;
 pub mod matching;
+mod nearest;
 pub mod quantized;
 pub mod refine;
 pub mod retrieval;

@@ -17,6 +17,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::detector::{Descriptors, Features};
 use crate::error::{check, FeatureError};
+use crate::nearest::{scan_block, Best2, Block};
 use crate::quantized;
 
 /// A correspondence between descriptor `i` of the first set and descriptor `j` of the second.
@@ -69,14 +70,6 @@ impl MatchOptions {
 const ROW_BLOCK: usize = 256;
 /// Columns of B per GEMM call (the score block is `ROW_BLOCK × COL_BLOCK` floats, 1 MiB).
 const COL_BLOCK: usize = 1024;
-
-/// The two nearest neighbours of a row, as scores `2·a·b − ‖b‖²` (larger is nearer).
-#[derive(Clone, Copy)]
-struct Best2 {
-    s1: f32,
-    j1: u32,
-    s2: f32,
-}
 
 /// How the score blocks are computed: a VNNI kernel (512- or 256-bit, `wide`) on the quantised
 /// first set (with its row sums) and the packed second set, the AVX2 kernel, or the f32 GEMM (on
@@ -162,14 +155,7 @@ fn match_with(
         .map(|blk| {
             let i0 = blk * ROW_BLOCK;
             let rows = ROW_BLOCK.min(n - i0);
-            let mut best = vec![
-                Best2 {
-                    s1: f32::NEG_INFINITY,
-                    j1: u32::MAX,
-                    s2: f32::NEG_INFINITY
-                };
-                rows
-            ];
+            let mut best = vec![Best2::NONE; rows];
             let mcols = if opts.mutual { m } else { 0 };
             let (mut col_val, mut col_row) =
                 (vec![f32::NEG_INFINITY; mcols], vec![u32::MAX; mcols]);
@@ -196,22 +182,19 @@ fn match_with(
                         s,
                     ),
                 }
-                let nbb = &nb[j0..j0 + cols];
-                for (r, srow) in s.chunks_exact(cols).enumerate() {
-                    scan_row(srow, nbb, j0, &mut best[r]);
-                    if opts.mutual {
-                        let ni = na[i0 + r];
-                        let i = (i0 + r) as u32;
-                        let (cv, ci) = (&mut col_val[j0..j0 + cols], &mut col_row[j0..j0 + cols]);
-                        // Branch-free, so it vectorises: each column keeps its best row so far.
-                        for ((v, k), &sv) in cv.iter_mut().zip(ci.iter_mut()).zip(srow) {
-                            let key = 2.0 * sv - ni;
-                            let better = key > *v;
-                            *v = if better { key } else { *v };
-                            *k = if better { i } else { *k };
-                        }
-                    }
-                }
+                let block = Block {
+                    s,
+                    rows,
+                    cols,
+                    i0,
+                    j0,
+                    na: &na[i0..i0 + rows],
+                    nb: &nb[j0..j0 + cols],
+                };
+                let cols_best = opts
+                    .mutual
+                    .then(|| (&mut col_val[j0..j0 + cols], &mut col_row[j0..j0 + cols]));
+                scan_block(&block, &mut best, cols_best);
             }
             let col_best = col_val.into_iter().zip(col_row).collect();
             (best, col_best)
@@ -257,41 +240,6 @@ fn match_with(
         }
     }
     out
-}
-
-/// Lanes of [`scan_row`]'s vectorised pass.
-const SCAN_LANES: usize = 16;
-
-/// Updates a row's two best keys `2 s − ‖b‖²` (the largest is the nearest descriptor) over one
-/// block of scores starting at column `j0`. Most chunks of columns hold nothing better than the
-/// second best so far: a branch-free test of every key against it skips them; the others are scanned in
-/// order, so ties resolve exactly as a plain scan does (the first column wins).
-#[inline]
-fn scan_row(srow: &[f32], nbb: &[f32], j0: usize, bst: &mut Best2) {
-    let mut c0 = 0;
-    for (sc, nc) in srow.chunks(SCAN_LANES).zip(nbb.chunks(SCAN_LANES)) {
-        // An OR of comparisons is associative, so it vectorises (a float max reduction is not).
-        let s2 = bst.s2;
-        let any = sc
-            .iter()
-            .zip(nc)
-            .fold(false, |a, (&sv, &nj)| a | (2.0 * sv - nj > s2));
-        if any {
-            for (c, (&sv, &nj)) in sc.iter().zip(nc).enumerate() {
-                let key = 2.0 * sv - nj;
-                if key > bst.s2 {
-                    if key > bst.s1 {
-                        bst.s2 = bst.s1;
-                        bst.s1 = key;
-                        bst.j1 = (j0 + c0 + c) as u32;
-                    } else {
-                        bst.s2 = key;
-                    }
-                }
-            }
-        }
-        c0 += sc.len();
-    }
 }
 
 /// `c (rows × cols) = a (rows × d) · bᵀ` for row-major `a`, `b` (cols × d) and `c`.
