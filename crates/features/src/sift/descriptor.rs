@@ -32,19 +32,34 @@ pub(super) fn orientations(
     let (xi, yi) = (c.x.round() as isize, c.y.round() as isize);
     let mut wts = [0f32; 2 * MAX_RADIUS + 1];
     gauss_weights(&mut wts, r, 0.0, 0.5 / (sigma * sigma));
-    let (mag, ori) = (&g.mag[c.layer - 1], &g.ori[c.layer - 1]);
     let mut hist = [0f32; ORI_BINS];
     let bins_per_rad = ORI_BINS as f32 / (2.0 * PI);
     let ri = r as isize;
     let (y0, y1) = ((yi - ri).max(1), (yi + ri).min(g.h as isize - 2));
     let (x0, x1) = ((xi - ri).max(1), (xi + ri).min(g.w as isize - 2));
-    for y in y0..=y1 {
-        let wy = wts[(y - yi + ri) as usize];
-        let row = y as usize * g.w;
-        for x in x0..=x1 {
-            let wgt = wy * wts[(x - xi + ri) as usize] * mag[row + x as usize];
-            let bin = (ori[row + x as usize] * bins_per_rad + 0.5) as usize % ORI_BINS;
-            hist[bin] += wgt;
+    if x0 <= x1 {
+        let n = (x1 - x0 + 1) as usize;
+        let wx = &wts[(x0 - xi + ri) as usize..(x0 - xi + ri) as usize + n];
+        let (mut wgt, mut bins) = ([0f32; ROW_PIXELS], [0u32; ROW_PIXELS]);
+        let (mut mag, mut ori) = ([0f32; ROW_PIXELS], [0f32; ROW_PIXELS]);
+        for y in y0..=y1 {
+            let wy = wts[(y - yi + ri) as usize];
+            g.span(
+                c.layer,
+                y as usize,
+                x0 as usize,
+                &mut mag[..n],
+                &mut ori[..n],
+            );
+            let (m, a) = (&mag[..n], &ori[..n]);
+            // Weights and bins in lanes, then the votes in pixel order (the same sums).
+            for k in 0..n {
+                wgt[k] = wy * wx[k] * m[k];
+                bins[k] = truncate(a[k] * bins_per_rad + 0.5).max(0) as u32 % ORI_BINS as u32;
+            }
+            for k in 0..n {
+                hist[bins[k] as usize] += wgt[k];
+            }
         }
     }
     let n = ORI_BINS;
@@ -92,16 +107,16 @@ pub(super) fn describe(
     let mut wy = [0f32; 2 * MAX_RADIUS + 1];
     gauss_weights(&mut wx, r, c.x - xi as f32, k);
     gauss_weights(&mut wy, r, c.y - yi as f32, k);
-    let (mag, ori) = (&g.mag[c.layer - 1], &g.ori[c.layer - 1]);
     let mut hist = [0f32; (D + 2) * (D + 2) * (N + 2)];
+    let (mut mag, mut ori) = ([0f32; ROW_PIXELS], [0f32; ROW_PIXELS]);
     let ri = r as isize;
     let (y0, y1) = ((yi - ri).max(1), (yi + ri).min(g.h as isize - 2));
     let (x0, x1) = ((xi - ri).max(1), (xi + ri).min(g.w as isize - 2));
     let half = D as f32 / 2.0 - 0.5;
+    let mut row_buf = Row::default();
     for y in y0..=y1 {
         let dy = y as f32 - c.y;
         let wrow = wy[(y - yi + ri) as usize];
-        let row = y as usize * g.w;
         // The x range where both bin coordinates lie in (−1, D): skips the window's corners.
         let (a0, a1) = slab(dy * sin_t + half, cos_t, D as f32);
         let (b0, b1) = slab(dy * cos_t + half, -sin_t, D as f32);
@@ -109,29 +124,43 @@ pub(super) fn describe(
             (c.x + a0.max(b0)).floor() as isize,
             (c.x + a1.min(b1)).ceil() as isize,
         );
-        for x in xa.max(x0)..=xb.min(x1) {
-            let dx = x as f32 - c.x;
-            let cbin = dx * cos_t + dy * sin_t + half;
-            let rbin = -dx * sin_t + dy * cos_t + half;
-            if !(rbin > -1.0 && rbin < D as f32 && cbin > -1.0 && cbin < D as f32) {
+        let (xs, xe) = (xa.max(x0), xb.min(x1));
+        if xs > xe {
+            continue;
+        }
+        let n = (xe - xs + 1) as usize;
+        // Two passes over the row's span: the bins, fractions and weights of every pixel in
+        // lanes (`Row::fill`: the same arithmetic as one pixel at a time, so the same numbers),
+        // then the trilinear votes in pixel order, which keeps every bin's sum in the same order.
+        g.span(
+            c.layer,
+            y as usize,
+            xs as usize,
+            &mut mag[..n],
+            &mut ori[..n],
+        );
+        row_buf.fill(
+            RowInput {
+                x0: xs as i32,
+                cx: c.x,
+                dy,
+                cos_t,
+                sin_t,
+                half,
+                wrow,
+                angle,
+                bins_per_rad,
+            },
+            &wx[(xs - xi + ri) as usize..(xs - xi + ri) as usize + n],
+            &mag[..n],
+            &ori[..n],
+        );
+        for k in 0..n {
+            if !row_buf.inside[k] {
                 continue;
             }
-            let idx = row + x as usize;
-            let wgt = wrow * wx[(x - xi + ri) as usize] * mag[idx];
-            let rel = ori[idx] - angle;
-            let obin = if rel < 0.0 { rel + 2.0 * PI } else { rel } * bins_per_rad;
-            // Truncation is the floor here (rbin, cbin > −1, obin ≥ 0); `min` guards `3.99999 + 1 == 5`.
-            let (r1, c1, o0) = (
-                ((rbin + 1.0) as usize).min(D),
-                ((cbin + 1.0) as usize).min(D),
-                obin as usize,
-            );
-            let (fr, fc, fo) = (
-                rbin + 1.0 - r1 as f32,
-                cbin + 1.0 - c1 as f32,
-                obin - o0 as f32,
-            );
-            let base = (r1 * (D + 2) + c1) * (N + 2) + o0 % N;
+            let (wgt, fr, fc, fo) = (row_buf.wgt[k], row_buf.fr[k], row_buf.fc[k], row_buf.fo[k]);
+            let base = row_buf.base[k] as usize;
             let v_r1 = wgt * fr;
             let v_r0 = wgt - v_r1;
             let (v_rc11, v_rc01) = (v_r1 * fc, v_r0 * fc);
@@ -159,6 +188,94 @@ pub(super) fn describe(
         }
     }
     normalize_descriptor(out, root_sift);
+}
+
+/// Pixels in one row of a descriptor window, at most.
+const ROW_PIXELS: usize = 2 * MAX_RADIUS + 1;
+
+/// What [`Row::fill`] needs besides the row's pixels.
+struct RowInput {
+    /// The span's first column and the keypoint's `x`; `y − c.y` of the row.
+    x0: i32,
+    cx: f32,
+    dy: f32,
+    cos_t: f32,
+    sin_t: f32,
+    half: f32,
+    wrow: f32,
+    angle: f32,
+    bins_per_rad: f32,
+}
+
+/// One window row's votes before they are cast: each pixel's first histogram cell (`base`), its
+/// weight, the fractions toward the next row, column and orientation bin, and whether it lies
+/// in the window.
+struct Row {
+    base: [u32; ROW_PIXELS],
+    wgt: [f32; ROW_PIXELS],
+    fr: [f32; ROW_PIXELS],
+    fc: [f32; ROW_PIXELS],
+    fo: [f32; ROW_PIXELS],
+    inside: [bool; ROW_PIXELS],
+}
+
+impl Default for Row {
+    fn default() -> Self {
+        Row {
+            base: [0; ROW_PIXELS],
+            wgt: [0.0; ROW_PIXELS],
+            fr: [0.0; ROW_PIXELS],
+            fc: [0.0; ROW_PIXELS],
+            fo: [0.0; ROW_PIXELS],
+            inside: [false; ROW_PIXELS],
+        }
+    }
+}
+
+impl Row {
+    /// The votes of the pixels whose Gaussian factors, magnitudes and orientations are `wx`, `mag`
+    /// and `ori` (equal lengths, at most [`ROW_PIXELS`]). Branch-free, so that it vectorises; a
+    /// pixel outside the window gets `inside = false` and numbers that are not used.
+    #[inline]
+    fn fill(&mut self, p: RowInput, wx: &[f32], mag: &[f32], ori: &[f32]) {
+        const D: usize = DESC_WIDTH;
+        const N: usize = DESC_BINS;
+        let n = wx.len().min(ROW_PIXELS);
+        let (mag, ori) = (&mag[..n], &ori[..n]);
+        for k in 0..n {
+            let dx = (p.x0 + k as i32) as f32 - p.cx;
+            let cbin = dx * p.cos_t + p.dy * p.sin_t + p.half;
+            let rbin = -dx * p.sin_t + p.dy * p.cos_t + p.half;
+            self.inside[k] = rbin > -1.0 && rbin < D as f32 && cbin > -1.0 && cbin < D as f32;
+            self.wgt[k] = p.wrow * wx[k] * mag[k];
+            let rel = ori[k] - p.angle;
+            let obin = if rel < 0.0 { rel + 2.0 * PI } else { rel } * p.bins_per_rad;
+            // Truncation is the floor for the pixels used (rbin, cbin > −1, obin ≥ 0); `min`
+            // guards `3.99999 + 1 == 5`; outside the window the value is not used.
+            let r1 = truncate(rbin + 1.0).clamp(0, D as i32);
+            let c1 = truncate(cbin + 1.0).clamp(0, D as i32);
+            let o0 = truncate(obin).max(0);
+            self.fr[k] = rbin + 1.0 - r1 as f32;
+            self.fc[k] = cbin + 1.0 - c1 as f32;
+            self.fo[k] = obin - o0 as f32;
+            self.base[k] = ((r1 as u32 * (D as u32 + 2) + c1 as u32) * (N as u32 + 2))
+                + (o0 as u32 % N as u32);
+        }
+    }
+}
+
+/// `v` truncated toward zero, for `v` in `[−1, 64]`; others (NaN included) give a value in that
+/// range. Unlike `as`, it compiles to one vector conversion (`as` saturates, which the compiler
+/// does lane by lane).
+#[inline(always)]
+// Not `clamp`: it passes NaN through, and NaN would make the conversion undefined.
+#[allow(clippy::manual_clamp)]
+fn truncate(v: f32) -> i32 {
+    // `max` and `min` return the other operand when one is NaN, so the value is finite and within
+    // i32's range.
+    let v = v.max(-1.0).min(64.0);
+    // SAFETY: `v` is finite and in [−1, 64], which i32 represents.
+    unsafe { v.to_int_unchecked::<i32>() }
 }
 
 /// The interval of `t` where `−1 < offset + slope·t < upper` (unbounded when `slope` is 0 and the
@@ -195,5 +312,21 @@ pub(super) fn normalize_descriptor(v: &mut [f32], root_sift: bool) {
             .sqrt()
             .max(f32::MIN_POSITIVE);
         v.iter_mut().for_each(|x| *x /= n2);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn truncation_floors_the_window_range_and_tames_the_rest() {
+        assert_eq!(truncate(0.0), 0);
+        assert_eq!(truncate(3.999), 3);
+        assert_eq!(truncate(4.0), 4);
+        assert_eq!(truncate(-0.5), 0);
+        for v in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY, 1e30, -1e30] {
+            assert!((-1..=64).contains(&truncate(v)), "{v}");
+        }
     }
 }
