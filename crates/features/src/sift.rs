@@ -161,8 +161,9 @@ impl FeatureDetector for Sift {
 
 /// The blurred levels 1..=s of one octave, whose gradients the orientation and descriptor windows
 /// read ([`OctaveGrad::span`]). Computing them only there, instead of over every level (two
-/// arrays of the octave's size per level: 600 MB for the first octave of a 6 MP image), does about
-/// a sixth of the work for 8 192 keypoints and halves what the windows read.
+/// arrays of the octave's size per level: 150 MB for the first octave of a 6 MP image), does a
+/// fraction of the work for 8 192 keypoints and halves what the windows read (fountain-P11's
+/// features stage: peak memory 864 → 684 MB).
 struct OctaveGrad {
     octave: i32,
     w: usize,
@@ -268,9 +269,9 @@ fn sift_detect(image: &GrayImage, o: &SiftOptions) -> Features {
         cands.truncate(m);
     }
     // Windows are read in scan order of the blurred levels (octave, layer, row), not in order of
-    // strength: strongest-first jumps across levels of up to 100 MB (the first octave of a 6 MP
-    // image, upsampled), and the describe loop waited on memory for a third of its time (`perf`
-    // on fountain-P11). Each window's result is the same whatever the order.
+    // strength: strongest-first jumps across levels of tens of MB (25 MB for the first octave of
+    // a 6 MP image), and the describe loop waited on memory for a third of its time (`perf` on
+    // fountain-P11). Each window's result is the same whatever the order.
     let by_place = |a: &Candidate, b: &Candidate| {
         (a.grad, a.layer)
             .cmp(&(b.grad, b.layer))
