@@ -72,11 +72,25 @@ fn solve_dlt(
             rel,
         ));
     }
+    // Each row has 8 non-zero entries (the other camera row's 4 are zero) and `AᵀA` is symmetric:
+    // the upper triangle of the non-zero products, summed in the same order as the full outer
+    // products (adding an exact zero changes no sum), then mirrored.
     let mut ata = SMatrix::<f64, 12, 12>::zeros();
     for k in 0..points.len() {
         for r in 0..2 {
             let a = row(k, r);
-            ata += a.transpose() * a;
+            let nz = [4 * r, 4 * r + 1, 4 * r + 2, 4 * r + 3, 8, 9, 10, 11];
+            for (q, &i) in nz.iter().enumerate() {
+                let ai = a[i];
+                for &j in &nz[q..] {
+                    ata[(i, j)] += ai * a[j];
+                }
+            }
+        }
+    }
+    for i in 0..12 {
+        for j in 0..i {
+            ata[(i, j)] = ata[(j, i)];
         }
     }
     if ata.iter().any(|v| !v.is_finite()) {
