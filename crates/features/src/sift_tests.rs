@@ -1,4 +1,5 @@
 use super::*;
+use std::f32::consts::PI;
 
 #[test]
 fn fast_atan2_is_accurate() {
