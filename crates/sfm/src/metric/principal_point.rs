@@ -9,6 +9,7 @@
 use std::time::Instant;
 
 use handheld_core::MetricReconstruction;
+use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector2, Vector3};
 
 use crate::common::image_centre;
 use crate::context::Context;
@@ -96,9 +97,7 @@ pub(crate) fn principal_point_test(
     }
     ctx.hold_principal_point(true);
     let mut held = rec.clone();
-    for cam in held.cameras.values_mut() {
-        cam.intrinsics.pp = image_centre(cam.width, cam.height);
-    }
+    hold_at_centre(&mut held);
     let adjusted = metric_ba::refine_metric(ctx, &mut held, estimate_aspect).and_then(|a| {
         match guard::collapsed(&held, &a) {
             Some(why) => Err(why),
@@ -123,12 +122,44 @@ pub(crate) fn principal_point_test(
     }
 }
 
+/// Moves every camera's principal point to its image centre and turns each of its views so that
+/// the model explains the images as before, to first order: a shift `δ` of the principal point (in
+/// units of the focal length) moves every normalised image point by `−δ`, which near the optical
+/// axis is the rotation `ω = (−δy, δx, 0)` of the camera (the equivalence that makes a translating
+/// camera critical for the principal point, Sturm 1997, §4). Without the turn the adjustment with
+/// the principal point held started kitti-seq1 from 39.6 px RMS and spent 40 iterations on its
+/// first step.
+fn hold_at_centre(rec: &mut MetricReconstruction) {
+    let mut turn = std::collections::BTreeMap::new();
+    for (id, cam) in rec.cameras.iter_mut() {
+        let centre = image_centre(cam.width, cam.height);
+        let i = &cam.intrinsics;
+        let (fx, fy) = (i.f, i.f * i.aspect);
+        if fx.is_finite() && fy.is_finite() && fx > 0.0 && fy > 0.0 {
+            let d = Vector2::new((i.pp.x - centre.x) / fx, (i.pp.y - centre.y) / fy);
+            turn.insert(
+                *id,
+                UnitQuaternion::from_scaled_axis(Vector3::new(-d.y, d.x, 0.0)),
+            );
+        }
+        cam.intrinsics.pp = centre;
+    }
+    for view in rec.views.values_mut() {
+        if let Some(q) = turn.get(&view.camera_id) {
+            let pose = &view.cam_from_world;
+            view.cam_from_world = Isometry3::from_parts(
+                Translation3::from(q * pose.translation.vector),
+                q * pose.rotation,
+            );
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::metric::profile::PrincipalPointSpread;
     use handheld_core::{CameraId, ImageId, Rigid3, View};
-    use nalgebra::Vector3;
 
     fn views(rotations: &[Vector3<f64>]) -> MetricReconstruction {
         let mut rec = MetricReconstruction::default();
@@ -166,6 +197,60 @@ mod tests {
         assert!(!temple.held_is_closer());
         // fountain-P11: far off with a small spread.
         assert!(!spread([-19.1, -15.9], [1.6, 3.0]).held_is_closer());
+    }
+
+    #[test]
+    fn holding_the_principal_point_turns_the_views_to_explain_the_images_as_before() {
+        use handheld_core::{Camera, Intrinsics};
+        use nalgebra::Point3;
+        // A 1226 × 370 camera (kitti-seq1's size) whose principal point is 12 px and 18 px off the
+        // centre, and points across its view 5–40 units ahead.
+        let mut rec = views(&[Vector3::new(0.02, -0.01, 0.005), Vector3::new(0.0, 0.03, 0.0)]);
+        let mut intrinsics = Intrinsics::pinhole(700.0, 612.5 + 12.0, 184.5 - 18.0);
+        intrinsics.k1 = -0.05;
+        rec.cameras.insert(
+            CameraId(1),
+            Camera {
+                id: CameraId(1),
+                width: 1226,
+                height: 370,
+                intrinsics,
+            },
+        );
+        let points: Vec<Point3<f64>> = (0..40)
+            .map(|k| {
+                let t = k as f64;
+                Point3::new((t * 0.7).sin() * 4.0, (t * 1.3).cos() * 1.5, 5.0 + t)
+            })
+            .collect();
+        let project = |rec: &MetricReconstruction| -> Vec<Vector2<f64>> {
+            rec.views
+                .keys()
+                .flat_map(|&id| points.iter().filter_map(move |p| rec.project(id, p)))
+                .collect()
+        };
+        let before = project(&rec);
+        let rms = |after: &[Vector2<f64>]| {
+            let sq: f64 = before
+                .iter()
+                .zip(after)
+                .map(|(a, b)| (a - b).norm_squared())
+                .sum();
+            (sq / before.len() as f64).sqrt()
+        };
+        // Moved without a turn, every projection moves by about the shift (21.6 px).
+        let mut moved = rec.clone();
+        for cam in moved.cameras.values_mut() {
+            cam.intrinsics.pp = image_centre(cam.width, cam.height);
+        }
+        let unturned = rms(&project(&moved));
+        assert!(unturned > 15.0, "{unturned} px");
+        // With the turn only the second-order terms are left.
+        hold_at_centre(&mut rec);
+        let cam = &rec.cameras[&CameraId(1)];
+        assert_eq!(cam.intrinsics.pp, image_centre(1226, 370));
+        let left = rms(&project(&rec));
+        assert!(left < 0.1 * unturned, "{left} px against {unturned} px");
     }
 
     #[test]
