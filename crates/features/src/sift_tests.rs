@@ -14,6 +14,28 @@ fn fast_atan2_is_accurate() {
 }
 
 #[test]
+fn upsampling_equals_bilinear_sampling_bit_for_bit() {
+    for (w, h) in [(1, 1), (1, 3), (2, 1), (37, 23), (64, 5)] {
+        let img = GrayImage {
+            width: w,
+            height: h,
+            data: (0..w * h)
+                .map(|i| ((i * 7919) % 97) as f32 / 97.0 + 0.013)
+                .collect(),
+        };
+        let up = upsample2(&img);
+        assert_eq!((up.width, up.height), (2 * w, 2 * h));
+        for y in 0..2 * h {
+            let sy = (y as f32 + 0.5) * 0.5 - 0.5;
+            for x in 0..2 * w {
+                let want = img.sample((x as f32 + 0.5) * 0.5 - 0.5, sy);
+                assert_eq!(up.data[y * 2 * w + x].to_bits(), want.to_bits(), "{w}x{h} at ({x}, {y})");
+            }
+        }
+    }
+}
+
+#[test]
 fn blur_matches_reference() {
     let img = GrayImage {
         width: 37,

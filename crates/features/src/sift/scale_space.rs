@@ -35,14 +35,37 @@ impl OctaveGrad {
     }
 }
 
-/// Bilinear 2× upsampling: output pixel `i` samples input position `(i + 0.5)/2 − 0.5`.
+/// Bilinear 2× upsampling: output pixel `i` samples input position `(i + 0.5)/2 − 0.5`, border
+/// clamped ([`GrayImage::sample`]). Along a row that position is `k − ¼` for output `2k` and `k + ¼`
+/// for `2k + 1`, so the weights are the constants ¼ and ¾ and the loop needs neither `floor` nor
+/// clamping but at the ends: the same products and sums as `sample`, bit for bit, without its
+/// per-pixel index arithmetic (8.6 % of templeSparseRing's features stage).
 pub(super) fn upsample2(img: &GrayImage) -> GrayImage {
     let (w, h) = (img.width * 2, img.height * 2);
+    let (iw, ih) = (img.width, img.height);
     let mut data = vec![0f32; w * h];
+    if iw == 0 || ih == 0 {
+        return GrayImage {
+            width: w,
+            height: h,
+            data,
+        };
+    }
     data.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
         let sy = (y as f32 + 0.5) * 0.5 - 0.5;
-        for (x, v) in row.iter_mut().enumerate() {
-            *v = img.sample((x as f32 + 0.5) * 0.5 - 0.5, sy);
+        let y0 = sy.floor();
+        let fy = sy - y0;
+        let clamp = |v: isize| v.clamp(0, ih as isize - 1) as usize;
+        let (ya, yb) = (clamp(y0 as isize), clamp(y0 as isize + 1));
+        let (ra, rb) = (
+            &img.data[ya * iw..ya * iw + iw],
+            &img.data[yb * iw..yb * iw + iw],
+        );
+        let (wa, wb) = (1.0 - fy, fy);
+        for (k, out) in row.chunks_exact_mut(2).enumerate() {
+            let (km, kp) = (k.saturating_sub(1), (k + 1).min(iw - 1));
+            out[0] = (ra[km] * 0.25 + ra[k] * 0.75) * wa + (rb[km] * 0.25 + rb[k] * 0.75) * wb;
+            out[1] = (ra[k] * 0.75 + ra[kp] * 0.25) * wa + (rb[k] * 0.75 + rb[kp] * 0.25) * wb;
         }
     });
     GrayImage {
