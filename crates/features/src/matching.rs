@@ -71,19 +71,97 @@ const ROW_BLOCK: usize = 256;
 /// Columns of B per GEMM call (the score block is `ROW_BLOCK × COL_BLOCK` floats, 1 MiB).
 const COL_BLOCK: usize = 1024;
 
+/// One descriptor set ready to be either operand of the brute-force product: quantised, packed
+/// and normed once ([`prepare`]), so that an image matched against many others pays for that
+/// once (seeded matching matches each image's seeds against every other image's).
+pub struct Prepared {
+    n: usize,
+    d: usize,
+    /// Squared norms, in the units of the scores.
+    norms: Vec<f32>,
+    /// Scores per unit of squared descriptor distance (`quantized::SCALE`, or 1 unquantised).
+    unit: f32,
+    data: PreparedData,
+}
+
 /// How the score blocks are computed: a VNNI kernel (512- or 256-bit, `wide`) on the quantised
 /// first set (with its row sums) and the packed second set, the AVX2 kernel, or the f32 GEMM (on
-/// the quantised values, the same numbers; see `quantized`).
-enum Product {
+/// the quantised values, the same numbers; see `quantized`), or on the raw values of descriptors
+/// that are not in [0, 1].
+enum PreparedData {
     Vnni {
-        qa: Vec<u8>,
-        suma: Vec<i32>,
+        q: Vec<u8>,
+        sums: Vec<i32>,
         packed: quantized::PackedB,
         wide: bool,
     },
-    /// Without VNNI: A's rows as pairs of i16, B packed once ([`quantized::scores_block_avx2`]).
+    /// Without VNNI: rows as pairs of i16 and the set packed ([`quantized::scores_block_avx2`]).
     Avx2(Vec<i32>, quantized::PackedI16),
-    F32(Vec<f32>, Vec<f32>),
+    F32(Vec<f32>),
+}
+
+impl Prepared {
+    /// Number of descriptors.
+    pub fn len(&self) -> usize {
+        self.n
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.n == 0
+    }
+
+    fn quantised(&self) -> bool {
+        self.unit != 1.0
+    }
+}
+
+/// Prepares `a` for [`match_prepared`] with the best kernel the CPU has ([`quantized::kernel`]).
+pub fn prepare(a: &Descriptors) -> Prepared {
+    prepare_with(a, quantized::kernel(), true)
+}
+
+/// [`prepare`] with the given kernel; `quantise: false` keeps the raw f32 values.
+fn prepare_with(a: &Descriptors, kernel: quantized::Kernel, quantise: bool) -> Prepared {
+    use quantized::Kernel;
+    let (n, d) = (a.len(), a.dim);
+    let data = &a.data[..n * d];
+    if quantise && quantized::fits(data) {
+        let q = quantized::quantize(data);
+        let sq = |v: &[u8]| v.iter().map(|&x| u32::from(x) * u32::from(x)).sum::<u32>() as f32;
+        let norms: Vec<f32> = q.chunks_exact(d.max(1)).map(sq).collect();
+        let data = match kernel {
+            Kernel::Avx512Vnni | Kernel::AvxVnni => PreparedData::Vnni {
+                sums: q
+                    .chunks_exact(d.max(1))
+                    .map(|r| r.iter().map(|&v| i32::from(v)).sum())
+                    .collect(),
+                packed: quantized::PackedB::new(&q, d),
+                wide: kernel == Kernel::Avx512Vnni,
+                q,
+            },
+            Kernel::Avx2 => PreparedData::Avx2(
+                quantized::pairs_of(&q, d),
+                quantized::PackedI16::new(&q, d),
+            ),
+            Kernel::Portable => PreparedData::F32(quantized::dequantized(&q)),
+        };
+        Prepared {
+            n,
+            d,
+            norms,
+            unit: quantized::SCALE,
+            data,
+        }
+    } else {
+        let sq = |v: &[f32]| v.iter().map(|x| x * x).sum::<f32>();
+        Prepared {
+            n,
+            d,
+            norms: data.chunks_exact(d.max(1)).map(sq).collect(),
+            unit: 1.0,
+            data: PreparedData::F32(data.to_vec()),
+        }
+    }
 }
 
 /// One row block's result: each row's two best, and each column's best `(score, row)` over the block.
@@ -103,51 +181,42 @@ fn match_with(
     opts: &MatchOptions,
     kernel: quantized::Kernel,
 ) -> Vec<Match> {
-    use quantized::Kernel;
-    if let Err(e) = opts.validate() {
-        tracing::warn!("invalid match options: {e}");
-        return Vec::new();
-    }
     if a.dim != b.dim || a.dim == 0 || a.is_empty() || b.is_empty() {
         if a.dim != b.dim {
             tracing::warn!("descriptor dimensions differ: {} vs {}", a.dim, b.dim);
         }
         return Vec::new();
     }
-    let (n, m, d) = (a.len(), b.len(), a.dim);
-    let (adata, bdata) = (&a.data[..n * d], &b.data[..m * d]);
-    // Descriptors in [0, 1] (RootSIFT) are matched quantised to bytes (`quantized`): the scores
-    // are exact integers, whichever path computes them. Others (signed patches) in f32.
-    let (product, na, nb, unit) = if quantized::fits(adata) && quantized::fits(bdata) {
-        let (qa, qb) = (quantized::quantize(adata), quantized::quantize(bdata));
-        let sq = |v: &[u8]| v.iter().map(|&x| u32::from(x) * u32::from(x)).sum::<u32>() as f32;
-        let na: Vec<f32> = qa.chunks_exact(d).map(sq).collect();
-        let nb: Vec<f32> = qb.chunks_exact(d).map(sq).collect();
-        let product = match kernel {
-            Kernel::Avx512Vnni | Kernel::AvxVnni => Product::Vnni {
-                suma: qa
-                    .chunks_exact(d)
-                    .map(|r| r.iter().map(|&v| i32::from(v)).sum())
-                    .collect(),
-                packed: quantized::PackedB::new(&qb, d),
-                wide: kernel == Kernel::Avx512Vnni,
-                qa,
-            },
-            Kernel::Avx2 => Product::Avx2(
-                quantized::pairs_of(&qa, d),
-                quantized::PackedI16::new(&qb, d),
-            ),
-            Kernel::Portable => {
-                Product::F32(quantized::dequantized(&qa), quantized::dequantized(&qb))
-            }
-        };
-        (product, na, nb, quantized::SCALE)
-    } else {
-        let sq = |v: &[f32]| v.iter().map(|x| x * x).sum::<f32>();
-        let na: Vec<f32> = adata.chunks_exact(d).map(sq).collect();
-        let nb: Vec<f32> = bdata.chunks_exact(d).map(sq).collect();
-        (Product::F32(adata.to_vec(), bdata.to_vec()), na, nb, 1.0)
-    };
+    // Both quantised, or both raw when either does not fit.
+    let quantise = quantized::fits(&a.data[..a.len() * a.dim])
+        && quantized::fits(&b.data[..b.len() * b.dim]);
+    match_prepared(
+        &prepare_with(a, kernel, quantise),
+        &prepare_with(b, kernel, quantise),
+        opts,
+    )
+}
+
+/// [`match_descriptors`] on prepared sets (the same matches).
+pub fn match_prepared(a: &Prepared, b: &Prepared, opts: &MatchOptions) -> Vec<Match> {
+    if let Err(e) = opts.validate() {
+        tracing::warn!("invalid match options: {e}");
+        return Vec::new();
+    }
+    if a.d != b.d || a.d == 0 || a.is_empty() || b.is_empty() {
+        if a.d != b.d {
+            tracing::warn!("descriptor dimensions differ: {} vs {}", a.d, b.d);
+        }
+        return Vec::new();
+    }
+    if a.quantised() != b.quantised() || std::mem::discriminant(&a.data) != std::mem::discriminant(&b.data) {
+        // Prepared for different kernels (or one set not quantisable): both as raw f32 would
+        // change the numbers, so this is a caller's error.
+        tracing::warn!("descriptor sets prepared differently: no matches");
+        return Vec::new();
+    }
+    let (n, m, d) = (a.n, b.n, a.d);
+    let (na, nb, unit) = (&a.norms, &b.norms, a.unit);
 
     // Per row block: the rows' two best and, for the mutual check, each column's best row in this block.
     let blocks: Vec<BlockResult> = (0..n.div_ceil(ROW_BLOCK))
@@ -160,20 +229,26 @@ fn match_with(
             let (mut col_val, mut col_row) =
                 (vec![f32::NEG_INFINITY; mcols], vec![u32::MAX; mcols]);
             let mut scores = vec![0f32; rows * COL_BLOCK.min(m)];
+            // The rows' layout for a VNNI kernel, made once for every column block.
+            let groups = match &a.data {
+                PreparedData::Vnni { q, wide, .. } => {
+                    Some(quantized::RowGroups::new(*wide, q, d, i0, rows))
+                }
+                _ => None,
+            };
             for j0 in (0..m).step_by(COL_BLOCK) {
                 let cols = COL_BLOCK.min(m - j0);
                 let s = &mut scores[..rows * cols];
-                match &product {
-                    Product::Vnni {
-                        qa,
-                        suma,
-                        packed,
-                        wide,
-                    } => quantized::scores_block(*wide, qa, suma, d, i0, rows, packed, j0, cols, s),
-                    Product::Avx2(pa, packed) => {
+                match (&a.data, &b.data) {
+                    (PreparedData::Vnni { sums, .. }, PreparedData::Vnni { packed, .. }) => {
+                        if let Some(g) = &groups {
+                            quantized::scores_block_grouped(g, sums, packed, j0, cols, s)
+                        }
+                    }
+                    (PreparedData::Avx2(pa, _), PreparedData::Avx2(_, packed)) => {
                         quantized::scores_block_avx2(pa, d, i0, rows, packed, j0, cols, s)
                     }
-                    Product::F32(fa, fb) => gemm_abt(
+                    (PreparedData::F32(fa), PreparedData::F32(fb)) => gemm_abt(
                         &fa[i0 * d..(i0 + rows) * d],
                         &fb[j0 * d..(j0 + cols) * d],
                         rows,
@@ -181,6 +256,7 @@ fn match_with(
                         d,
                         s,
                     ),
+                    _ => unreachable!("checked above: both sets prepared alike"),
                 }
                 let block = Block {
                     s,

@@ -196,23 +196,104 @@ pub fn scores_block(
     cols: usize,
     out: &mut [f32],
 ) {
+    assert!(qa.len() >= (i0 + rows) * dim && dim.div_ceil(4) == b.groups);
+    let abc = RowGroups::new(wide, qa, dim, i0, rows);
+    scores_block_grouped(&abc, suma, b, j0, cols, out);
+}
+
+/// Rows `i0..i0 + rows` of the first operand laid out for a VNNI kernel (4-byte groups, broadcast
+/// once per row chunk of the kernel's register tile): made once per row block and used for every
+/// column block of it ([`scores_block_grouped`]).
+pub struct RowGroups {
+    abc: Vec<i32>,
+    wide: bool,
+    i0: usize,
+    rows: usize,
+    groups: usize,
+}
+
+impl RowGroups {
+    pub fn new(wide: bool, qa: &[u8], dim: usize, i0: usize, rows: usize) -> Self {
+        assert!(qa.len() >= (i0 + rows) * dim);
+        let groups = dim.div_ceil(4);
+        #[cfg(target_arch = "x86_64")]
+        let per_chunk = if wide { vnni::ROWS } else { avx_vnni::ROWS };
+        #[cfg(not(target_arch = "x86_64"))]
+        let per_chunk = 8;
+        Self {
+            abc: vnni_row_groups(qa, dim, i0, rows, groups, per_chunk),
+            wide,
+            i0,
+            rows,
+            groups,
+        }
+    }
+}
+
+/// The 4 bytes of row `i`, dimensions `4g..4g+4`, as one i32 (zero past `dim`).
+#[inline(always)]
+fn group(qa: &[u8], dim: usize, i: usize, g: usize) -> i32 {
+    let row = &qa[i * dim..(i + 1) * dim];
+    let k = 4 * g;
+    if k + 4 <= dim {
+        i32::from_le_bytes([row[k], row[k + 1], row[k + 2], row[k + 3]])
+    } else {
+        let mut v = [0u8; 4];
+        for (t, x) in v.iter_mut().enumerate() {
+            *x = row.get(k + t).copied().unwrap_or(0);
+        }
+        i32::from_le_bytes(v)
+    }
+}
+
+/// Rows `i0..i0 + rows` of A as 4-byte groups, broadcast once per row block, laid out
+/// `[row chunk of per_chunk][group][row in chunk]` so that one group's broadcasts read consecutive
+/// words; rows past the block are zero (their sums are computed and not stored).
+fn vnni_row_groups(
+    qa: &[u8],
+    dim: usize,
+    i0: usize,
+    rows: usize,
+    groups: usize,
+    per_chunk: usize,
+) -> Vec<i32> {
+    let chunks = rows.div_ceil(per_chunk);
+    let mut abc = vec![0i32; chunks * groups * per_chunk];
+    for r in 0..rows {
+        for g in 0..groups {
+            abc[((r / per_chunk) * groups + g) * per_chunk + r % per_chunk] =
+                group(qa, dim, i0 + r, g);
+        }
+    }
+    abc
+}
+
+/// [`scores_block`] from the rows' [`RowGroups`] (the same scores).
+pub fn scores_block_grouped(
+    a: &RowGroups,
+    suma: &[i32],
+    b: &PackedB,
+    j0: usize,
+    cols: usize,
+    out: &mut [f32],
+) {
+    let (i0, rows) = (a.i0, a.rows);
     assert!(j0.is_multiple_of(TILE) && j0 + cols <= b.len && out.len() >= rows * cols);
-    assert!(
-        qa.len() >= (i0 + rows) * dim && suma.len() >= i0 + rows && dim.div_ceil(4) == b.groups
-    );
-    assert!(if wide {
+    assert!(suma.len() >= i0 + rows && a.groups == b.groups);
+    assert!(if a.wide {
         cpu_has_vnni()
     } else {
         cpu_has_avx_vnni()
     });
     #[cfg(target_arch = "x86_64")]
     // SAFETY: the CPU has the kernel's instructions (asserted above); the asserted lengths cover
-    // every element the kernels address (see `vnni::block`, `avx_vnni::block`).
+    // every element the kernels address (see `vnni::block`, `avx_vnni::block`), and `a` was laid
+    // out for this kernel's row chunks.
     unsafe {
-        if wide {
-            vnni::block(qa, suma, dim, i0, rows, b, j0, cols, out)
+        if a.wide {
+            vnni::block(&a.abc, suma, i0, rows, b, j0, cols, out)
         } else {
-            avx_vnni::block(qa, suma, dim, i0, rows, b, j0, cols, out)
+            avx_vnni::block(&a.abc, suma, i0, rows, b, j0, cols, out)
         }
     }
 }

@@ -24,7 +24,8 @@ use crate::detector::{Descriptors, Features};
 use crate::error::{check, FeatureError};
 use crate::guided::point;
 pub use crate::guided::{guided_matches, GUIDED_RIVAL_BAND_FACTOR};
-use crate::matching::{match_descriptors, Match, MatchOptions};
+use crate::matching::{match_descriptors, match_prepared, prepare, Match, MatchOptions, Prepared};
+use std::sync::OnceLock;
 
 /// Options of [`verify_pairs`].
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -272,12 +273,43 @@ fn strongest(f: &Features, k: usize) -> Vec<u32> {
 }
 
 fn select_rows(d: &Descriptors, idx: &[u32]) -> Descriptors {
-    Descriptors {
-        dim: d.dim,
-        data: idx
-            .iter()
-            .flat_map(|&i| d.row(i as usize).iter().copied())
-            .collect(),
+    let mut data = Vec::with_capacity(idx.len() * d.dim);
+    for &i in idx {
+        data.extend_from_slice(d.row(i as usize));
+    }
+    Descriptors { dim: d.dim, data }
+}
+
+/// The seeds of one image (the indices of its strongest keypoints) prepared for brute force.
+struct SeedSet {
+    idx: Vec<u32>,
+    prepared: Prepared,
+}
+
+/// Every image's first-level seeds, each selected and prepared ([`prepare`]: quantised and packed)
+/// the first time a pair needs it and then shared by all its pairs: an image is in many pairs,
+/// and preparing its seeds for each of them was a quarter of a low-texture set's matching (most of
+/// its pairs end after the first level).
+struct SeedCache {
+    k: usize,
+    sets: Vec<OnceLock<SeedSet>>,
+}
+
+impl SeedCache {
+    fn new(images: usize, k: usize) -> Self {
+        Self {
+            k,
+            sets: (0..images).map(|_| OnceLock::new()).collect(),
+        }
+    }
+
+    fn get(&self, image: usize, f: &Features) -> Option<&SeedSet> {
+        let set = self.sets.get(image)?.get_or_init(|| {
+            let idx = strongest(f, self.k);
+            let prepared = prepare(&select_rows(&f.descriptors, &idx));
+            SeedSet { idx, prepared }
+        });
+        Some(set)
     }
 }
 
@@ -288,6 +320,18 @@ pub fn match_and_verify(
     f1: &Features,
     f2: &Features,
     opts: &PairVerificationOptions,
+) -> VerifiedPair {
+    match_and_verify_with(i, j, f1, f2, opts, None)
+}
+
+/// [`match_and_verify`], with the first level's seeds from `cache` where given (images `i`, `j`).
+fn match_and_verify_with(
+    i: usize,
+    j: usize,
+    f1: &Features,
+    f2: &Features,
+    opts: &PairVerificationOptions,
+    cache: Option<&SeedCache>,
 ) -> VerifiedPair {
     let Some(k) = opts.seed_features.filter(|_| opts.guided) else {
         let putative = match_descriptors(&f1.descriptors, &f2.descriptors, &opts.matching);
@@ -300,26 +344,42 @@ pub fn match_and_verify(
     let mut last = None;
     for &seeds in &levels {
         let t0 = std::time::Instant::now();
-        let (s1, s2) = (strongest(f1, seeds), strongest(f2, seeds));
-        let putative: Vec<Match> = match_descriptors(
-            &select_rows(&f1.descriptors, &s1),
-            &select_rows(&f2.descriptors, &s2),
-            &opts.matching,
-        )
-        .into_iter()
-        .map(|m| Match {
-            i: s1[m.i as usize],
-            j: s2[m.j as usize],
-            distance: m.distance,
-        })
-        .collect();
+        let cached = cache
+            .filter(|c| c.k == seeds)
+            .and_then(|c| Some((c.get(i, f1)?, c.get(j, f2)?)));
+        let owned: (Vec<u32>, Vec<u32>);
+        let (s1, s2, found): (&[u32], &[u32], Vec<Match>) = match cached {
+            Some((a, b)) => (
+                &a.idx,
+                &b.idx,
+                match_prepared(&a.prepared, &b.prepared, &opts.matching),
+            ),
+            None => {
+                owned = (strongest(f1, seeds), strongest(f2, seeds));
+                let found = match_descriptors(
+                    &select_rows(&f1.descriptors, &owned.0),
+                    &select_rows(&f2.descriptors, &owned.1),
+                    &opts.matching,
+                );
+                (&owned.0, &owned.1, found)
+            }
+        };
+        let putative: Vec<Match> = found
+            .into_iter()
+            .map(|m| Match {
+                i: s1[m.i as usize],
+                j: s2[m.j as usize],
+                distance: m.distance,
+            })
+            .collect();
         let t1 = t0.elapsed().as_secs_f64();
         let v = verify_pair(i, j, f1, f2, putative, opts);
         tracing::debug!(
-            "pair ({i}, {j}): {seeds} seeds matched in {:.3} s, verification with guided matching {:.3} s, {} inliers ({} guided)",
+            "pair ({i}, {j}): {seeds} seeds matched in {:.3} s, verification with guided matching {:.3} s, {} of {} putative matches verified ({} guided)",
             t1,
             t0.elapsed().as_secs_f64() - t1,
             v.inliers.len(),
+            v.putative.len(),
             v.guided_added
         );
         if v.guided_added > 0 || seeds >= most {
@@ -342,6 +402,10 @@ pub fn verify_pairs(
 ) -> Vec<VerifiedPair> {
     progress.start("matching pairs", pairs.len() as u64);
     let keys: Vec<u64> = features.par_iter().map(content_key).collect();
+    let cache = opts
+        .seed_features
+        .filter(|_| opts.guided)
+        .map(|k| SeedCache::new(features.len(), k));
     let out = pairs
         .par_iter()
         .filter_map(|&(i, j)| {
@@ -349,7 +413,7 @@ pub fn verify_pairs(
             let swap = (keys.get(j)?, j) < (keys.get(i)?, i);
             let (a, b) = if swap { (j, i) } else { (i, j) };
             let (f1, f2) = (features.get(a)?, features.get(b)?);
-            let v = match_and_verify(a, b, f1, f2, opts);
+            let v = match_and_verify_with(a, b, f1, f2, opts, cache.as_ref());
             progress.inc(1);
             Some(if swap { v.transposed() } else { v })
         })

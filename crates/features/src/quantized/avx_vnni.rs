@@ -1,18 +1,18 @@
 //! The AVX-VNNI kernel of [`super::scores_block`]: `vpdpbusd` on 256-bit registers.
 
-use super::vnni::row_groups;
 use super::{PackedB, TILE};
 use std::arch::x86_64::*;
 
 /// Rows per register tile: 6 rows × 2 registers of 8 sums, 12 accumulators (of 16 registers).
-const ROWS: usize = 6;
+pub(super) const ROWS: usize = 6;
 
+/// The block's scores from its rows' groups `abc` (`super::RowGroups`, [`ROWS`] per chunk,
+/// for rows `i0..i0 + rows`).
 #[allow(clippy::too_many_arguments)]
 #[target_feature(enable = "avx2,avxvnni")]
 pub(super) unsafe fn block(
-    qa: &[u8],
+    abc: &[i32],
     suma: &[i32],
-    dim: usize,
     i0: usize,
     rows: usize,
     b: &PackedB,
@@ -21,8 +21,6 @@ pub(super) unsafe fn block(
     out: &mut [f32],
 ) {
     let groups = b.groups;
-    // Row groups as in `vnni::block`.
-    let abc = row_groups(qa, dim, i0, rows, groups, ROWS);
     let t0 = j0 / TILE;
     let tiles = cols.div_ceil(TILE);
     let mut r0 = 0;

@@ -4,52 +4,15 @@ use super::{PackedB, TILE};
 use std::arch::x86_64::*;
 
 /// Rows per register tile: 8 accumulators of 16 sums each.
-const ROWS: usize = 8;
+pub(super) const ROWS: usize = 8;
 
-/// The 4 bytes of row `i`, dimensions `4g..4g+4`, as one i32 (zero past `dim`).
-#[inline(always)]
-fn group(qa: &[u8], dim: usize, i: usize, g: usize) -> i32 {
-    let row = &qa[i * dim..(i + 1) * dim];
-    let k = 4 * g;
-    if k + 4 <= dim {
-        i32::from_le_bytes([row[k], row[k + 1], row[k + 2], row[k + 3]])
-    } else {
-        let mut v = [0u8; 4];
-        for (t, x) in v.iter_mut().enumerate() {
-            *x = row.get(k + t).copied().unwrap_or(0);
-        }
-        i32::from_le_bytes(v)
-    }
-}
-
-/// Rows `i0..i0 + rows` of A as 4-byte groups, broadcast once per row block, laid out
-/// `[row chunk of per_chunk][group][row in chunk]` so that one group's broadcasts read consecutive
-/// words; rows past the block are zero (their sums are computed and not stored).
-pub(super) fn row_groups(
-    qa: &[u8],
-    dim: usize,
-    i0: usize,
-    rows: usize,
-    groups: usize,
-    per_chunk: usize,
-) -> Vec<i32> {
-    let chunks = rows.div_ceil(per_chunk);
-    let mut abc = vec![0i32; chunks * groups * per_chunk];
-    for r in 0..rows {
-        for g in 0..groups {
-            abc[((r / per_chunk) * groups + g) * per_chunk + r % per_chunk] =
-                group(qa, dim, i0 + r, g);
-        }
-    }
-    abc
-}
-
+/// The block's scores from its rows' groups `abc` (`super::RowGroups`, [`ROWS`] per chunk, for
+/// rows `i0..i0 + rows`).
 #[allow(clippy::too_many_arguments)]
 #[target_feature(enable = "avx512f,avx512bw,avx512vnni")]
 pub(super) unsafe fn block(
-    qa: &[u8],
+    abc: &[i32],
     suma: &[i32],
-    dim: usize,
     i0: usize,
     rows: usize,
     b: &PackedB,
@@ -58,7 +21,6 @@ pub(super) unsafe fn block(
     out: &mut [f32],
 ) {
     let groups = b.groups;
-    let abc = row_groups(qa, dim, i0, rows, groups, ROWS);
     let t0 = j0 / TILE;
     let tiles = cols.div_ceil(TILE);
     let mut r0 = 0;
