@@ -15,6 +15,7 @@ use serde::Serialize;
 
 use crate::common::image_centre;
 use crate::context::Context;
+use crate::upgrade::guard::MAX_REMOVED_FRACTION;
 use crate::metric::noise::{noise_scaled_loss, scaled_priors, Noise, HUBER_95};
 use crate::options::Distortion;
 
@@ -119,7 +120,7 @@ pub(crate) fn refine_metric(
     rec: &mut MetricReconstruction,
     estimate_aspect: bool,
 ) -> Result<Vec<MetricBaRecord>, String> {
-    adjust_metric_schedule(ctx, rec, estimate_aspect, Schedule::Full)
+    adjust_metric_schedule(ctx, rec, estimate_aspect, Schedule::Full, None)
 }
 
 /// Removed fraction at which a candidate frame's schedule stops after a step ([`adjust_candidate`]).
@@ -133,12 +134,21 @@ pub const COLLAPSED_FRACTION: f64 = 0.9;
 /// [`COLLAPSED_FRACTION`] of the observations (a wrong upgrade collapses in its first step: a
 /// phone's distorted projective model lost 93–100 % there for every candidate, and the two further
 /// steps cost more than half of the time).
+///
+/// `bar`, when given, is the score below which the candidate can matter to nothing: it then also
+/// stops after a step once it has removed more than the guard's `MAX_REMOVED_FRACTION` (it is
+/// rejected whatever follows) and keeps fewer observations than `bar`. Its score (what it keeps,
+/// divided by `1 + RMS`) can only fall below that, so it can neither be kept nor come close enough
+/// to the kept frame for `guard::focal_ambiguity` (the guard passes `CLOSE_SCORE ×` the best sound
+/// score so far). templeSparseRing's last focal hypothesis ran three more steps of 100 iterations
+/// to its rejection.
 pub(crate) fn adjust_candidate(
     ctx: &Context,
     rec: &mut MetricReconstruction,
     estimate_aspect: bool,
+    bar: Option<f64>,
 ) -> Result<Vec<MetricBaRecord>, String> {
-    adjust_metric_schedule(ctx, rec, estimate_aspect, Schedule::Candidate)
+    adjust_metric_schedule(ctx, rec, estimate_aspect, Schedule::Candidate, bar)
 }
 
 /// Only the last step of [`refine_metric`]: for a model that was adjusted and then extended (new
@@ -148,7 +158,7 @@ pub(crate) fn final_adjustment(
     rec: &mut MetricReconstruction,
     estimate_aspect: bool,
 ) -> Result<Vec<MetricBaRecord>, String> {
-    adjust_metric_schedule(ctx, rec, estimate_aspect, Schedule::FinalOnly)
+    adjust_metric_schedule(ctx, rec, estimate_aspect, Schedule::FinalOnly, None)
 }
 
 /// Which part of the schedule runs.
@@ -167,6 +177,7 @@ fn adjust_metric_schedule(
     rec: &mut MetricReconstruction,
     estimate_aspect: bool,
     schedule: Schedule,
+    bar: Option<f64>,
 ) -> Result<Vec<MetricBaRecord>, String> {
     let only_final = schedule == Schedule::FinalOnly;
     let o = ctx.opts;
@@ -222,6 +233,16 @@ fn adjust_metric_schedule(
         {
             tracing::debug!(
                 "the {name} step removed {removed} of {observations} observations: the schedule stops"
+            );
+            break;
+        }
+        if schedule == Schedule::Candidate
+            && removed as f64 > MAX_REMOVED_FRACTION * observations as f64
+            && bar.is_some_and(|b| (observations.saturating_sub(removed) as f64) < b)
+        {
+            tracing::debug!(
+                "the {name} step removed {removed} of {observations} observations, and what is left \
+                 scores below the best frame's: the schedule stops"
             );
             break;
         }

@@ -138,7 +138,7 @@ pub(crate) fn adjust_metric_frame(
             candidates.len() > 1,
             candidates.iter().map(|c| (c, c.source, &c.rec)),
             projective_rms,
-            |rec| adjust_candidate(ctx, rec, estimate_aspect),
+            |rec, bar| adjust_candidate(ctx, rec, estimate_aspect, bar),
             &mut tried,
         );
         if let Some((c, rec, adjustments)) = found {
@@ -259,7 +259,7 @@ fn probe_translation(
         if let Some((p, r, a)) = guard::challenge(
             (p, p.source, &p.rec),
             projective_rms,
-            |r| adjust_candidate(ctx, r, estimate_aspect),
+            |r, bar| adjust_candidate(ctx, r, estimate_aspect, bar),
             tried,
             true,
             &format!("a probe of the focal length only ({why})"),
@@ -323,7 +323,7 @@ fn descend_focal_profile(
         match guard::challenge(
             (&(), "focal profile", &start),
             projective_rms,
-            |r| adjust_candidate(ctx, r, estimate_aspect),
+            |r, bar| adjust_candidate(ctx, r, estimate_aspect, bar),
             tried,
             false,
             "scored below the kept frame",

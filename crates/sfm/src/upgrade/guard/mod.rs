@@ -210,7 +210,7 @@ pub(crate) fn judge(
 pub(crate) fn first_sound<'a, C>(
     candidates: impl IntoIterator<Item = (&'a C, &'a str, &'a MetricReconstruction)>,
     projective_rms_px: Option<f64>,
-    mut adjust: impl FnMut(&mut MetricReconstruction) -> Result<Vec<MetricBaRecord>, String>,
+    mut adjust: impl FnMut(&mut MetricReconstruction, Option<f64>) -> Result<Vec<MetricBaRecord>, String>,
     tried: &mut Vec<CandidateRecord>,
 ) -> Option<(&'a C, MetricReconstruction, Vec<MetricBaRecord>)> {
     for (c, source, rec) in candidates {
@@ -227,7 +227,7 @@ pub(crate) fn first_sound<'a, C>(
             s => s.start(),
         };
         if let Some((adjusted, adjustments)) =
-            adjust_in_full(source, rec, start, projective_rms_px, &mut adjust, tried)
+            adjust_in_full(source, rec, start, projective_rms_px, &mut adjust, None, tried)
         {
             return Some((c, adjusted, adjustments));
         }
@@ -243,14 +243,15 @@ fn adjust_in_full(
     rec: &MetricReconstruction,
     start: Option<(MetricReconstruction, usize)>,
     projective_rms_px: Option<f64>,
-    adjust: &mut impl FnMut(&mut MetricReconstruction) -> Result<Vec<MetricBaRecord>, String>,
+    adjust: &mut impl FnMut(&mut MetricReconstruction, Option<f64>) -> Result<Vec<MetricBaRecord>, String>,
+    bar: Option<f64>,
     tried: &mut Vec<CandidateRecord>,
 ) -> Option<(MetricReconstruction, Vec<MetricBaRecord>)> {
     let mut record = record_before(source, rec);
     record.tried = true;
     record.warm_start_points = start.as_ref().map(|s| s.1);
     let mut adjusted = start.map_or_else(|| rec.clone(), |s| s.0);
-    let why = match adjust(&mut adjusted) {
+    let why = match adjust(&mut adjusted, bar) {
         Ok(adjustments) => match judge(&mut record, &adjusted, &adjustments, projective_rms_px) {
             None => {
                 record.sound = true;
@@ -278,7 +279,7 @@ fn adjust_in_full(
 pub(crate) fn best_sound<'a, C>(
     candidates: impl IntoIterator<Item = (&'a C, &'a str, &'a MetricReconstruction)>,
     projective_rms_px: Option<f64>,
-    mut adjust: impl FnMut(&mut MetricReconstruction) -> Result<Vec<MetricBaRecord>, String>,
+    mut adjust: impl FnMut(&mut MetricReconstruction, Option<f64>) -> Result<Vec<MetricBaRecord>, String>,
     tried: &mut Vec<CandidateRecord>,
 ) -> Option<(&'a C, MetricReconstruction, Vec<MetricBaRecord>)> {
     let mut best: Option<(f64, usize, &'a C, MetricReconstruction, Vec<MetricBaRecord>)> = None;
@@ -290,8 +291,11 @@ pub(crate) fn best_sound<'a, C>(
             }
             s => s.start(),
         };
+        // A candidate that cannot come within `CLOSE_SCORE` of the best sound one so far may stop
+        // early (`metric::ba::adjust_candidate`).
+        let bar = best.as_ref().map(|b| CLOSE_SCORE * b.0);
         let Some((adjusted, adjustments)) =
-            adjust_in_full(source, rec, start, projective_rms_px, &mut adjust, tried)
+            adjust_in_full(source, rec, start, projective_rms_px, &mut adjust, bar, tried)
         else {
             continue;
         };
@@ -318,7 +322,7 @@ pub(crate) fn choose<'a, C>(
     all: bool,
     candidates: impl IntoIterator<Item = (&'a C, &'a str, &'a MetricReconstruction)>,
     projective_rms_px: Option<f64>,
-    adjust: impl FnMut(&mut MetricReconstruction) -> Result<Vec<MetricBaRecord>, String>,
+    adjust: impl FnMut(&mut MetricReconstruction, Option<f64>) -> Result<Vec<MetricBaRecord>, String>,
     tried: &mut Vec<CandidateRecord>,
 ) -> Option<(&'a C, MetricReconstruction, Vec<MetricBaRecord>)> {
     if all {
@@ -467,7 +471,7 @@ pub(crate) fn describe_rejections(records: &[CandidateRecord]) -> String {
 pub(crate) fn challenge<'a, C>(
     candidate: (&'a C, &'a str, &'a MetricReconstruction),
     projective_rms_px: Option<f64>,
-    mut adjust: impl FnMut(&mut MetricReconstruction) -> Result<Vec<MetricBaRecord>, String>,
+    mut adjust: impl FnMut(&mut MetricReconstruction, Option<f64>) -> Result<Vec<MetricBaRecord>, String>,
     tried: &mut Vec<CandidateRecord>,
     probe: bool,
     lost: &str,
@@ -500,6 +504,7 @@ pub(crate) fn challenge<'a, C>(
         start,
         projective_rms_px,
         &mut adjust,
+        kept_score.is_finite().then_some(CLOSE_SCORE * kept_score),
         &mut records,
     )
     .map(|(r, a)| (candidate.0, r, a));

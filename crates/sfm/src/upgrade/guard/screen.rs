@@ -88,7 +88,7 @@ pub(crate) fn screen(
     source: &str,
     rec: &MetricReconstruction,
     projective_rms_px: Option<f64>,
-    adjust: &mut impl FnMut(&mut MetricReconstruction) -> Result<Vec<MetricBaRecord>, String>,
+    adjust: &mut impl FnMut(&mut MetricReconstruction, Option<f64>) -> Result<Vec<MetricBaRecord>, String>,
     tried: &[CandidateRecord],
     same: bool,
 ) -> Screened {
@@ -100,7 +100,7 @@ pub(crate) fn screen(
     };
     let mut record = record_before(source, &sub);
     let points = sub.points.len();
-    let Ok(adjustments) = adjust(&mut sub) else {
+    let Ok(adjustments) = adjust(&mut sub, None) else {
         return Screened::Cold;
     };
     let why = judge(&mut record, &sub, &adjustments, projective_rms_px);
@@ -225,8 +225,8 @@ mod tests {
         f: f64,
         fraction: f64,
         seen: &mut Vec<usize>,
-    ) -> impl FnMut(&mut MetricReconstruction) -> Result<Vec<MetricBaRecord>, String> + '_ {
-        move |rec| {
+    ) -> impl FnMut(&mut MetricReconstruction, Option<f64>) -> Result<Vec<MetricBaRecord>, String> + '_ {
+        move |rec, _| {
             seen.push(rec.points.len());
             for c in rec.cameras.values_mut() {
                 c.intrinsics.f = f;

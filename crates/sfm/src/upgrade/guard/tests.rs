@@ -133,7 +133,7 @@ fn a_collapsed_candidate_gives_way_to_the_next() {
     let (winner, rec, adjustments) = first_sound(
         candidates.iter().map(|(id, s, r)| (id, *s, *r)),
         Some(0.5),
-        |rec| {
+        |rec, _| {
             let collapse = rec.cameras.values().any(|c| c.intrinsics.f < 1.0);
             Ok(adjusted(if collapse { 38 } else { 1 }, 0.4))
         },
@@ -158,7 +158,7 @@ fn a_collapsed_candidate_gives_way_to_the_next() {
     let none = first_sound(
         candidates.iter().map(|(id, s, r)| (id, *s, *r)),
         Some(0.5),
-        |_| Err("metric bundle adjustment (f+k1): diverged".to_string()),
+        |_, _| Err("metric bundle adjustment (f+k1): diverged".to_string()),
         &mut tried,
     );
     assert!(none.is_none());
@@ -177,7 +177,7 @@ fn with_several_sound_candidates_the_best_adjusted_one_is_kept() {
         true,
         candidates.iter().map(|(id, s, r)| (id, *s, *r)),
         Some(0.5),
-        |rec| {
+        |rec, _| {
             let f = rec.cameras.values().next().map_or(0.0, |c| c.intrinsics.f);
             Ok(adjusted(if f < 810.0 { 10 } else { 2 }, 0.5))
         },
@@ -188,6 +188,37 @@ fn with_several_sound_candidates_the_best_adjusted_one_is_kept() {
     assert_eq!(tried.len(), 2);
     assert!(!tried[0].accepted && tried[1].accepted);
     assert!(tried[0].score < tried[1].score);
+}
+
+#[test]
+fn a_candidate_after_a_sound_one_may_stop_below_what_could_matter() {
+    // The first candidate has no bar (nothing is kept yet); each later one gets CLOSE_SCORE × the
+    // best sound score so far, and a frame that stopped early there is rejected, as it would have
+    // been in full.
+    let (a, b, c) = (model(800.0), model(820.0), model(840.0));
+    let candidates = [(1, "self-calibration", &a), (2, "priors", &b), (3, "focal hypothesis", &c)];
+    let mut tried = Vec::new();
+    let mut bars = Vec::new();
+    let (winner, _, _) = choose(
+        true,
+        candidates.iter().map(|(id, s, r)| (id, *s, *r)),
+        Some(0.5),
+        |rec, bar| {
+            bars.push(bar);
+            let f = rec.cameras.values().next().map_or(0.0, |c| c.intrinsics.f);
+            // The second stops early after removing 20 of 40.
+            Ok(adjusted(if f < 810.0 { 1 } else if f < 830.0 { 20 } else { 2 }, 0.5))
+        },
+        &mut tried,
+    )
+    .expect("a sound candidate");
+    assert_eq!(*winner, 1);
+    let first = tried[0].score.expect("scored");
+    assert_eq!(bars[0], None);
+    assert_eq!(bars[1], Some(CLOSE_SCORE * first));
+    assert_eq!(bars[2], Some(CLOSE_SCORE * first));
+    assert!(tried[1].rejected.is_some() && !tried[1].sound);
+    assert!(focal_ambiguity(&tried).is_none());
 }
 
 fn record(source: &str, focal: f64, score: f64, sound: bool, accepted: bool) -> CandidateRecord {
