@@ -142,10 +142,9 @@ fn prepare_with(a: &Descriptors, kernel: quantized::Kernel, quantise: bool) -> P
                 wide: kernel == Kernel::Avx512Vnni,
                 q,
             },
-            Kernel::Avx2 => PreparedData::Avx2(
-                quantized::pairs_of(&q, d),
-                quantized::PackedI16::new(&q, d),
-            ),
+            Kernel::Avx2 => {
+                PreparedData::Avx2(quantized::pairs_of(&q, d), quantized::PackedI16::new(&q, d))
+            }
             Kernel::Portable => PreparedData::F32(quantized::dequantized(&q)),
         };
         Prepared {
@@ -191,8 +190,8 @@ fn match_with(
         return Vec::new();
     }
     // Both quantised, or both raw when either does not fit.
-    let quantise = quantized::fits(&a.data[..a.len() * a.dim])
-        && quantized::fits(&b.data[..b.len() * b.dim]);
+    let quantise =
+        quantized::fits(&a.data[..a.len() * a.dim]) && quantized::fits(&b.data[..b.len() * b.dim]);
     match_prepared(
         &prepare_with(a, kernel, quantise),
         &prepare_with(b, kernel, quantise),
@@ -212,7 +211,9 @@ pub fn match_prepared(a: &Prepared, b: &Prepared, opts: &MatchOptions) -> Vec<Ma
         }
         return Vec::new();
     }
-    if a.quantised() != b.quantised() || std::mem::discriminant(&a.data) != std::mem::discriminant(&b.data) {
+    if a.quantised() != b.quantised()
+        || std::mem::discriminant(&a.data) != std::mem::discriminant(&b.data)
+    {
         // Prepared for different kernels (or one set not quantisable): both as raw f32 would
         // change the numbers, so this is a caller's error.
         tracing::warn!("descriptor sets prepared differently: no matches");

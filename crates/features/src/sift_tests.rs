@@ -29,7 +29,11 @@ fn upsampling_equals_bilinear_sampling_bit_for_bit() {
             let sy = (y as f32 + 0.5) * 0.5 - 0.5;
             for x in 0..2 * w {
                 let want = img.sample((x as f32 + 0.5) * 0.5 - 0.5, sy);
-                assert_eq!(up.data[y * 2 * w + x].to_bits(), want.to_bits(), "{w}x{h} at ({x}, {y})");
+                assert_eq!(
+                    up.data[y * 2 * w + x].to_bits(),
+                    want.to_bits(),
+                    "{w}x{h} at ({x}, {y})"
+                );
             }
         }
     }

@@ -15,9 +15,9 @@ use serde::Serialize;
 
 use crate::common::image_centre;
 use crate::context::Context;
-use crate::upgrade::guard::MAX_REMOVED_FRACTION;
 use crate::metric::noise::{noise_scaled_loss, scaled_priors, Noise, HUBER_95};
 use crate::options::Distortion;
+use crate::upgrade::guard::MAX_REMOVED_FRACTION;
 
 /// One metric bundle adjustment, for the summary.
 #[derive(Clone, Debug, Serialize, serde::Deserialize)]

@@ -205,7 +205,10 @@ mod tests {
         use nalgebra::Point3;
         // A 1226 × 370 camera (kitti-seq1's size) whose principal point is 12 px and 18 px off the
         // centre, and points across its view 5–40 units ahead.
-        let mut rec = views(&[Vector3::new(0.02, -0.01, 0.005), Vector3::new(0.0, 0.03, 0.0)]);
+        let mut rec = views(&[
+            Vector3::new(0.02, -0.01, 0.005),
+            Vector3::new(0.0, 0.03, 0.0),
+        ]);
         let mut intrinsics = Intrinsics::pinhole(700.0, 612.5 + 12.0, 184.5 - 18.0);
         intrinsics.k1 = -0.05;
         rec.cameras.insert(

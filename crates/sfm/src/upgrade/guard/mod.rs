@@ -210,7 +210,10 @@ pub(crate) fn judge(
 pub(crate) fn first_sound<'a, C>(
     candidates: impl IntoIterator<Item = (&'a C, &'a str, &'a MetricReconstruction)>,
     projective_rms_px: Option<f64>,
-    mut adjust: impl FnMut(&mut MetricReconstruction, Option<f64>) -> Result<Vec<MetricBaRecord>, String>,
+    mut adjust: impl FnMut(
+        &mut MetricReconstruction,
+        Option<f64>,
+    ) -> Result<Vec<MetricBaRecord>, String>,
     tried: &mut Vec<CandidateRecord>,
 ) -> Option<(&'a C, MetricReconstruction, Vec<MetricBaRecord>)> {
     for (c, source, rec) in candidates {
@@ -226,9 +229,15 @@ pub(crate) fn first_sound<'a, C>(
             }
             s => s.start(),
         };
-        if let Some((adjusted, adjustments)) =
-            adjust_in_full(source, rec, start, projective_rms_px, &mut adjust, None, tried)
-        {
+        if let Some((adjusted, adjustments)) = adjust_in_full(
+            source,
+            rec,
+            start,
+            projective_rms_px,
+            &mut adjust,
+            None,
+            tried,
+        ) {
             return Some((c, adjusted, adjustments));
         }
     }
@@ -243,7 +252,10 @@ fn adjust_in_full(
     rec: &MetricReconstruction,
     start: Option<(MetricReconstruction, usize)>,
     projective_rms_px: Option<f64>,
-    adjust: &mut impl FnMut(&mut MetricReconstruction, Option<f64>) -> Result<Vec<MetricBaRecord>, String>,
+    adjust: &mut impl FnMut(
+        &mut MetricReconstruction,
+        Option<f64>,
+    ) -> Result<Vec<MetricBaRecord>, String>,
     bar: Option<f64>,
     tried: &mut Vec<CandidateRecord>,
 ) -> Option<(MetricReconstruction, Vec<MetricBaRecord>)> {
@@ -279,7 +291,10 @@ fn adjust_in_full(
 pub(crate) fn best_sound<'a, C>(
     candidates: impl IntoIterator<Item = (&'a C, &'a str, &'a MetricReconstruction)>,
     projective_rms_px: Option<f64>,
-    mut adjust: impl FnMut(&mut MetricReconstruction, Option<f64>) -> Result<Vec<MetricBaRecord>, String>,
+    mut adjust: impl FnMut(
+        &mut MetricReconstruction,
+        Option<f64>,
+    ) -> Result<Vec<MetricBaRecord>, String>,
     tried: &mut Vec<CandidateRecord>,
 ) -> Option<(&'a C, MetricReconstruction, Vec<MetricBaRecord>)> {
     let mut best: Option<(f64, usize, &'a C, MetricReconstruction, Vec<MetricBaRecord>)> = None;
@@ -294,9 +309,15 @@ pub(crate) fn best_sound<'a, C>(
         // A candidate that cannot come within `CLOSE_SCORE` of the best sound one so far may stop
         // early (`metric::ba::adjust_candidate`).
         let bar = best.as_ref().map(|b| CLOSE_SCORE * b.0);
-        let Some((adjusted, adjustments)) =
-            adjust_in_full(source, rec, start, projective_rms_px, &mut adjust, bar, tried)
-        else {
+        let Some((adjusted, adjustments)) = adjust_in_full(
+            source,
+            rec,
+            start,
+            projective_rms_px,
+            &mut adjust,
+            bar,
+            tried,
+        ) else {
             continue;
         };
         let full = tried
@@ -471,7 +492,10 @@ pub(crate) fn describe_rejections(records: &[CandidateRecord]) -> String {
 pub(crate) fn challenge<'a, C>(
     candidate: (&'a C, &'a str, &'a MetricReconstruction),
     projective_rms_px: Option<f64>,
-    mut adjust: impl FnMut(&mut MetricReconstruction, Option<f64>) -> Result<Vec<MetricBaRecord>, String>,
+    mut adjust: impl FnMut(
+        &mut MetricReconstruction,
+        Option<f64>,
+    ) -> Result<Vec<MetricBaRecord>, String>,
     tried: &mut Vec<CandidateRecord>,
     probe: bool,
     lost: &str,

@@ -88,7 +88,10 @@ pub(crate) fn screen(
     source: &str,
     rec: &MetricReconstruction,
     projective_rms_px: Option<f64>,
-    adjust: &mut impl FnMut(&mut MetricReconstruction, Option<f64>) -> Result<Vec<MetricBaRecord>, String>,
+    adjust: &mut impl FnMut(
+        &mut MetricReconstruction,
+        Option<f64>,
+    ) -> Result<Vec<MetricBaRecord>, String>,
     tried: &[CandidateRecord],
     same: bool,
 ) -> Screened {
@@ -225,7 +228,8 @@ mod tests {
         f: f64,
         fraction: f64,
         seen: &mut Vec<usize>,
-    ) -> impl FnMut(&mut MetricReconstruction, Option<f64>) -> Result<Vec<MetricBaRecord>, String> + '_ {
+    ) -> impl FnMut(&mut MetricReconstruction, Option<f64>) -> Result<Vec<MetricBaRecord>, String> + '_
+    {
         move |rec, _| {
             seen.push(rec.points.len());
             for c in rec.cameras.values_mut() {

@@ -196,7 +196,11 @@ fn a_candidate_after_a_sound_one_may_stop_below_what_could_matter() {
     // best sound score so far, and a frame that stopped early there is rejected, as it would have
     // been in full.
     let (a, b, c) = (model(800.0), model(820.0), model(840.0));
-    let candidates = [(1, "self-calibration", &a), (2, "priors", &b), (3, "focal hypothesis", &c)];
+    let candidates = [
+        (1, "self-calibration", &a),
+        (2, "priors", &b),
+        (3, "focal hypothesis", &c),
+    ];
     let mut tried = Vec::new();
     let mut bars = Vec::new();
     let (winner, _, _) = choose(
@@ -207,7 +211,16 @@ fn a_candidate_after_a_sound_one_may_stop_below_what_could_matter() {
             bars.push(bar);
             let f = rec.cameras.values().next().map_or(0.0, |c| c.intrinsics.f);
             // The second stops early after removing 20 of 40.
-            Ok(adjusted(if f < 810.0 { 1 } else if f < 830.0 { 20 } else { 2 }, 0.5))
+            Ok(adjusted(
+                if f < 810.0 {
+                    1
+                } else if f < 830.0 {
+                    20
+                } else {
+                    2
+                },
+                0.5,
+            ))
         },
         &mut tried,
     )
