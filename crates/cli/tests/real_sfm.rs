@@ -26,14 +26,16 @@ fn iclnuim_all_five_views_registered_and_scored() {
     let auc5 = v["auc@5"].as_f64().unwrap();
     assert!(auc5 >= 50.0, "AUC@5 {auc5}");
     // ICL-NUIM's renderer puts the principal point exactly at the image centre (319.5, 239.5 in
-    // gt/intrinsics.txt), and five nearby views cannot tell it apart from there: it is held.
-    let summary = read_json(&ws.path().join("sparse/summary.json"));
-    let sc = &summary["self_calibration"];
-    assert_eq!(
-        sc["principal_point_held"], true,
-        "{}",
-        sc["principal_point_spread"]
-    );
+    // gt/intrinsics.txt). Whether the principal-point test holds it there or leaves it free is an
+    // expected-error comparison (`Σ o² < 2 Σ σ²`), which with an exact σ still frees a centred
+    // principal point one time in seven, and the jackknife's σ over five views is itself loose (it
+    // went from (1.9, 0.9) to (0.24, 0.35) px when one pair's RANSAC draws changed, twenty-eighth
+    // session). So the test asks what the decision is for: the principal point, held or free,
+    // within 1.5 px of the truth.
+    let (cx, cy) = principal_point(ws.path());
+    let err = (cx - 319.5).hypot(cy - 239.5);
+    println!("principal point ({cx:.2}, {cy:.2}): {err:.2} px from the truth");
+    assert!(err < 1.5, "principal point {err} px from the truth");
 }
 
 /// herzjesu-P8: all 8 views registered, and the poses against the ground truth: a correct
