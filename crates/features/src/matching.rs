@@ -116,19 +116,28 @@ impl Prepared {
     fn quantised(&self) -> bool {
         self.unit != 1.0
     }
+
+    /// Whether the two sets were prepared alike (the same kernel, both quantised or both raw), so
+    /// that [`match_prepared`] can match them.
+    pub fn alike(&self, other: &Prepared) -> bool {
+        self.quantised() == other.quantised()
+            && std::mem::discriminant(&self.data) == std::mem::discriminant(&other.data)
+    }
 }
 
 /// Prepares `a` for [`match_prepared`] with the best kernel the CPU has ([`quantized::kernel`]).
 pub fn prepare(a: &Descriptors) -> Prepared {
-    prepare_with(a, quantized::kernel(), true)
+    let quantise = quantized::fits(&a.data[..a.len() * a.dim]);
+    prepare_with(a, quantized::kernel(), quantise)
 }
 
-/// [`prepare`] with the given kernel; `quantise: false` keeps the raw f32 values.
+/// [`prepare`] with the given kernel: quantised when `quantise` (the caller has checked that the
+/// values fit, [`quantized::fits`]), else the raw f32 values.
 fn prepare_with(a: &Descriptors, kernel: quantized::Kernel, quantise: bool) -> Prepared {
     use quantized::Kernel;
     let (n, d) = (a.len(), a.dim);
     let data = &a.data[..n * d];
-    if quantise && quantized::fits(data) {
+    if quantise {
         let q = quantized::quantize(data);
         let sq = |v: &[u8]| v.iter().map(|&x| u32::from(x) * u32::from(x)).sum::<u32>() as f32;
         let norms: Vec<f32> = q.chunks_exact(d.max(1)).map(sq).collect();
@@ -211,9 +220,7 @@ pub fn match_prepared(a: &Prepared, b: &Prepared, opts: &MatchOptions) -> Vec<Ma
         }
         return Vec::new();
     }
-    if a.quantised() != b.quantised()
-        || std::mem::discriminant(&a.data) != std::mem::discriminant(&b.data)
-    {
+    if !a.alike(b) {
         // Prepared for different kernels (or one set not quantisable): both as raw f32 would
         // change the numbers, so this is a caller's error.
         tracing::warn!("descriptor sets prepared differently: no matches");

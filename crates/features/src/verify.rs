@@ -346,7 +346,10 @@ fn match_and_verify_with(
         let t0 = std::time::Instant::now();
         let cached = cache
             .filter(|c| c.k == seeds)
-            .and_then(|c| Some((c.get(i, f1)?, c.get(j, f2)?)));
+            .and_then(|c| Some((c.get(i, f1)?, c.get(j, f2)?)))
+            // Seeds quantised in one image and not in the other (descriptors outside [0, 1]) are
+            // matched raw, both of them, by the path below.
+            .filter(|(a, b)| a.prepared.alike(&b.prepared));
         let owned: (Vec<u32>, Vec<u32>);
         let (s1, s2, found): (&[u32], &[u32], Vec<Match>) = match cached {
             Some((a, b)) => (
