@@ -17,6 +17,7 @@ use handheld_robust::{
     estimate_two_view_geometry, refine_two_view, Match2d2d, TwoViewConfiguration, TwoViewGeometry,
     TwoViewOptions,
 };
+use nalgebra::{Matrix3, Vector2, Vector3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -46,6 +47,14 @@ pub struct PairVerificationOptions {
     /// weakly supported `F` may be wrong, and matching along wrong epipolar lines invents thousands
     /// of consistent-looking false matches. Default 50.
     pub guided_min_inliers: usize,
+    /// Rounds of guided matching and refinement of F (Table 1 steps 4–5) at most; they stop
+    /// earlier once a round adds no verified match or the refined F hardly moves the lines
+    /// ([`GUIDED_STABLE_FRACTION`]). Default 3. One round draws every epipolar line from the F of
+    /// the RANSAC inliers alone, which on a pair with few of them is a rough F. Over six RANSAC
+    /// seeds of the matching, templeSparseRing's AUC@1 rose on every one (mean 76.71 → 77.75);
+    /// fountain-P11's matching took 5 % longer.
+    #[serde(default = "default_guided_rounds")]
+    pub guided_rounds: usize,
     /// Brute-force step 1 only over this many strongest keypoints per image, then guided matching
     /// over all of them (see the module notes); `None` matches all keypoints by brute force.
     /// Default `Some(2048)`. Needs `guided`.
@@ -62,9 +71,14 @@ impl Default for PairVerificationOptions {
             guided_ratio: 0.8,
             guided_max_distance: 0.7,
             guided_min_inliers: 50,
+            guided_rounds: default_guided_rounds(),
             seed_features: Some(2048),
         }
     }
+}
+
+fn default_guided_rounds() -> usize {
+    3
 }
 
 impl PairVerificationOptions {
@@ -78,6 +92,9 @@ impl PairVerificationOptions {
         let e = self.guided_max_epipolar_px;
         check(!e.is_nan() && e > 0.0, "guided_max_epipolar_px", || {
             format!("must be positive, got {e}")
+        })?;
+        check(self.guided_rounds >= 1, "guided_rounds", || {
+            "must be at least 1 (set `guided` to false for none)".into()
         })?;
         check(
             self.seed_features.is_none_or(|k| k >= 64),
@@ -174,6 +191,42 @@ pub fn content_key(f: &Features) -> u64 {
     h
 }
 
+/// Guided matching's rounds stop once the refined F moves the epipolar lines by less than this
+/// share of the search band (`guided_max_epipolar_px`) where the verified matches lie
+/// ([`line_shift`]): another round would search almost the same bands.
+pub const GUIDED_STABLE_FRACTION: f64 = 0.05;
+
+/// How far `g`'s epipolar lines lie from `f`'s, pixels: the 90th percentile, over the matches
+/// (`a` in image 1, `b` in image 2), of the change in the signed distance of `b` from the line of
+/// `a`.
+fn line_shift(
+    f: &Matrix3<f64>,
+    g: &Matrix3<f64>,
+    f1: &Features,
+    f2: &Features,
+    matches: &[(u32, u32)],
+) -> f64 {
+    // F is defined up to scale and sign: compare like with like.
+    let g = if f.dot(g) < 0.0 { -g } else { *g };
+    let signed = |m: &Matrix3<f64>, x1: &Vector2<f64>, x2: &Vector2<f64>| {
+        let l = m * Vector3::new(x1.x, x1.y, 1.0);
+        (l.x * x2.x + l.y * x2.y + l.z) / (l.x * l.x + l.y * l.y).sqrt()
+    };
+    let mut d: Vec<f64> = matches
+        .iter()
+        .map(|&(a, b)| {
+            let (x1, x2) = (point(f1, a), point(f2, b));
+            (signed(&g, &x1, &x2) - signed(f, &x1, &x2)).abs()
+        })
+        .filter(|v| v.is_finite())
+        .collect();
+    if d.is_empty() {
+        return f64::INFINITY;
+    }
+    let k = (d.len() * 9 / 10).min(d.len() - 1);
+    *d.select_nth_unstable_by(k, f64::total_cmp).1
+}
+
 /// Verifies one pair from its putative matches.
 pub fn verify_pair(
     i: usize,
@@ -213,18 +266,27 @@ pub fn verify_pair(
         && geometry.configuration == TwoViewConfiguration::General
         && inliers.len() >= opts.guided_min_inliers
     {
-        if let Some(fm) = geometry.f {
+        if let Some(mut fm) = geometry.f {
             let t_guided = std::time::Instant::now();
-            let extra = guided_matches(f1, f2, &fm, &inliers, opts);
-            tracing::trace!(
-                "pair ({i}, {j}): RANSAC {:.3} s on {} matches, guided search {:.3} s",
-                t_guided.duration_since(t_ransac).as_secs_f64(),
-                m.len(),
-                t_guided.elapsed().as_secs_f64()
-            );
-            if !extra.is_empty() {
+            // The RANSAC inliers: every round searches from them, with lines drawn from the
+            // latest F.
+            let seeds = inliers.clone();
+            // Steps 4 and 5, repeated while the refined F admits more (Hartley & Zisserman 2004,
+            // Alg. 11.4 (v): "iterated until the number of correspondences is stable"). The
+            // first F comes from the RANSAC inliers alone; refitted on every verified match it is
+            // pinned by the whole set. Each round searches again from the RANSAC inliers, whose
+            // spread bounds how well a line is known (`guided_matches`' rival band), so a later
+            // round uses the first one's acceptance rules along better lines. Searching from the
+            // grown set instead narrowed the bands it derives from that spread, and admitted
+            // weaker matches: on monstree-phone every metric candidate then lost 16 % of its
+            // observations in its adjustment.
+            for _ in 0..opts.guided_rounds {
+                let extra = guided_matches(f1, f2, &fm, &seeds, opts);
+                if extra.is_empty() {
+                    break;
+                }
                 // Step 5: refine F on all correct matches and keep those it explains.
-                let all: Vec<(u32, u32)> = inliers.iter().chain(&extra).copied().collect();
+                let all: Vec<(u32, u32)> = seeds.iter().chain(&extra).copied().collect();
                 let am: Vec<Match2d2d> = all
                     .iter()
                     .map(|&(a, b)| Match2d2d::new(point(f1, a), point(f2, b)))
@@ -236,13 +298,33 @@ pub fn verify_pair(
                     .filter(|(_, &k)| k)
                     .map(|(p, _)| *p)
                     .collect();
-                if kept.len() >= inliers.len() {
-                    guided_added = kept.len().saturating_sub(inliers.len());
-                    inliers = kept;
-                    geometry.f = Some(f_ref);
-                    geometry.num_inliers = inliers.len();
+                if kept.len() < inliers.len() {
+                    break;
+                }
+                let grew = kept.len() > inliers.len();
+                let shift = line_shift(&fm, &f_ref, f1, f2, &kept);
+                tracing::trace!(
+                    "pair ({i}, {j}): guided round: {} -> {} inliers, lines moved {shift:.3} px",
+                    inliers.len(),
+                    kept.len()
+                );
+                inliers = kept;
+                fm = f_ref;
+                geometry.f = Some(f_ref);
+                geometry.num_inliers = inliers.len();
+                // Stable: the next round would search along lines within a small part of the
+                // band of where this one searched.
+                if !grew || shift < GUIDED_STABLE_FRACTION * opts.guided_max_epipolar_px {
+                    break;
                 }
             }
+            guided_added = inliers.len().saturating_sub(seeds.len());
+            tracing::trace!(
+                "pair ({i}, {j}): RANSAC {:.3} s on {} matches, guided search {:.3} s",
+                t_guided.duration_since(t_ransac).as_secs_f64(),
+                m.len(),
+                t_guided.elapsed().as_secs_f64()
+            );
         }
     }
     VerifiedPair {

@@ -84,3 +84,45 @@ fn seeded_matching_finds_as_many_correct_matches_as_brute_force() {
         precision(bg, bs)
     );
 }
+
+/// Guided matching repeated while the refined F moves its lines (Table 1 steps 4–5, as Hartley &
+/// Zisserman's Algorithm 11.4 iterates them) against one round, from a weak start: few seeds, so
+/// the first F comes from a small RANSAC inlier set. The later rounds search along the lines of
+/// the F refined on every verified match, with the acceptance rules of the first: they must add
+/// correct matches, and the matches they add must be as reliable as the rest.
+#[test]
+fn repeated_guided_matching_adds_correct_matches_from_a_weak_start() {
+    let seq = common::orbit_pair(10.0);
+    let feats: Vec<Features> = seq
+        .images
+        .iter()
+        .map(|im| {
+            extract_features(
+                &DynamicImage::ImageRgb8(im.clone()),
+                &ExtractionOptions::default(),
+            )
+        })
+        .collect();
+    let (f1, f2) = (&feats[0], &feats[1]);
+    let run = |rounds: usize| {
+        let opts = PairVerificationOptions {
+            seed_features: Some(64),
+            guided_rounds: rounds,
+            ..Default::default()
+        };
+        let v = match_and_verify(0, 1, f1, f2, &opts);
+        score(&seq, f1, f2, &v)
+    };
+    let (good1, scored1) = run(1);
+    let (good3, scored3) = run(3);
+    println!("one round {good1}/{scored1} correct, up to three rounds {good3}/{scored3} correct");
+    assert!(good3 > good1, "{good3} correct against {good1}");
+    let added_precision = (good3 - good1) as f64 / (scored3 - scored1).max(1) as f64;
+    assert!(
+        added_precision >= 0.9,
+        "of the {} matches the later rounds added, {} correct",
+        scored3 - scored1,
+        good3 - good1
+    );
+    assert!(good3 as f64 / scored3 as f64 >= 0.95);
+}
