@@ -38,11 +38,9 @@ fn score(
     (good, scored)
 }
 
-#[test]
-fn seeded_matching_finds_as_many_correct_matches_as_brute_force() {
-    let seq = common::orbit_pair(10.0);
-    let feats: Vec<Features> = seq
-        .images
+/// The default features of every frame.
+fn features(seq: &SyntheticSequence) -> Vec<Features> {
+    seq.images
         .iter()
         .map(|im| {
             extract_features(
@@ -50,7 +48,13 @@ fn seeded_matching_finds_as_many_correct_matches_as_brute_force() {
                 &ExtractionOptions::default(),
             )
         })
-        .collect();
+        .collect()
+}
+
+#[test]
+fn seeded_matching_finds_as_many_correct_matches_as_brute_force() {
+    let seq = common::orbit_pair(10.0);
+    let feats = features(&seq);
     let (f1, f2) = (&feats[0], &feats[1]);
     let n = f1.keypoints.len().min(f2.keypoints.len());
     // Seeds well below the keypoint count, so the seeded path really runs.
@@ -93,16 +97,7 @@ fn seeded_matching_finds_as_many_correct_matches_as_brute_force() {
 #[test]
 fn repeated_guided_matching_adds_correct_matches_from_a_weak_start() {
     let seq = common::orbit_pair(10.0);
-    let feats: Vec<Features> = seq
-        .images
-        .iter()
-        .map(|im| {
-            extract_features(
-                &DynamicImage::ImageRgb8(im.clone()),
-                &ExtractionOptions::default(),
-            )
-        })
-        .collect();
+    let feats = features(&seq);
     let (f1, f2) = (&feats[0], &feats[1]);
     let run = |rounds: usize| {
         let opts = PairVerificationOptions {
