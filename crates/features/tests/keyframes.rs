@@ -133,3 +133,70 @@ fn a_video_whose_tracks_do_not_last_a_frame_is_not_cut_short() {
     assert_eq!(keys.len(), n, "{keys:?}");
     assert!(keys[1..].iter().all(|k| k.1 == KeyframeReason::TracksLost));
 }
+
+/// Tracks of a textured wall that drifts 1 px a frame to the left (a homography explains every
+/// pair) while KLT loses its tracks one by one: each frame 400 new tracks start at scattered
+/// points, and each lives a geometric number of frames (15 % of the living ones die at each
+/// step). The tracks that survive are the ones that moved least, so their median shift stays far
+/// below a quarter of the image however many have died.
+fn thinning_wall(n: usize) -> Vec<handheld_features::klt::Track2d> {
+    let mut tracks = Vec::new();
+    let mut id = 0;
+    for birth in 0..n {
+        for k in 0..400usize {
+            let h = (birth * 400 + k).wrapping_mul(2_654_435_761) % 1_000_003;
+            let x0 = (h % 300) as f32 + 10.0;
+            let y = ((h / 300) % 200) as f32 + 20.0;
+            // Survival 0.85 per frame: life ℓ with P(ℓ > t) = 0.85^t.
+            let u = ((h % 997) as f64 + 0.5) / 997.0;
+            let life = 1 + (u.ln() / 0.85f64.ln()) as usize;
+            let positions: Vec<(usize, f32, f32)> = (birth..n.min(birth + life))
+                .map(|f| (f, x0 - (f - birth) as f32, y))
+                .collect();
+            tracks.push(handheld_features::klt::Track2d {
+                id,
+                alive: birth + life >= n,
+                positions,
+            });
+            id += 1;
+        }
+    }
+    tracks
+}
+
+#[test]
+fn a_key_frame_is_taken_once_most_of_the_last_ones_tracks_are_gone() {
+    let n = 60;
+    let tracks = thinning_wall(n);
+    let shared = |a: usize, b: usize| {
+        tracks
+            .iter()
+            .filter(|t| {
+                let has = |f: usize| t.positions.iter().any(|p| p.0 == f);
+                has(a) && has(b)
+            })
+            .count()
+    };
+    let keys = select_keyframes(&tracks, n, &KeyframeOptions::default());
+    assert!(keys.len() >= 8, "{keys:?}");
+    for w in keys.windows(2) {
+        let (k, next) = (w[0].0, w[1].0);
+        let established = shared(k, k + 1);
+        assert!(
+            2 * shared(k, next) >= established,
+            "key-frames {k} and {next} share {} of {established} established tracks",
+            shared(k, next)
+        );
+    }
+    // Without the rule, the survivors' small shift and their count above `min_tracks` keep the
+    // first key-frame's partner far away: the pair that broke the chain.
+    let loose = select_keyframes(
+        &tracks,
+        n,
+        &KeyframeOptions {
+            min_alive: 0.0,
+            ..Default::default()
+        },
+    );
+    assert!(loose.get(1).is_none_or(|k| k.0 >= 10), "{loose:?}");
+}
