@@ -37,8 +37,8 @@ pub struct KeyframeOptions {
     /// that much (a quarter: the frames still overlap by about three quarters).
     pub min_shift: f64,
     /// Fewest of the key-frame's established tracks (those still tracked in the next frame), as a
-    /// share, that a later frame must still hold to be paired with it. The median shift above is measured on the tracks that survive, and those
-    /// are the ones that moved least: on a fast orbit before a wall (30 portrait frames of H.264)
+    /// share, that a later frame must still hold to be paired with it. The median shift above is
+    /// measured on the tracks that survive, and those are the ones that moved least: on a fast orbit before a wall (30 portrait frames of H.264)
     /// the tracks shared with the first frame fell from 1000 to 65 while their median shift
     /// stayed near 100 px of a 1441 px diagonal, F overtook H only then, and the two key-frames
     /// (0 and 26) shared 62 verified matches: no model. Half: consecutive key-frames then share

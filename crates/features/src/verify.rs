@@ -302,7 +302,12 @@ pub fn verify_pair(
                     break;
                 }
                 let grew = kept.len() > inliers.len();
-                let shift = line_shift(&fm, &f_ref, f1, f2, &kept);
+                // Only a round that added matches may be followed by another.
+                let shift = if grew {
+                    line_shift(&fm, &f_ref, f1, f2, &kept)
+                } else {
+                    0.0
+                };
                 tracing::trace!(
                     "pair ({i}, {j}): guided round: {} -> {} inliers, lines moved {shift:.3} px",
                     inliers.len(),
