@@ -183,7 +183,9 @@ fn pair_disagreement(
                 .unwrap_or_default(),
         ),
     ];
-    let (r, sigma) = pair_rotation::best_pose(&starts, &xa, &xb, scale)?;
+    // A match farther from its line than the model's outlier threshold is an outlier of that pose.
+    let cap = 2.0 * ctx.opts.metric_max_error_px / (ka.f + kb.f);
+    let (r, sigma) = pair_rotation::best_pose(&starts, &xa, &xb, scale, cap)?;
     let model =
         (vb.cam_from_world.rotation * va.cam_from_world.rotation.inverse()).to_rotation_matrix();
     let cos = (((r * model.matrix().transpose()).trace() - 1.0) / 2.0).clamp(-1.0, 1.0);
@@ -548,7 +550,7 @@ mod tests {
         let off = *nalgebra::Rotation3::from_axis_angle(&Vector3::x_axis(), 1f64.to_radians())
             .matrix()
             * r;
-        let (r1, _, sigma) = refine_pose(&off, &t.normalize(), &xa, &xb, 1.0);
+        let (r1, _, sigma) = refine_pose(&off, &t.normalize(), &xa, &xb, 1.0, f64::INFINITY);
         let angle = |a: &nalgebra::Matrix3<f64>| {
             (((a * r.transpose()).trace() - 1.0) / 2.0)
                 .clamp(-1.0, 1.0)
@@ -557,6 +559,26 @@ mod tests {
         };
         assert!(angle(&r1) < 1e-3, "{}° after refinement", angle(&r1));
         assert!(sigma.is_some_and(|s| s < 1e-6), "{sigma:?} without noise");
+        // Capped at 0.1 px, which the start puts nearly every match beyond: the graduated reach
+        // still brings it back.
+        let e = handheld_geometry::skew(&t.normalize()) * off;
+        let beyond = xa
+            .iter()
+            .zip(&xb)
+            .filter(|(a, b)| {
+                let (ha, hb) = (a.push(1.0), b.push(1.0));
+                let (ea, etb) = (e * ha, e.transpose() * hb);
+                hb.dot(&ea).abs() / (ea.xy().norm_squared() + etb.xy().norm_squared()).sqrt()
+                    > 0.1 / 500.0
+            })
+            .count();
+        assert!(
+            beyond > xa.len() * 9 / 10,
+            "{beyond} of {} beyond",
+            xa.len()
+        );
+        let (r2, _, _) = refine_pose(&off, &t.normalize(), &xa, &xb, 1.0, 0.1 / 500.0);
+        assert!(angle(&r2) < 1e-3, "{}° after capped refinement", angle(&r2));
     }
 
     #[test]
@@ -572,7 +594,7 @@ mod tests {
             [(far, -t), (r, t.normalize())],
             [(r, t.normalize()), (far, -t)],
         ] {
-            let (got, sigma) = best_pose(&starts, &xa, &xb, 1.0).expect("a pose");
+            let (got, sigma) = best_pose(&starts, &xa, &xb, 1.0, f64::INFINITY).expect("a pose");
             let deg = (((got * r.transpose()).trace() - 1.0) / 2.0)
                 .clamp(-1.0, 1.0)
                 .acos()
@@ -580,6 +602,41 @@ mod tests {
             assert!(deg < 0.2, "{deg}° from the truth");
             assert!(sigma.is_some());
         }
+    }
+
+    #[test]
+    fn wrong_matches_far_off_their_lines_do_not_choose_the_pairs_rotation() {
+        use crate::metric::pair_rotation::best_pose;
+        // A long lens (f = 3300 px) and one match in ten wrong (a repeated pattern: 30–150 px
+        // off its true line). Their squares outweigh everything else: the plain sum of squares
+        // prefers the basin another start descends to, 3° off; capped at 4 px, the truth's.
+        let f = 3300.0;
+        let (mut xa, xb, r, t) = pair(f, 0.5);
+        for (k, x) in xa.iter_mut().enumerate().filter(|(k, _)| k % 10 == 0) {
+            let off = 30.0 + (k % 7) as f64 * 20.0;
+            *x += Vector2::new(0.3, 1.0).normalize() * (off / f);
+        }
+        let deg = |got: &nalgebra::Matrix3<f64>| {
+            (((got * r.transpose()).trace() - 1.0) / 2.0)
+                .clamp(-1.0, 1.0)
+                .acos()
+                .to_degrees()
+        };
+        // A start 40° off about x with the translation reversed (as a poorly determined F gives)
+        // and the true one.
+        let far = *nalgebra::Rotation3::from_axis_angle(&Vector3::x_axis(), 40f64.to_radians())
+            .matrix()
+            * r;
+        let starts = [(far, -t.normalize()), (r, t.normalize())];
+        let (plain, _) = best_pose(&starts, &xa, &xb, 1.0, f64::INFINITY).expect("a pose");
+        let (capped, sigma) = best_pose(&starts, &xa, &xb, 1.0, 4.0 / f).expect("a pose");
+        assert!(deg(&plain) > 2.0, "the plain fit is {}° off", deg(&plain));
+        assert!(
+            deg(&capped) < 0.3,
+            "the capped fit is {}° off",
+            deg(&capped)
+        );
+        assert!(sigma.is_some());
     }
 
     #[test]

@@ -27,17 +27,21 @@ pub(crate) fn rotation_sigma(
 
 /// The relative pose `(R, t)` refined by Gauss–Newton on the Sampson errors of `xa ↔ xb` (a few
 /// damped steps, each kept only when it lowers their sum of squares), with the rotation's standard
-/// deviation there ([`rotation_sigma`]).
+/// deviation there ([`rotation_sigma`]). A step, and the deviation, use the matches within
+/// [`reach`] of their epipolar lines under the current pose: `cap` (normalised units) once the pose
+/// fits, wider while it does not yet (a start projected from `E` can put every match beyond `cap`).
 pub(crate) fn refine_pose(
     r: &nalgebra::Matrix3<f64>,
     t: &nalgebra::Vector3<f64>,
     xa: &[Vector2<f64>],
     xb: &[Vector2<f64>],
     scale: f64,
+    cap: f64,
 ) -> (nalgebra::Matrix3<f64>, nalgebra::Vector3<f64>, Option<f64>) {
     let (mut r, mut t) = (*r, *t);
-    for _ in 0..5 {
-        let Some(s) = pose_step(&r, &t, xa, xb, scale) else {
+    for _ in 0..8 {
+        let (ia, ib) = within(&r, &t, xa, xb, cap);
+        let Some(s) = pose_step(&r, &t, &ia, &ib, scale) else {
             break;
         };
         match s.next {
@@ -45,13 +49,49 @@ pub(crate) fn refine_pose(
             None => return (r, t, s.sigma),
         }
     }
-    let sigma = rotation_sigma(&r, &t, xa, xb, scale);
+    let (ia, ib) = within(&r, &t, xa, xb, cap);
+    let sigma = rotation_sigma(&r, &t, &ia, &ib, scale);
     (r, t, sigma)
 }
 
+/// How far from its epipolar line (normalised units) a match may lie to take part in a step of
+/// [`refine_pose`]: `cap`, or three times the matches' median distance when that is wider (a
+/// graduated threshold: the better half always takes part).
+fn reach(e: &nalgebra::Matrix3<f64>, xa: &[Vector2<f64>], xb: &[Vector2<f64>], cap: f64) -> f64 {
+    let mut d: Vec<f64> = xa
+        .iter()
+        .zip(xb)
+        .map(|(a, b)| sampson_sq(e, a, b))
+        .collect();
+    if d.is_empty() {
+        return cap;
+    }
+    let mid = d.len() / 2;
+    let (_, median, _) = d.select_nth_unstable_by(mid, f64::total_cmp);
+    cap.max(3.0 * median.sqrt())
+}
+
+/// The matches of `xa ↔ xb` within [`reach`] of their epipolar lines under `(r, t)`.
+fn within(
+    r: &nalgebra::Matrix3<f64>,
+    t: &nalgebra::Vector3<f64>,
+    xa: &[Vector2<f64>],
+    xb: &[Vector2<f64>],
+    cap: f64,
+) -> (Vec<Vector2<f64>>, Vec<Vector2<f64>>) {
+    let e = handheld_geometry::skew(t) * r;
+    let bound = reach(&e, xa, xb, cap);
+    xa.iter()
+        .zip(xb)
+        .filter(|(a, b)| sampson_sq(&e, a, b) <= bound * bound)
+        .map(|(a, b)| (*a, *b))
+        .unzip()
+}
+
 /// The pair's relative pose from several starts, each refined by [`refine_pose`]: the one with
-/// the smallest sum of squared Sampson errors, with its rotation's standard deviation; `None` when
-/// no start is usable.
+/// the smallest sum of squared Sampson errors, each capped at `cap` (normalised units; MSAC's
+/// cost, Torr & Zisserman 2000), with its rotation's standard deviation; `None` when no start is
+/// usable.
 ///
 /// The pose is calibrated (five parameters under the model's `K`), which a plane does not make
 /// degenerate; the fundamental matrix it starts from is not: where most inliers lie on one plane
@@ -60,18 +100,30 @@ pub(crate) fn refine_pose(
 /// basin of the pose's cost that a few Gauss–Newton steps do not leave. The model's own relative
 /// pose is then the second start: where the model is right it reaches the deeper minimum, where a
 /// view is misplaced its start descends to a shallower one and the pair's own pose wins.
+///
+/// Why capped: a poorly determined `F` also admits wrong matches (repeated texture) that the true
+/// geometry puts tens of pixels off their lines. On a synthetic hemisphere at an 11° field of view,
+/// the true pose put 89 % of a pair's 285 inliers within 0.3 px and the other 11 % some 90 px
+/// off; the pose from `E` fitted all of them at 5.6 px RMS. The plain sum of squares chose the
+/// latter, 73° from the truth, and six correctly placed views were taken out as misplaced.
 pub(crate) fn best_pose(
     starts: &[(nalgebra::Matrix3<f64>, nalgebra::Vector3<f64>)],
     xa: &[Vector2<f64>],
     xb: &[Vector2<f64>],
     scale: f64,
+    cap: f64,
 ) -> Option<(nalgebra::Matrix3<f64>, Option<f64>)> {
     starts
         .iter()
         .filter(|(_, t)| t.norm() > 1e-12)
         .map(|(r, t)| {
-            let (r, t, sigma) = refine_pose(r, t, xa, xb, scale);
-            let cost = sampson_cost(&(handheld_geometry::skew(&t) * r), xa, xb);
+            let (r, t, sigma) = refine_pose(r, t, xa, xb, scale, cap);
+            let e = handheld_geometry::skew(&t) * r;
+            let cost: f64 = xa
+                .iter()
+                .zip(xb)
+                .map(|(a, b)| sampson_sq(&e, a, b).min(cap * cap))
+                .sum();
             (r, sigma, cost)
         })
         .filter(|x| x.2.is_finite())
@@ -170,17 +222,17 @@ fn pose_step(
 
 /// Σ of the squared Sampson errors of `xa ↔ xb` under `e`.
 fn sampson_cost(e: &nalgebra::Matrix3<f64>, xa: &[Vector2<f64>], xb: &[Vector2<f64>]) -> f64 {
-    xa.iter()
-        .zip(xb)
-        .map(|(a, b)| {
-            let (ha, hb) = (a.push(1.0), b.push(1.0));
-            let (ea, etb) = (e * ha, e.transpose() * hb);
-            let den = ea.x * ea.x + ea.y * ea.y + etb.x * etb.x + etb.y * etb.y;
-            if den > 0.0 {
-                hb.dot(&ea).powi(2) / den
-            } else {
-                0.0
-            }
-        })
-        .sum()
+    xa.iter().zip(xb).map(|(a, b)| sampson_sq(e, a, b)).sum()
+}
+
+/// The squared Sampson error of `a ↔ b` under `e`.
+fn sampson_sq(e: &nalgebra::Matrix3<f64>, a: &Vector2<f64>, b: &Vector2<f64>) -> f64 {
+    let (ha, hb) = (a.push(1.0), b.push(1.0));
+    let (ea, etb) = (e * ha, e.transpose() * hb);
+    let den = ea.x * ea.x + ea.y * ea.y + etb.x * etb.x + etb.y * etb.y;
+    if den > 0.0 {
+        hb.dot(&ea).powi(2) / den
+    } else {
+        0.0
+    }
 }
