@@ -236,3 +236,158 @@ fn sampson_sq(e: &nalgebra::Matrix3<f64>, a: &Vector2<f64>, b: &Vector2<f64>) ->
         0.0
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Vector3;
+
+    /// Matches of points 9.6–10.4 m away (an object 0.8 m deep) filling a `w`×480 image of focal length `f`, seen from a
+    /// camera 0.5 m to the side turned by 2°, with `noise_px` of uniform noise (deterministic).
+    fn pair(
+        f: f64,
+        noise_px: f64,
+    ) -> (
+        Vec<Vector2<f64>>,
+        Vec<Vector2<f64>>,
+        nalgebra::Matrix3<f64>,
+        Vector3<f64>,
+    ) {
+        let r =
+            *nalgebra::Rotation3::from_axis_angle(&Vector3::y_axis(), 2f64.to_radians()).matrix();
+        let t = Vector3::new(-0.5, 0.0, 0.0);
+        let mut state = 12345u64;
+        let mut next = || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let (mut xa, mut xb) = (Vec::new(), Vec::new());
+        for _ in 0..300 {
+            let z = 9.6 + 0.8 * next();
+            let (u, v) = ((next() - 0.5) * 640.0 / f, (next() - 0.5) * 480.0 / f);
+            let p = Vector3::new(u * z, v * z, z);
+            let q = r * p + t;
+            let mut noisy = |x: Vector2<f64>| {
+                x + Vector2::new(next() - 0.5, next() - 0.5) * (2.0 * noise_px / f)
+            };
+            xa.push(noisy(Vector2::new(p.x / p.z, p.y / p.z)));
+            xb.push(noisy(Vector2::new(q.x / q.z, q.y / q.z)));
+        }
+        (xa, xb, r, t)
+    }
+
+    #[test]
+    fn a_long_lens_leaves_a_pair_rotation_uncertain_and_a_wide_one_does_not() {
+        let (xa, xb, r, t) = pair(500.0, 0.5);
+        let wide = rotation_sigma(&r, &t, &xa, &xb, 1.0)
+            .expect("fixed")
+            .to_degrees();
+        let (xa, xb, r, t) = pair(3300.0, 0.5);
+        let long = rotation_sigma(&r, &t, &xa, &xb, 1.0)
+            .expect("fixed")
+            .to_degrees();
+        assert!(wide < 0.1, "wide lens: σ = {wide}°");
+        assert!(long > 3.0 * wide, "long lens: σ = {long}°, wide {wide}°");
+        // More inliers of the same spread fix it better (σ ∝ 1/√n).
+        let (xa, xb, r, t) = pair(3300.0, 0.5);
+        let more = rotation_sigma(&r, &t, &xa, &xb, 4.0)
+            .expect("fixed")
+            .to_degrees();
+        assert!((more / long - 0.5).abs() < 0.01, "{more} vs {long}");
+    }
+
+    #[test]
+    fn a_pose_off_by_a_degree_is_refined_back_onto_its_matches() {
+        let (xa, xb, r, t) = pair(500.0, 0.0);
+        let off = *nalgebra::Rotation3::from_axis_angle(&Vector3::x_axis(), 1f64.to_radians())
+            .matrix()
+            * r;
+        let (r1, _, sigma) = refine_pose(&off, &t.normalize(), &xa, &xb, 1.0, f64::INFINITY);
+        let angle = |a: &nalgebra::Matrix3<f64>| {
+            (((a * r.transpose()).trace() - 1.0) / 2.0)
+                .clamp(-1.0, 1.0)
+                .acos()
+                .to_degrees()
+        };
+        assert!(angle(&r1) < 1e-3, "{}° after refinement", angle(&r1));
+        assert!(sigma.is_some_and(|s| s < 1e-6), "{sigma:?} without noise");
+        // Capped at 0.1 px, which the start puts nearly every match beyond: the graduated reach
+        // still brings it back.
+        let e = handheld_geometry::skew(&t.normalize()) * off;
+        let beyond = xa
+            .iter()
+            .zip(&xb)
+            .filter(|(a, b)| {
+                let (ha, hb) = (a.push(1.0), b.push(1.0));
+                let (ea, etb) = (e * ha, e.transpose() * hb);
+                hb.dot(&ea).abs() / (ea.xy().norm_squared() + etb.xy().norm_squared()).sqrt()
+                    > 0.1 / 500.0
+            })
+            .count();
+        assert!(
+            beyond > xa.len() * 9 / 10,
+            "{beyond} of {} beyond",
+            xa.len()
+        );
+        let (r2, _, _) = refine_pose(&off, &t.normalize(), &xa, &xb, 1.0, 0.1 / 500.0);
+        assert!(angle(&r2) < 1e-3, "{}° after capped refinement", angle(&r2));
+    }
+
+    #[test]
+    fn the_better_of_two_starts_gives_the_pairs_rotation() {
+        let (xa, xb, r, t) = pair(500.0, 0.5);
+        // A start in another basin (as a poorly determined F gives) and the true one, either way
+        // round: the true basin's fit wins.
+        let far = *nalgebra::Rotation3::from_axis_angle(&Vector3::x_axis(), 40f64.to_radians())
+            .matrix()
+            * r;
+        for starts in [
+            [(far, -t), (r, t.normalize())],
+            [(r, t.normalize()), (far, -t)],
+        ] {
+            let (got, sigma) = best_pose(&starts, &xa, &xb, 1.0, f64::INFINITY).expect("a pose");
+            let deg = (((got * r.transpose()).trace() - 1.0) / 2.0)
+                .clamp(-1.0, 1.0)
+                .acos()
+                .to_degrees();
+            assert!(deg < 0.2, "{deg}° from the truth");
+            assert!(sigma.is_some());
+        }
+    }
+
+    #[test]
+    fn wrong_matches_far_off_their_lines_do_not_choose_the_pairs_rotation() {
+        // A long lens (f = 3300 px) and one match in ten wrong (a repeated pattern: 30–150 px
+        // off its true line). Their squares outweigh everything else: the plain sum of squares
+        // prefers the basin another start descends to, 3° off; capped at 4 px, the truth's.
+        let f = 3300.0;
+        let (mut xa, xb, r, t) = pair(f, 0.5);
+        for (k, x) in xa.iter_mut().enumerate().filter(|(k, _)| k % 10 == 0) {
+            let off = 30.0 + (k % 7) as f64 * 20.0;
+            *x += Vector2::new(0.3, 1.0).normalize() * (off / f);
+        }
+        let deg = |got: &nalgebra::Matrix3<f64>| {
+            (((got * r.transpose()).trace() - 1.0) / 2.0)
+                .clamp(-1.0, 1.0)
+                .acos()
+                .to_degrees()
+        };
+        // A start 40° off about x with the translation reversed (as a poorly determined F gives)
+        // and the true one.
+        let far = *nalgebra::Rotation3::from_axis_angle(&Vector3::x_axis(), 40f64.to_radians())
+            .matrix()
+            * r;
+        let starts = [(far, -t.normalize()), (r, t.normalize())];
+        let (plain, _) = best_pose(&starts, &xa, &xb, 1.0, f64::INFINITY).expect("a pose");
+        let (capped, sigma) = best_pose(&starts, &xa, &xb, 1.0, 4.0 / f).expect("a pose");
+        assert!(deg(&plain) > 2.0, "the plain fit is {}° off", deg(&plain));
+        assert!(
+            deg(&capped) < 0.3,
+            "the capped fit is {}° off",
+            deg(&capped)
+        );
+        assert!(sigma.is_some());
+    }
+}
