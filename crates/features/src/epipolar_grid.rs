@@ -187,6 +187,130 @@ impl Grid {
     }
 }
 
+/// Image 2's keypoints sorted by their direction from the epipole, for the band queries of
+/// guided matching when the epipole lies far outside the keypoints' extent (sideways motion, most
+/// orbits). Every epipolar line passes through the epipole, so the keypoints within `band` of one
+/// lie in a narrow wedge about it: two binary searches find them, where [`Grid::within_band`]
+/// walks one strip of cells after another across the image (most of a query's cost on
+/// fountain-P11). The same exact test decides, so a query returns the same keypoints.
+pub(crate) struct Pencil {
+    /// The epipole, and the unit direction from it to the centre of the keypoints' extent.
+    e: [f64; 2],
+    axis: [f64; 2],
+    /// The epipole's distance from the keypoints' bounding box.
+    r_min: f64,
+    /// Direction of each keypoint from the epipole (radians from `axis`), ascending, with its
+    /// index and position.
+    phi: Vec<f64>,
+    index: Vec<u32>,
+    xy: Vec<[f64; 2]>,
+}
+
+impl Pencil {
+    /// The pencil of `f`'s lines in image 2 (`f` maps points of image 1 to lines of image 2), or
+    /// `None` where the epipole is at infinity, or nearer the keypoints' bounding box than its
+    /// diagonal (the grid serves those).
+    pub(crate) fn new(f2: &Features, f: &nalgebra::Matrix3<f64>) -> Option<Self> {
+        // The epipole e2 is Fᵀ's null vector: orthogonal to every column of F.
+        let cols = [
+            f.column(0).into_owned(),
+            f.column(1).into_owned(),
+            f.column(2).into_owned(),
+        ];
+        let e = [(0, 1), (0, 2), (1, 2)]
+            .iter()
+            .map(|&(a, b)| cols[a].cross(&cols[b]))
+            .max_by(|a, b| a.norm_squared().total_cmp(&b.norm_squared()))?;
+        let (lo, hi) = f2.keypoints.iter().fold(
+            ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]),
+            |(lo, hi), k| {
+                let (x, y) = (k.x as f64, k.y as f64);
+                ([lo[0].min(x), lo[1].min(y)], [hi[0].max(x), hi[1].max(y)])
+            },
+        );
+        let diag = ((hi[0] - lo[0]).powi(2) + (hi[1] - lo[1]).powi(2)).sqrt();
+        if !(diag.is_finite() && diag > 0.0 && e.z != 0.0) {
+            return None;
+        }
+        let e = [e.x / e.z, e.y / e.z];
+        let dx = (lo[0] - e[0]).max(e[0] - hi[0]).max(0.0);
+        let dy = (lo[1] - e[1]).max(e[1] - hi[1]).max(0.0);
+        let r_min = (dx * dx + dy * dy).sqrt();
+        // Far enough that every keypoint lies within 30° of the axis; not so far that the
+        // directions lose their precision.
+        if !(r_min >= diag && r_min < 1e9 * diag) {
+            return None;
+        }
+        let c = [(lo[0] + hi[0]) / 2.0 - e[0], (lo[1] + hi[1]) / 2.0 - e[1]];
+        let nc = (c[0] * c[0] + c[1] * c[1]).sqrt();
+        let axis = [c[0] / nc, c[1] / nc];
+        let angle =
+            |v: [f64; 2]| (axis[0] * v[1] - axis[1] * v[0]).atan2(axis[0] * v[0] + axis[1] * v[1]);
+        let mut order: Vec<(f64, u32)> = f2
+            .keypoints
+            .iter()
+            .enumerate()
+            .map(|(i, k)| (angle([k.x as f64 - e[0], k.y as f64 - e[1]]), i as u32))
+            .collect();
+        order.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        Some(Self {
+            e,
+            axis,
+            r_min,
+            phi: order.iter().map(|p| p.0).collect(),
+            index: order.iter().map(|p| p.1).collect(),
+            xy: order
+                .iter()
+                .map(|p| {
+                    let k = &f2.keypoints[p.1 as usize];
+                    [k.x as f64, k.y as f64]
+                })
+                .collect(),
+        })
+    }
+
+    /// [`Grid::within_band`]: the keypoints whose distance from `l` is at most `band` pixels,
+    /// measured as the caller would, in the order of their direction from the epipole.
+    pub(crate) fn within_band(&self, l: &Vector3<f64>, band: f64, out: &mut Vec<u32>) {
+        out.clear();
+        let n = (l.x * l.x + l.y * l.y).sqrt();
+        if n < 1e-300 {
+            return;
+        }
+        // `l` passes within `miss` of the epipole (F's rank 2 in exact arithmetic only): a keypoint
+        // within `band` of `l` lies within `band + miss` of the parallel line through the
+        // epipole, at a direction within asin((band + miss) / r) of that line's, r ≥ r_min its
+        // distance from the epipole.
+        let miss = ((l.x * self.e[0] + l.y * self.e[1] + l.z) / n).abs();
+        let s = (band + miss) / self.r_min;
+        if s.is_nan() || s >= 0.5 {
+            // A band as wide as the wedge (or a line with no direction): test every keypoint.
+            for (k, &[x, y]) in self.xy.iter().enumerate() {
+                if ((l.x * x + l.y * y + l.z) / n).abs() <= band {
+                    out.push(self.index[k]);
+                }
+            }
+            return;
+        }
+        let mut u = [l.y / n, -l.x / n];
+        if u[0] * self.axis[0] + u[1] * self.axis[1] < 0.0 {
+            u = [-u[0], -u[1]];
+        }
+        let phi = (self.axis[0] * u[1] - self.axis[1] * u[0])
+            .atan2(self.axis[0] * u[0] + self.axis[1] * u[1]);
+        // Widened against rounding: the exact test below decides.
+        let w = s.asin() * (1.0 + 1e-6) + 1e-12;
+        let lo = self.phi.partition_point(|&p| p < phi - w);
+        let hi = self.phi.partition_point(|&p| p <= phi + w);
+        for k in lo..hi.max(lo) {
+            let [x, y] = self.xy[k];
+            if ((l.x * x + l.y * y + l.z) / n).abs() <= band {
+                out.push(self.index[k]);
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -233,5 +357,57 @@ mod tests {
                 "the band query should prune"
             );
         }
+    }
+
+    #[test]
+    fn the_pencil_finds_exactly_the_keypoints_the_grid_does() {
+        let mut s = 99u64;
+        let mut rnd = || {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (s >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let keypoints: Vec<Keypoint> = (0..4000)
+            .map(|_| Keypoint {
+                x: (rnd() * 1000.0) as f32,
+                y: (rnd() * 700.0) as f32,
+                scale: 1.0,
+                orientation: 0.0,
+                response: 1.0,
+            })
+            .collect();
+        let f = Features {
+            keypoints,
+            descriptors: Default::default(),
+        };
+        let grid = Grid::new(&f, 32.0);
+        let (mut a, mut b) = (Vec::new(), Vec::new());
+        let mut used = 0;
+        for _ in 0..50 {
+            // A rank-2 F whose epipole in image 2 is e (right null vector of Fᵀ): F = [e]ₓ M.
+            let e = Vector3::new(
+                500.0 + (rnd() - 0.5) * 20000.0,
+                350.0 + (rnd() - 0.5) * 20000.0,
+                1.0,
+            );
+            let ex = nalgebra::Matrix3::new(0.0, -e.z, e.y, e.z, 0.0, -e.x, -e.y, e.x, 0.0);
+            let m = nalgebra::Matrix3::from_fn(|_, _| rnd() - 0.5);
+            let fm = ex * m;
+            let Some(pencil) = Pencil::new(&f, &fm) else {
+                continue;
+            };
+            used += 1;
+            for _ in 0..100 {
+                let x1 = Vector3::new(rnd() * 1000.0, rnd() * 700.0, 1.0);
+                let l = fm * x1;
+                grid.within_band(&l, 2.0, &mut a);
+                pencil.within_band(&l, 2.0, &mut b);
+                a.sort_unstable();
+                b.sort_unstable();
+                assert_eq!(a, b);
+            }
+        }
+        assert!(used > 10, "only {used} epipoles far enough");
     }
 }

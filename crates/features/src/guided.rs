@@ -7,7 +7,7 @@ use handheld_geometry::EpipolarUncertainty;
 use nalgebra::{Matrix3, Vector2, Vector3};
 
 use crate::detector::Features;
-use crate::epipolar_grid::Grid;
+use crate::epipolar_grid::{Grid, Pencil};
 use crate::verify::PairVerificationOptions;
 
 pub(crate) fn point(f: &Features, k: u32) -> Vector2<f64> {
@@ -87,6 +87,7 @@ pub fn guided_matches(
     // within its own reach of the line (`reach` may pass `rival_band`, and then the cells decide):
     // that set is kept as it was measured, on its own grid.
     let grid = Grid::for_keypoints(f2);
+    let pencil = Pencil::new(f2, f);
     let rival_grid = Grid::new(f2, RIVAL_CELL_PX);
     let mut cand = Vec::new();
     let mut best: Vec<(f32, u32, u32)> = Vec::new();
@@ -119,7 +120,10 @@ pub fn guided_matches(
         // The nearest descriptor within the acceptance band, and the second nearest there
         // (taken keypoints included: they are rivals too).
         // Exactly the keypoints within the band (the grid tests them as `off` would).
-        grid.within_band(&l, band, &mut cand);
+        match &pencil {
+            Some(p) => p.within_band(&l, band, &mut cand),
+            None => grid.within_band(&l, band, &mut cand),
+        }
         let (mut b1, mut s1, mut s2) = (u32::MAX, f32::INFINITY, f32::INFINITY);
         for &b in &cand {
             let d = dist(d1.row(a as usize), d2.row(b as usize));
