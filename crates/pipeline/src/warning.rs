@@ -39,8 +39,8 @@ pub mod code {
     pub const UNCONFIRMED_MERGE: &str = "unconfirmed_merge";
     /// Views whose only checkable pairs were with views taken out as misplaced.
     pub const UNCONFIRMED_VIEWS: &str = "unconfirmed_views";
-    /// More views were first placed against their own verified pairs than the model kept: the
-    /// kept ones may be wrong as a whole.
+    /// More views were first placed against their own verified pairs than the model kept, or the
+    /// model's principal point lies outside the image: the model may be wrong as a whole.
     pub const MODEL_DOUBTFUL: &str = "model_doubtful";
     /// Split-and-merge: the clusters' own focal lengths disagree, or views of the merged model
     /// disagree with their verified pairs.

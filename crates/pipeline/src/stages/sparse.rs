@@ -413,6 +413,21 @@ impl Stage for Sparse {
                 .details(alone.join(", ")),
             );
         }
+        for g in best.groups.iter().filter(|g| g.principal_point_outside()) {
+            // First, like the next: it is about the whole model.
+            warnings.insert(
+                0,
+                Warning::new(
+                    code::MODEL_DOUBTFUL,
+                    format!(
+                        "the model puts the principal point of camera {} at ({:.0}, {:.0}) px, outside its {}×{} images, where no camera's lies: its calibration (f = {:.0} px, k1 = {:.3}), and the poses adjusted with it, are not to be trusted",
+                        g.camera_id, g.pp[0], g.pp[1], g.width, g.height, g.f, g.k1
+                    ),
+                )
+                .advice("give the calibration with --intrinsics FX,FY,CX,CY if it is known, and add photos that overlap more; check the cameras in the report")
+                .details("sparse/summary.json, groups and self_calibration.principal_point_spread"),
+            );
+        }
         if let Some(n) = best.view_consistency.misplaced_majority(best.registered) {
             // First: it is about the whole model, which the images' own warnings above are not.
             warnings.insert(
