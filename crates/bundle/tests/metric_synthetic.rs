@@ -318,12 +318,7 @@ fn the_held_view_still_counts_for_the_shared_intrinsics() {
         let mut r = rec.clone();
         let s = bundle_adjust_metric(&mut r, &config, &opts).expect("runs");
         assert!(s.termination.converged(), "{:?}", s.termination);
-        r.cameras
-            .values()
-            .next()
-            .expect("one camera")
-            .intrinsics
-            .clone()
+        r.cameras.values().next().expect("one camera").intrinsics
     };
     let first = solve(MetricBundleConfig {
         refine,

@@ -260,6 +260,7 @@ mod tests {
     use super::*;
 
     /// The plain scan: row by row, column by column.
+    #[allow(clippy::needless_range_loop)]
     fn reference(block: &Block<'_>, best: &mut [Best2], cv: &mut [f32], ci: &mut [u32]) {
         for r in 0..block.rows {
             for c in 0..block.cols {

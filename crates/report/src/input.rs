@@ -132,6 +132,9 @@ impl From<String> for ReportWarning {
 }
 
 /// Everything the report shows.
+/// The verified pairs as the report draws them: the image count and `(i, j, inliers)` per pair.
+pub type PairGraph = (usize, Vec<(usize, usize, f64)>);
+
 #[derive(Clone, Debug, Default)]
 pub struct ReportInput {
     pub title: String,
@@ -144,7 +147,7 @@ pub struct ReportInput {
     pub reprojection_errors: Vec<f64>,
     pub track_lengths: Vec<usize>,
     /// Image count and (i, j, inliers) of the verified pairs.
-    pub pairs: Option<(usize, Vec<(usize, usize, f64)>)>,
+    pub pairs: Option<PairGraph>,
     /// Index into `images` of each camera.
     pub cameras: Vec<(usize, ViewerCamera)>,
     pub up: [f64; 3],

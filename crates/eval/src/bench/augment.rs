@@ -52,7 +52,7 @@ pub struct AugmentBenchReport {
 }
 
 pub fn bench_augment(o: &AugmentBenchOptions) -> Result<AugmentBenchReport> {
-    if o.width % 2 != 0 || o.height % 2 != 0 || o.width < 64 || o.height < 48 {
+    if !o.width.is_multiple_of(2) || !o.height.is_multiple_of(2) || o.width < 64 || o.height < 48 {
         return Err(EvalError::option(
             "--width",
             "width and height must be even, at least 64×48",

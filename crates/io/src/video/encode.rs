@@ -180,7 +180,7 @@ impl VideoWriter {
             path: output.to_path_buf(),
             reason,
         };
-        if width == 0 || height == 0 || width % 2 != 0 || height % 2 != 0 {
+        if width == 0 || height == 0 || !width.is_multiple_of(2) || !height.is_multiple_of(2) {
             return Err(input(format!(
                 "frames of {width}×{height} cannot be encoded: H.264 in yuv420p needs an even, non-zero width and height"
             )));

@@ -123,8 +123,8 @@ impl Compositor {
                     for i in 0..SUB {
                         let k = (py * SUB + j - sy0) * ww + (px * SUB + i - sx0);
                         if self.hit[k] {
-                            for c in 0..3 {
-                                acc[c] += self.colour[k][c];
+                            for (a, &v) in acc.iter_mut().zip(&self.colour[k]) {
+                                *a += v;
                             }
                             cnt += 1.0;
                         }
@@ -136,9 +136,9 @@ impl Compositor {
                 pixels += 1;
                 let alpha = cnt / s2;
                 let p = frame.get_pixel_mut(px as u32, py as u32);
-                for c in 0..3 {
-                    let v = f32::from(p.0[c]) * (1.0 - alpha) + acc[c] / s2;
-                    p.0[c] = v.round().clamp(0.0, 255.0) as u8;
+                for (pc, &a) in p.0.iter_mut().zip(&acc) {
+                    let v = f32::from(*pc) * (1.0 - alpha) + a / s2;
+                    *pc = v.round().clamp(0.0, 255.0) as u8;
                 }
             }
         }

@@ -348,7 +348,7 @@ impl Renderer {
             covered,
             depth,
         } = out;
-        let rows: &mut [u8] = &mut **image;
+        let rows: &mut [u8] = image;
         rows.par_chunks_mut(3 * w)
             .zip(covered.par_chunks_mut(w))
             .zip(depth.data.par_chunks_mut(w))

@@ -69,8 +69,8 @@ struct Sum {
 impl Sum {
     #[inline]
     fn add(&mut self, c: [f32; 3], w: f32) {
-        for k in 0..3 {
-            self.colour[k] += w * c[k];
+        for (s, &x) in self.colour.iter_mut().zip(&c) {
+            *s += w * x;
         }
         self.weight += w;
     }

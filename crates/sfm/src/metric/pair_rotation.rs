@@ -244,6 +244,7 @@ mod tests {
 
     /// Matches of points 9.6–10.4 m away (an object 0.8 m deep) filling a `w`×480 image of focal length `f`, seen from a
     /// camera 0.5 m to the side turned by 2°, with `noise_px` of uniform noise (deterministic).
+    #[allow(clippy::type_complexity)]
     fn pair(
         f: f64,
         noise_px: f64,

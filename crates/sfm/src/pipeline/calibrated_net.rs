@@ -15,6 +15,15 @@ use crate::upgrade::transform::SelfCalibrationReport;
 
 use super::steps::Search;
 
+/// A metric model as the model's steps take it: the reconstruction, whether its frame came from
+/// the priors (`is_prior`), the self-calibration's report and the metric adjustments' records.
+type Upgraded = (
+    MetricReconstruction,
+    bool,
+    SelfCalibrationReport,
+    Vec<MetricBaRecord>,
+);
+
 /// The model of the free views built by the calibrated incremental candidate (`calibrated.rs`),
 /// when no stratified start gave a sound metric frame (`failure`, returned when no calibrated
 /// start is sound either). The views it registers are taken from `search`.
@@ -24,18 +33,7 @@ pub(super) fn calibrated_core(
     estimate_aspect: bool,
     failure: StepError,
     progress: &dyn Progress,
-) -> Result<
-    (
-        ProjectiveModel,
-        (
-            MetricReconstruction,
-            bool,
-            SelfCalibrationReport,
-            Vec<MetricBaRecord>,
-        ),
-    ),
-    StepError,
-> {
+) -> Result<(ProjectiveModel, Upgraded), StepError> {
     let allowed = search.allowed.clone();
     if allowed.iter().filter(|a| **a).count() < 2 {
         return Err(failure);

@@ -212,7 +212,7 @@ fn rebuild_without_flagged(
         // distortion) belongs to the images, not to the views taken out (a corridor walk spent
         // its rebuild's first minutes on a projective model and candidates that failed again).
         let stratified =
-            !(core.report.calibrated_incremental && !core.report.rejected_starts.is_empty());
+            !core.report.calibrated_incremental || core.report.rejected_starts.is_empty();
         match core_model(ctx, search, stratified, progress) {
             Ok(Some(mut rebuilt))
                 if rebuilt.rec.views.len() + flagged.len() >= core.rec.views.len() =>
