@@ -18,6 +18,9 @@
 //! converged. Each start is scored as the stratified candidates are (`upgrade/guard`): the
 //! observations kept, discounted by the reprojection error; when starts that explain the images
 //! about equally well disagree on the focal length, the run says the focal length is undetermined.
+//! When no two starts agree and the best model's focal length ended far from every start, the
+//! model is built again from that focal length ([`build_all`]): a model grown under a focal length
+//! several times too short can be adjusted to nearly the right one and still be the wrong model.
 
 use std::collections::{BTreeMap, BTreeSet};
 
@@ -128,10 +131,38 @@ pub(crate) fn build_all(
     tried: &mut Vec<CandidateRecord>,
     progress: &dyn handheld_core::Progress,
 ) -> Vec<Built> {
-    let mut sound = Vec::new();
-    let starts = starts(ctx, allowed);
+    let mut sound: Vec<Built> = Vec::new();
+    let mut starts = starts(ctx, allowed);
+    let mut started: Vec<f64> = starts.iter().map(|s| s.focal_px).collect();
+    let mut agreed = false;
+    let mut refined = 0;
     progress.start("calibrated incremental candidate", starts.len() as u64);
-    for s in starts {
+    let mut next = 0;
+    loop {
+        if next == starts.len() {
+            // Every start ended far from where it began and none agreed with another: the best
+            // model was grown under a focal length that its own adjustment then moved by more
+            // than the starts are apart (a long lens, 5.2 times the image side, from starts of
+            // 0.8–2 times it: every model came out depth-reversed, at 3.6–4.6 times). It is built
+            // again from the focal length it found, as a start of its own.
+            sort_best_first(&mut sound);
+            let best = sound
+                .first()
+                .and_then(|b| guard::focal_lengths(&b.rec).first().copied());
+            match refined_start(best, &started, agreed, refined) {
+                Some(f) => {
+                    refined += 1;
+                    started.push(f);
+                    starts.push(Start {
+                        focal_px: f,
+                        source: "calibrated incremental (refined focal length)",
+                    });
+                }
+                _ => break,
+            }
+        }
+        let s = starts[next].clone();
+        next += 1;
         progress.inc(1);
         match build(ctx, allowed, &s, estimate_aspect) {
             Ok(b) => {
@@ -145,7 +176,7 @@ pub(crate) fn build_all(
                 );
                 tried.push(b.record.clone());
                 if b.record.sound {
-                    let agreed = sound.iter().any(|o: &Built| agree(o, &b));
+                    agreed = sound.iter().any(|o: &Built| agree(o, &b));
                     sound.push(b);
                     // Two starts from different focal lengths that end at the same one, with the
                     // same views: the images determine it, the other starts would end there too.
@@ -167,7 +198,28 @@ pub(crate) fn build_all(
         }
     }
     progress.finish();
-    // More views first, then the better score.
+    sort_best_first(&mut sound);
+    sound
+}
+
+/// Starts built again from the focal length the best model found ([`build_all`]), at most.
+const MAX_REFINED: usize = 2;
+
+/// The focal length to build the calibrated model again from ([`build_all`]): the best sound
+/// model's (`best`), when no two starts agreed, fewer than [`MAX_REFINED`] were built this way, and
+/// it is more than [`SAME_FOCAL`] from every start so far (`started`).
+fn refined_start(best: Option<f64>, started: &[f64], agreed: bool, refined: usize) -> Option<f64> {
+    best.filter(|&f| {
+        !agreed
+            && refined < MAX_REFINED
+            && f.is_finite()
+            && f > 0.0
+            && started.iter().all(|&s| (f / s - 1.0).abs() > SAME_FOCAL)
+    })
+}
+
+/// More views first, then the better score.
+fn sort_best_first(sound: &mut [Built]) {
     sound.sort_by(|a, b| {
         b.rec
             .views
@@ -175,7 +227,6 @@ pub(crate) fn build_all(
             .cmp(&a.rec.views.len())
             .then(score(b).total_cmp(&score(a)))
     });
-    sound
 }
 
 /// Focal lengths within this ratio are the same result of two starts.
@@ -462,4 +513,28 @@ fn grow(
         adjust(ctx, rec, estimate_aspect, rec.views.len() >= 3)?;
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_model_that_ended_far_from_every_start_is_built_again_from_where_it_ended() {
+        // The narrow-lens hemisphere: starts 915, 512, 768, 1280 px, the best model at 3 627 px.
+        let started = [915.0, 512.0, 768.0, 1280.0];
+        assert_eq!(
+            refined_start(Some(3627.0), &started, false, 0),
+            Some(3627.0)
+        );
+        // Near a start already built, after two starts agreed, or twice already: no more.
+        assert_eq!(refined_start(Some(1350.0), &started, false, 0), None);
+        assert_eq!(refined_start(Some(3627.0), &started, true, 0), None);
+        assert_eq!(
+            refined_start(Some(3627.0), &started, false, MAX_REFINED),
+            None
+        );
+        assert_eq!(refined_start(None, &started, false, 0), None);
+        assert_eq!(refined_start(Some(f64::NAN), &started, false, 0), None);
+    }
 }
