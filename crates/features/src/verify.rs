@@ -26,6 +26,7 @@ use crate::error::{check, FeatureError};
 use crate::guided::point;
 pub use crate::guided::{guided_matches, GUIDED_RIVAL_BAND_FACTOR};
 use crate::matching::{match_descriptors, match_prepared, prepare, Match, MatchOptions, Prepared};
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::OnceLock;
 
 /// Options of [`verify_pairs`].
@@ -373,30 +374,56 @@ struct SeedSet {
     prepared: Prepared,
 }
 
-/// Every image's first-level seeds, each selected and prepared ([`prepare`]: quantised and packed)
-/// the first time a pair needs it and then shared by all its pairs: an image is in many pairs,
-/// and preparing its seeds for each of them was a quarter of a low-texture set's matching (most of
-/// its pairs end after the first level).
+/// Every image's seeds of both levels, each selected and prepared ([`prepare`]: quantised and
+/// packed) the first time a pair needs them and then shared by all its pairs: an image is in many
+/// pairs, and preparing its seeds for each of them was a quarter of a low-texture set's matching
+/// (most of its pairs end after the first level), and 7 % of monstree-phone's (12 MP, 8 192
+/// keypoints: 182 of its 253 pairs reach the second level, each image in 16 of them). The second
+/// level's sets (about 2 MB each at 8 192 keypoints) are kept within [`SECOND_LEVEL_BYTES`];
+/// beyond it a pair prepares its own, as before.
 struct SeedCache {
     k: usize,
-    sets: Vec<OnceLock<SeedSet>>,
+    sets: Vec<[OnceLock<SeedSet>; 2]>,
+    /// Bytes the second level's sets may still take.
+    budget: AtomicUsize,
 }
+
+/// What [`SeedCache`]'s second-level sets may take in all.
+const SECOND_LEVEL_BYTES: usize = 512 << 20;
 
 impl SeedCache {
     fn new(images: usize, k: usize) -> Self {
         Self {
             k,
-            sets: (0..images).map(|_| OnceLock::new()).collect(),
+            sets: (0..images)
+                .map(|_| [OnceLock::new(), OnceLock::new()])
+                .collect(),
+            budget: AtomicUsize::new(SECOND_LEVEL_BYTES),
         }
     }
 
-    fn get(&self, image: usize, f: &Features) -> Option<&SeedSet> {
-        let set = self.sets.get(image)?.get_or_init(|| {
-            let idx = strongest(f, self.k);
+    /// The `seeds` strongest keypoints of `image` prepared: `seeds` is the first level's `k` or
+    /// the second's `4k`; `None` for any other, or when the second level's budget is spent.
+    fn get(&self, seeds: usize, image: usize, f: &Features) -> Option<&SeedSet> {
+        let level = [self.k, 4 * self.k].iter().position(|&s| s == seeds)?;
+        let cell = &self.sets.get(image)?[level];
+        if let Some(set) = cell.get() {
+            return Some(set);
+        }
+        if level == 1 {
+            // The quantised rows and their packed copy.
+            let bytes = 2 * seeds.min(f.descriptors.len()) * f.descriptors.dim;
+            self.budget
+                .fetch_update(Ordering::Relaxed, Ordering::Relaxed, |b| {
+                    b.checked_sub(bytes)
+                })
+                .ok()?;
+        }
+        Some(cell.get_or_init(|| {
+            let idx = strongest(f, seeds);
             let prepared = prepare(&select_rows(&f.descriptors, &idx));
             SeedSet { idx, prepared }
-        });
-        Some(set)
+        }))
     }
 }
 
@@ -411,7 +438,7 @@ pub fn match_and_verify(
     match_and_verify_with(i, j, f1, f2, opts, None)
 }
 
-/// [`match_and_verify`], with the first level's seeds from `cache` where given (images `i`, `j`).
+/// [`match_and_verify`], with the seeds from `cache` where given (images `i`, `j`).
 fn match_and_verify_with(
     i: usize,
     j: usize,
@@ -432,8 +459,7 @@ fn match_and_verify_with(
     for &seeds in &levels {
         let t0 = std::time::Instant::now();
         let cached = cache
-            .filter(|c| c.k == seeds)
-            .and_then(|c| Some((c.get(i, f1)?, c.get(j, f2)?)))
+            .and_then(|c| Some((c.get(seeds, i, f1)?, c.get(seeds, j, f2)?)))
             // Seeds quantised in one image and not in the other (descriptors outside [0, 1]) are
             // matched raw, both of them, by the path below.
             .filter(|(a, b)| a.prepared.alike(&b.prepared));
