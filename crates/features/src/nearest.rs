@@ -139,12 +139,24 @@ fn scan_tile(
         assert!(v.len() >= TILE && k.len() >= TILE);
     }
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
-    // SAFETY: AVX2 is enabled at compile time; the asserts above cover every load and store.
-    unsafe {
-        avx2::scan_tile(tile, best, na, i0, cols_best)
+    if wide() {
+        // SAFETY: `wide` holds only where the CPU has AVX-512 F; the asserts above cover every
+        // load and store.
+        unsafe { avx512::scan_tile(tile, best, na, i0, cols_best) }
+    } else {
+        // SAFETY: AVX2 is enabled at compile time; the asserts above cover every load and store.
+        unsafe { avx2::scan_tile(tile, best, na, i0, cols_best) }
     }
     #[cfg(not(all(target_arch = "x86_64", target_feature = "avx2")))]
     portable_tile(tile, best, na, i0, cols_best)
+}
+
+/// Whether the scan runs on 512-bit registers: where brute force runs its AVX-512 VNNI kernel
+/// (so `HANDHELD_SIMD=avx2` keeps the scan on AVX2 too). Decided once.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+fn wide() -> bool {
+    static WIDE: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *WIDE.get_or_init(|| crate::quantized::kernel() == crate::quantized::Kernel::Avx512Vnni)
 }
 
 /// [`scan_tile`] in plain Rust: the reference, and the path for CPUs built without AVX2.
@@ -251,6 +263,60 @@ mod avx2 {
             _mm256_storeu_ps(v.as_mut_ptr().add(8), v1);
             _mm256_storeu_ps(k.as_mut_ptr().cast(), k0);
             _mm256_storeu_ps(k.as_mut_ptr().add(8).cast(), k1);
+        }
+    }
+}
+
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+mod avx512 {
+    use super::{Best2, Tile, TILE};
+    use std::arch::x86_64::*;
+
+    /// [`super::avx2::scan_tile`] on one 512-bit register of keys and one of row indices: the
+    /// same comparisons in the same order (a row's test is any of its 16 keys above the second
+    /// best; a column takes a row whose key is strictly larger), so the same result.
+    ///
+    /// # Safety
+    /// AVX-512 F must be available, and the lengths checked by [`super::scan_tile`] must hold.
+    #[target_feature(enable = "avx512f")]
+    pub(super) unsafe fn scan_tile(
+        tile: &Tile<'_>,
+        best: &mut [Best2],
+        na: &[f32],
+        i0: u32,
+        cols_best: Option<(&mut [f32], &mut [u32])>,
+    ) {
+        let nb = _mm512_loadu_ps(tile.nb.as_ptr());
+        let mutual = cols_best.is_some();
+        let (mut v, mut k) = match &cols_best {
+            Some((v, k)) => (
+                _mm512_loadu_ps(v.as_ptr()),
+                _mm512_loadu_si512(k.as_ptr().cast()),
+            ),
+            None => (_mm512_setzero_ps(), _mm512_setzero_si512()),
+        };
+        let base = tile.s.as_ptr();
+        for (r, bst) in best.iter_mut().enumerate() {
+            let p = base.add(r * tile.cols);
+            let x = _mm512_loadu_ps(p);
+            let t = _mm512_add_ps(x, x);
+            let rk = _mm512_sub_ps(t, nb);
+            if _mm512_cmp_ps_mask::<_CMP_GT_OQ>(rk, _mm512_set1_ps(bst.s2)) != 0 {
+                let sr = std::slice::from_raw_parts(p, TILE);
+                for (c, (&sv, &nj)) in sr.iter().zip(tile.nb).enumerate() {
+                    bst.offer(2.0 * sv - nj, tile.j + c as u32);
+                }
+            }
+            if mutual {
+                let c = _mm512_sub_ps(t, _mm512_set1_ps(*na.get_unchecked(r)));
+                let g = _mm512_cmp_ps_mask::<_CMP_GT_OQ>(c, v);
+                v = _mm512_mask_blend_ps(g, v, c);
+                k = _mm512_mask_blend_epi32(g, k, _mm512_set1_epi32((i0 + r as u32) as i32));
+            }
+        }
+        if let Some((vs, ks)) = cols_best {
+            _mm512_storeu_ps(vs.as_mut_ptr(), v);
+            _mm512_storeu_si512(ks.as_mut_ptr().cast(), k);
         }
     }
 }
@@ -362,7 +428,29 @@ mod tests {
             let (mut b2, mut v2, mut k2) = (b1.clone(), v1.clone(), k1.clone());
             portable_tile(&tile, &mut b1, &na, 5, Some((&mut v1, &mut k1)));
             scan_tile(&tile, &mut b2, &na, 5, Some((&mut v2, &mut k2)));
-            assert_eq!((b1, v1, k1), (b2, v2, k2));
+            assert_eq!((&b1, &v1, &k1), (&b2, &v2, &k2));
+            // Each vector tile the CPU has, whichever `scan_tile` chose.
+            #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+            {
+                let (mut b3, mut v3, mut k3) = (
+                    vec![Best2::NONE; rows],
+                    vec![f32::NEG_INFINITY; TILE],
+                    vec![u32::MAX; TILE],
+                );
+                // SAFETY: AVX2 is enabled at compile time; the tile covers `rows` rows of `cols`.
+                unsafe { avx2::scan_tile(&tile, &mut b3, &na, 5, Some((&mut v3, &mut k3))) };
+                assert_eq!((&b1, &v1, &k1), (&b3, &v3, &k3));
+                if std::arch::is_x86_feature_detected!("avx512f") {
+                    let (mut b4, mut v4, mut k4) = (
+                        vec![Best2::NONE; rows],
+                        vec![f32::NEG_INFINITY; TILE],
+                        vec![u32::MAX; TILE],
+                    );
+                    // SAFETY: the CPU has AVX-512 F (checked); the same tile.
+                    unsafe { avx512::scan_tile(&tile, &mut b4, &na, 5, Some((&mut v4, &mut k4))) };
+                    assert_eq!((&b1, &v1, &k1), (&b4, &v4, &k4));
+                }
+            }
         }
     }
 }
