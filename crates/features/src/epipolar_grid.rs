@@ -316,16 +316,20 @@ mod tests {
     use super::*;
     use crate::detector::Keypoint;
 
-    #[test]
-    fn grid_band_query_finds_every_keypoint_near_the_line() {
-        let mut s = 12345u64;
-        let mut rnd = || {
+    /// A seeded generator of uniform values in [0, 1) (a 64-bit LCG, the upper bits).
+    fn generator(seed: u64) -> impl FnMut() -> f64 {
+        let mut s = seed;
+        move || {
             s = s
                 .wrapping_mul(6364136223846793005)
                 .wrapping_add(1442695040888963407);
             (s >> 11) as f64 / (1u64 << 53) as f64
-        };
-        let keypoints: Vec<Keypoint> = (0..3000)
+        }
+    }
+
+    /// `n` keypoints spread uniformly over 1000 × 700 px.
+    fn scattered(n: usize, rnd: &mut impl FnMut() -> f64) -> Features {
+        let keypoints: Vec<Keypoint> = (0..n)
             .map(|_| Keypoint {
                 x: (rnd() * 1000.0) as f32,
                 y: (rnd() * 700.0) as f32,
@@ -334,10 +338,16 @@ mod tests {
                 response: 1.0,
             })
             .collect();
-        let f = Features {
+        Features {
             keypoints,
             descriptors: Default::default(),
-        };
+        }
+    }
+
+    #[test]
+    fn grid_band_query_finds_every_keypoint_near_the_line() {
+        let mut rnd = generator(12345);
+        let f = scattered(3000, &mut rnd);
         let grid = Grid::new(&f, 32.0);
         let mut out = Vec::new();
         for _ in 0..200 {
@@ -361,26 +371,8 @@ mod tests {
 
     #[test]
     fn the_pencil_finds_exactly_the_keypoints_the_grid_does() {
-        let mut s = 99u64;
-        let mut rnd = || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (s >> 11) as f64 / (1u64 << 53) as f64
-        };
-        let keypoints: Vec<Keypoint> = (0..4000)
-            .map(|_| Keypoint {
-                x: (rnd() * 1000.0) as f32,
-                y: (rnd() * 700.0) as f32,
-                scale: 1.0,
-                orientation: 0.0,
-                response: 1.0,
-            })
-            .collect();
-        let f = Features {
-            keypoints,
-            descriptors: Default::default(),
-        };
+        let mut rnd = generator(99);
+        let f = scattered(4000, &mut rnd);
         let grid = Grid::new(&f, 32.0);
         let (mut a, mut b) = (Vec::new(), Vec::new());
         let mut used = 0;

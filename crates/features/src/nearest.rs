@@ -124,6 +124,16 @@ struct Tile<'a> {
     j: u32,
 }
 
+impl Tile<'_> {
+    /// Offers a row's `TILE` scores of this tile to its two bests, column by column.
+    #[inline]
+    fn offer_row(&self, bst: &mut Best2, scores: &[f32]) {
+        for (c, (&sv, &nj)) in scores.iter().zip(self.nb).enumerate() {
+            bst.offer(2.0 * sv - nj, self.j + c as u32);
+        }
+    }
+}
+
 /// [`scan_block`] over one full tile; `cols_best` the tile's column bests, updated.
 #[inline]
 fn scan_tile(
@@ -240,10 +250,7 @@ mod avx2 {
             let rk = _mm256_max_ps(_mm256_sub_ps(t0, nb0), _mm256_sub_ps(t1, nb1));
             let gt = _mm256_cmp_ps::<_CMP_GT_OQ>(rk, _mm256_set1_ps(bst.s2));
             if _mm256_movemask_ps(gt) != 0 {
-                let sr = std::slice::from_raw_parts(p, TILE);
-                for (c, (&sv, &nj)) in sr.iter().zip(tile.nb).enumerate() {
-                    bst.offer(2.0 * sv - nj, tile.j + c as u32);
-                }
+                tile.offer_row(bst, std::slice::from_raw_parts(p, TILE));
             }
             if mutual {
                 let ni = _mm256_set1_ps(*na.get_unchecked(r));
@@ -302,10 +309,7 @@ mod avx512 {
             let t = _mm512_add_ps(x, x);
             let rk = _mm512_sub_ps(t, nb);
             if _mm512_cmp_ps_mask::<_CMP_GT_OQ>(rk, _mm512_set1_ps(bst.s2)) != 0 {
-                let sr = std::slice::from_raw_parts(p, TILE);
-                for (c, (&sv, &nj)) in sr.iter().zip(tile.nb).enumerate() {
-                    bst.offer(2.0 * sv - nj, tile.j + c as u32);
-                }
+                tile.offer_row(bst, std::slice::from_raw_parts(p, TILE));
             }
             if mutual {
                 let c = _mm512_sub_ps(t, _mm512_set1_ps(*na.get_unchecked(r)));
