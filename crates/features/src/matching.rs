@@ -17,7 +17,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::detector::{Descriptors, Features};
 use crate::error::{check, FeatureError};
-use crate::nearest::{scan_block, Best2, Block};
+use crate::nearest::{scan_block, Best2, Block, RowLanes};
 use crate::quantized;
 
 /// A correspondence between descriptor `i` of the first set and descriptor `j` of the second.
@@ -239,7 +239,6 @@ pub fn match_prepared(a: &Prepared, b: &Prepared, opts: &MatchOptions) -> Vec<Ma
             let mcols = if opts.mutual { m } else { 0 };
             let (mut col_val, mut col_row) =
                 (vec![f32::NEG_INFINITY; mcols], vec![u32::MAX; mcols]);
-            let mut scores = vec![0f32; rows * COL_BLOCK.min(m)];
             // The rows' layout for a VNNI kernel, made once for every column block.
             let groups = match &a.data {
                 PreparedData::Vnni { q, wide, .. } => {
@@ -247,6 +246,35 @@ pub fn match_prepared(a: &Prepared, b: &Prepared, opts: &MatchOptions) -> Vec<Ma
                 }
                 _ => None,
             };
+            // The AVX-512 VNNI kernel scans its register tiles itself: no score block.
+            if let (Some(g), PreparedData::Vnni { sums, .. }, PreparedData::Vnni { packed, .. }) =
+                (&groups, &a.data, &b.data)
+            {
+                if g.wide() {
+                    let mut lanes = vec![RowLanes::NONE; rows];
+                    for j0 in (0..m).step_by(COL_BLOCK) {
+                        let cols = COL_BLOCK.min(m - j0);
+                        let cols_best = opts
+                            .mutual
+                            .then(|| (&mut col_val[j0..j0 + cols], &mut col_row[j0..j0 + cols]));
+                        quantized::scan_scores_grouped(
+                            g,
+                            sums,
+                            packed,
+                            j0,
+                            cols,
+                            &na[i0..i0 + rows],
+                            &nb[j0..j0 + cols],
+                            &mut lanes,
+                            cols_best,
+                        );
+                    }
+                    let best = lanes.iter().map(RowLanes::merge).collect();
+                    let col_best = col_val.into_iter().zip(col_row).collect();
+                    return (best, col_best);
+                }
+            }
+            let mut scores = vec![0f32; rows * COL_BLOCK.min(m)];
             for j0 in (0..m).step_by(COL_BLOCK) {
                 let cols = COL_BLOCK.min(m - j0);
                 let s = &mut scores[..rows * cols];

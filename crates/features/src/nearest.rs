@@ -28,7 +28,7 @@ impl Best2 {
 
     /// Offers column `j` with key `key`.
     #[inline]
-    fn offer(&mut self, key: f32, j: u32) {
+    pub(crate) fn offer(&mut self, key: f32, j: u32) {
         if key > self.s2 {
             if key > self.s1 {
                 self.s2 = self.s1;
@@ -38,6 +38,62 @@ impl Best2 {
                 self.s2 = key;
             }
         }
+    }
+}
+
+/// A row's two nearest neighbours kept per lane of a 16-column tile: lane `l` sees the columns
+/// `j ≡ l (mod 16)` in increasing order and keeps their two best keys and the first column of
+/// the best ([`Best2::offer`] per lane), without a branch on the data. [`RowLanes::merge`] gives
+/// the row's [`Best2`] over all its columns: the same as offering them in order to one `Best2`.
+#[derive(Clone, Copy, Debug)]
+#[repr(C, align(64))]
+pub(crate) struct RowLanes {
+    pub b1: [f32; 16],
+    pub b2: [f32; 16],
+    pub j1: [u32; 16],
+}
+
+impl RowLanes {
+    pub const NONE: RowLanes = RowLanes {
+        b1: [f32::NEG_INFINITY; 16],
+        b2: [f32::NEG_INFINITY; 16],
+        j1: [u32::MAX; 16],
+    };
+
+    /// The row's two best over every lane: the largest key, the first column that has it (the
+    /// smallest of the lanes' first columns with that key), and the second largest of all the
+    /// keys offered (equal to the largest when two columns share it). The lanes' two best hold
+    /// the two largest keys of the whole row, so this is what one `Best2` fed every column in
+    /// order holds.
+    pub fn merge(&self) -> Best2 {
+        let mut out = Best2::NONE;
+        let mut at = usize::MAX;
+        for l in 0..16 {
+            let (b1, j1) = (self.b1[l], self.j1[l]);
+            if j1 == u32::MAX {
+                continue;
+            }
+            if b1 > out.s1 || (b1 == out.s1 && j1 < out.j1) {
+                out.s1 = b1;
+                out.j1 = j1;
+                at = l;
+            }
+        }
+        if at == usize::MAX {
+            return Best2::NONE;
+        }
+        let mut s2 = f32::NEG_INFINITY;
+        for l in 0..16 {
+            if self.j1[l] == u32::MAX {
+                continue;
+            }
+            if l != at {
+                s2 = s2.max(self.b1[l]);
+            }
+            s2 = s2.max(self.b2[l]);
+        }
+        out.s2 = s2;
+        out
     }
 }
 

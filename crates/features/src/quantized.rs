@@ -11,6 +11,8 @@
 //! `vpdpbusd` multiplies unsigned by signed bytes, so the second operand is stored as `qb − 128`
 //! (signed) and `qa · qb = qa · (qb − 128) + 128 Σ qa`.
 
+use crate::nearest::RowLanes;
+
 /// The quantisation scale of [`quantize`].
 pub const SCALE: f32 = 512.0;
 
@@ -213,6 +215,11 @@ pub struct RowGroups {
 }
 
 impl RowGroups {
+    /// Whether laid out for the AVX-512 VNNI kernel (else for AVX-VNNI).
+    pub fn wide(&self) -> bool {
+        self.wide
+    }
+
     pub fn new(wide: bool, qa: &[u8], dim: usize, i0: usize, rows: usize) -> Self {
         assert!(qa.len() >= (i0 + rows) * dim);
         let groups = dim.div_ceil(4);
@@ -295,6 +302,41 @@ pub fn scores_block_grouped(
         } else {
             avx_vnni::block(&a.abc, suma, i0, rows, b, j0, cols, out)
         }
+    }
+}
+
+/// [`scores_block_grouped`] and [`crate::nearest::scan_block`] in one pass, by the AVX-512 VNNI
+/// kernel (`a` laid out `wide`): each register tile is scanned while still in registers, and no
+/// score block is written. The same result as the two calls once each row's `lanes` are merged
+/// ([`RowLanes::merge`]): `na` are the rows' squared norms (`a.rows` of them), `nb` the columns'
+/// (`cols`), `lanes` one entry per row, `cols_best` one per column.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn scan_scores_grouped(
+    a: &RowGroups,
+    suma: &[i32],
+    b: &PackedB,
+    j0: usize,
+    cols: usize,
+    na: &[f32],
+    nb: &[f32],
+    lanes: &mut [RowLanes],
+    cols_best: Option<(&mut [f32], &mut [u32])>,
+) {
+    let (i0, rows) = (a.i0, a.rows);
+    assert!(j0.is_multiple_of(TILE) && j0 + cols <= b.len);
+    assert!(suma.len() >= i0 + rows && a.groups == b.groups);
+    assert!(na.len() >= rows && nb.len() >= cols && lanes.len() >= rows);
+    if let Some((v, k)) = &cols_best {
+        assert!(v.len() >= cols && k.len() >= cols);
+    }
+    assert!(a.wide && cpu_has_vnni());
+    #[cfg(target_arch = "x86_64")]
+    // SAFETY: the CPU has AVX-512 VNNI (asserted above); the asserted lengths cover every element
+    // the kernel addresses, and `a` was laid out for its row chunks.
+    unsafe {
+        vnni::block_scan(
+            &a.abc, suma, i0, rows, b, j0, cols, na, nb, lanes, cols_best,
+        )
     }
 }
 
@@ -445,6 +487,78 @@ mod tests {
             let mut out = vec![0f32; rows * cols];
             scores_block(true, &qa, &suma, dim, i0, rows, &packed, j0, cols, &mut out);
             assert_exact(&qa, &qb, dim, (i0, rows, j0, cols), &out);
+        }
+    }
+
+    #[test]
+    #[cfg_attr(
+        not(has_vnni),
+        ignore = "needs a CPU with AVX-512 VNNI (this one has none)"
+    )]
+    fn the_fused_scan_equals_the_scores_then_the_scan_ties_included() {
+        use crate::nearest::{scan_block, Best2, Block};
+        assert!(cpu_has_vnni(), "this CPU has no AVX-512 VNNI");
+        let mut rnd = lcg(17);
+        // Partial row chunks (of 8) and tiles (of 16); few distinct values, and repeated rows and
+        // columns, so that many scores tie.
+        for &(n, m, dim) in &[
+            (37usize, 53usize, 128usize),
+            (8, 16, 128),
+            (5, 37, 10),
+            (70, 100, 16),
+        ] {
+            let qa: Vec<u8> = (0..n * dim).map(|_| (rnd() % 3) as u8 * 60).collect();
+            let mut qb: Vec<u8> = (0..m * dim).map(|_| (rnd() % 3) as u8 * 60).collect();
+            for j in (0..m).step_by(5).skip(1) {
+                let src = (rnd() as usize) % j;
+                qb.copy_within(src * dim..(src + 1) * dim, j * dim);
+            }
+            let suma: Vec<i32> = qa
+                .chunks_exact(dim)
+                .map(|r| r.iter().map(|&v| i32::from(v)).sum())
+                .collect();
+            let sq = |v: &[u8]| v.iter().map(|&x| u32::from(x) * u32::from(x)).sum::<u32>() as f32;
+            let na: Vec<f32> = qa.chunks_exact(dim).map(sq).collect();
+            let nb: Vec<f32> = qb.chunks_exact(dim).map(sq).collect();
+            let packed = PackedB::new(&qb, dim);
+            let (i0, rows) = (1, n - 2);
+            let groups = RowGroups::new(true, &qa, dim, i0, rows);
+            // Two column blocks, the second partial, the column bests carried from the first.
+            let splits = [(0, 16.min(m)), (16.min(m), m - 16.min(m))];
+            let mut want = vec![Best2::NONE; rows];
+            let (mut wv, mut wk) = (vec![f32::NEG_INFINITY; m], vec![u32::MAX; m]);
+            let mut lanes = vec![RowLanes::NONE; rows];
+            let (mut gv, mut gk) = (wv.clone(), wk.clone());
+            for &(j0, cols) in splits.iter().filter(|s| s.1 > 0) {
+                let mut out = vec![0f32; rows * cols];
+                scores_block_grouped(&groups, &suma, &packed, j0, cols, &mut out);
+                let block = Block {
+                    s: &out,
+                    rows,
+                    cols,
+                    i0,
+                    j0,
+                    na: &na[i0..i0 + rows],
+                    nb: &nb[j0..j0 + cols],
+                };
+                let cb = (&mut wv[j0..j0 + cols], &mut wk[j0..j0 + cols]);
+                scan_block(&block, &mut want, Some(cb));
+                scan_scores_grouped(
+                    &groups,
+                    &suma,
+                    &packed,
+                    j0,
+                    cols,
+                    &na[i0..i0 + rows],
+                    &nb[j0..j0 + cols],
+                    &mut lanes,
+                    Some((&mut gv[j0..j0 + cols], &mut gk[j0..j0 + cols])),
+                );
+            }
+            let got: Vec<Best2> = lanes.iter().map(RowLanes::merge).collect();
+            assert_eq!(got, want, "{n}×{m}×{dim}");
+            assert_eq!((gv, gk), (wv, wk), "{n}×{m}×{dim}");
+            assert!(want.iter().any(|b| b.s1 == b.s2), "the case has ties");
         }
     }
 

@@ -1,6 +1,7 @@
 //! The AVX-512 VNNI kernel of [`super::scores_block`]: `vpdpbusd` on 512-bit registers.
 
 use super::{PackedB, TILE};
+use crate::nearest::RowLanes;
 use std::arch::x86_64::*;
 
 /// Rows per register tile: 8 accumulators of 16 sums each.
@@ -48,6 +49,103 @@ pub(super) unsafe fn block(
                 let dst = &mut out[(r0 + r) * cols + c0..(r0 + r) * cols + c0 + nc];
                 // SAFETY: `dst` has `nc` floats and the mask writes only those.
                 unsafe { _mm512_mask_storeu_ps(dst.as_mut_ptr(), mask, s) };
+            }
+        }
+        r0 += nr;
+    }
+}
+
+/// [`block`] with the scan of [`crate::nearest::scan_block`] fused in: each register tile of
+/// 8 rows × 16 columns is offered to the rows' two bests and the columns' bests while it is still
+/// in registers, instead of being stored to a score block and read back (on the low-texture set
+/// that round trip cost as much as the products). The same comparisons in the same order as
+/// `scan_block` over the stored block (rows in increasing order down each column, columns in
+/// increasing order along each row, strict `>`), so the same result, ties included. `na` are the
+/// block's rows' squared norms (`rows`), `nb` its columns' (`cols`); `best` holds one entry per
+/// row, `cols_best` (when the mutual check runs) one per column.
+#[allow(clippy::too_many_arguments)]
+#[target_feature(enable = "avx512f,avx512bw,avx512vnni")]
+pub(super) unsafe fn block_scan(
+    abc: &[i32],
+    suma: &[i32],
+    i0: usize,
+    rows: usize,
+    b: &PackedB,
+    j0: usize,
+    cols: usize,
+    na: &[f32],
+    nb: &[f32],
+    lanes: &mut [RowLanes],
+    mut cols_best: Option<(&mut [f32], &mut [u32])>,
+) {
+    let groups = b.groups;
+    let t0 = j0 / TILE;
+    let tiles = cols.div_ceil(TILE);
+    let lane_index = _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+    let mut r0 = 0;
+    while r0 < rows {
+        let nr = ROWS.min(rows - r0);
+        let chunk = &abc[(r0 / ROWS) * groups * ROWS..(r0 / ROWS + 1) * groups * ROWS];
+        for t in 0..tiles {
+            let bt = &b.data[(t0 + t) * groups * TILE * 4..(t0 + t + 1) * groups * TILE * 4];
+            let mut acc = [_mm512_setzero_si512(); ROWS];
+            for (g, ag) in chunk.chunks_exact(ROWS).enumerate() {
+                // SAFETY: `bt` holds `groups` runs of 64 bytes.
+                let bv = unsafe { _mm512_loadu_si512(bt.as_ptr().add(g * 64).cast()) };
+                for (a, &w) in acc.iter_mut().zip(ag) {
+                    *a = _mm512_dpbusd_epi32(*a, _mm512_set1_epi32(w), bv);
+                }
+            }
+            let c0 = t * TILE;
+            let nc = TILE.min(cols - c0);
+            let mask: __mmask16 = if nc == TILE { 0xffff } else { (1u16 << nc) - 1 };
+            let nbt = &nb[c0..c0 + nc];
+            // SAFETY: the mask reads only the tile's `nc` norms.
+            let nbv = unsafe { _mm512_maskz_loadu_ps(mask, nbt.as_ptr()) };
+            let j = (j0 + c0) as u32;
+            let (mut v, mut k) = match &cols_best {
+                // SAFETY: the mask reads only the tile's `nc` columns (asserted by the caller).
+                Some((cv, ck)) => unsafe {
+                    (
+                        _mm512_maskz_loadu_ps(mask, cv.as_ptr().add(c0)),
+                        _mm512_maskz_loadu_epi32(mask, ck.as_ptr().add(c0).cast()),
+                    )
+                },
+                None => (_mm512_setzero_ps(), _mm512_setzero_si512()),
+            };
+            for (r, a) in acc.iter().enumerate().take(nr) {
+                let corr = _mm512_set1_epi32(128 * suma[i0 + r0 + r]);
+                let s = _mm512_cvtepi32_ps(_mm512_add_epi32(*a, corr));
+                let twice = _mm512_add_ps(s, s);
+                // The row's lanes: a key above a lane's best moves the best to second; one above
+                // its second only replaces it (`Best2::offer`, per lane, masked to the tile).
+                let ln = &mut lanes[r0 + r];
+                let rk = _mm512_sub_ps(twice, nbv);
+                // SAFETY: `RowLanes` holds three runs of 16 lanes.
+                unsafe {
+                    let b1 = _mm512_loadu_ps(ln.b1.as_ptr());
+                    let b2 = _mm512_loadu_ps(ln.b2.as_ptr());
+                    let m1 = _mm512_mask_cmp_ps_mask::<_CMP_GT_OQ>(mask, rk, b1);
+                    let m2 = _mm512_mask_cmp_ps_mask::<_CMP_GT_OQ>(mask, rk, b2);
+                    let b2 = _mm512_mask_blend_ps(m1, _mm512_mask_blend_ps(m2, b2, rk), b1);
+                    _mm512_storeu_ps(ln.b2.as_mut_ptr(), b2);
+                    _mm512_storeu_ps(ln.b1.as_mut_ptr(), _mm512_mask_blend_ps(m1, b1, rk));
+                    let jl = _mm512_add_epi32(_mm512_set1_epi32(j as i32), lane_index);
+                    _mm512_mask_storeu_epi32(ln.j1.as_mut_ptr().cast(), m1, jl);
+                }
+                if cols_best.is_some() {
+                    let key = _mm512_sub_ps(twice, _mm512_set1_ps(na[r0 + r]));
+                    let g = _mm512_mask_cmp_ps_mask::<_CMP_GT_OQ>(mask, key, v);
+                    v = _mm512_mask_blend_ps(g, v, key);
+                    k = _mm512_mask_blend_epi32(g, k, _mm512_set1_epi32((i0 + r0 + r) as i32));
+                }
+            }
+            if let Some((cv, ck)) = &mut cols_best {
+                // SAFETY: the mask writes only the tile's `nc` columns.
+                unsafe {
+                    _mm512_mask_storeu_ps(cv.as_mut_ptr().add(c0), mask, v);
+                    _mm512_mask_storeu_epi32(ck.as_mut_ptr().add(c0).cast(), mask, k);
+                }
             }
         }
         r0 += nr;
