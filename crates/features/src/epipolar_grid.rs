@@ -113,11 +113,11 @@ impl Grid {
     /// (fountain-P11: about 16 of 85).
     pub(crate) fn within_band(&self, l: &Vector3<f64>, band: f64, out: &mut Vec<u32>) {
         out.clear();
-        let n = (l.x * l.x + l.y * l.y).sqrt();
+        let test = BandTest::new(l, band);
         self.walk(l, band, |layout, range| {
             for k in range {
                 let [x, y] = layout.xy[k];
-                if ((l.x * x + l.y * y + l.z) / n).abs() <= band {
+                if test.holds(x, y) {
                     out.push(layout.index[k]);
                 }
             }
@@ -184,6 +184,40 @@ impl Grid {
                 layout.start[c0] as usize..layout.start[c1 + 1] as usize,
             );
         }
+    }
+}
+
+/// The band test `|l·(x, y, 1)| / ‖(l₀, l₁)‖ ≤ band`, exactly as the caller measures it, without
+/// a division for all but the keypoints at the band's edge: `|l·x|` is compared with `band·n`
+/// widened and narrowed by far more than the rounding of either side, and only a keypoint between
+/// the two bounds is divided. (The division was most of a band query's cost where the epipole
+/// lies inside the image and the grid is walked: kitti-seq1.)
+struct BandTest {
+    l: [f64; 3],
+    n: f64,
+    band: f64,
+    /// `band·n` less and more than the rounding can move either side of the test.
+    inside: f64,
+    outside: f64,
+}
+
+impl BandTest {
+    fn new(l: &Vector3<f64>, band: f64) -> Self {
+        let n = (l.x * l.x + l.y * l.y).sqrt();
+        let t = band * n;
+        Self {
+            l: [l.x, l.y, l.z],
+            n,
+            band,
+            inside: t * (1.0 - 1e-9),
+            outside: t * (1.0 + 1e-9),
+        }
+    }
+
+    #[inline]
+    fn holds(&self, x: f64, y: f64) -> bool {
+        let v = (self.l[0] * x + self.l[1] * y + self.l[2]).abs();
+        v <= self.inside || (v <= self.outside && v / self.n <= self.band)
     }
 }
 
@@ -285,8 +319,9 @@ impl Pencil {
         let s = (band + miss) / self.r_min;
         if s.is_nan() || s >= 0.5 {
             // A band as wide as the wedge (or a line with no direction): test every keypoint.
+            let test = BandTest::new(l, band);
             for (k, &[x, y]) in self.xy.iter().enumerate() {
-                if ((l.x * x + l.y * y + l.z) / n).abs() <= band {
+                if test.holds(x, y) {
                     out.push(self.index[k]);
                 }
             }
@@ -302,9 +337,10 @@ impl Pencil {
         let w = s.asin() * (1.0 + 1e-6) + 1e-12;
         let lo = self.phi.partition_point(|&p| p < phi - w);
         let hi = self.phi.partition_point(|&p| p <= phi + w);
+        let test = BandTest::new(l, band);
         for k in lo..hi.max(lo) {
             let [x, y] = self.xy[k];
-            if ((l.x * x + l.y * y + l.z) / n).abs() <= band {
+            if test.holds(x, y) {
                 out.push(self.index[k]);
             }
         }
