@@ -94,6 +94,8 @@ pub struct Prepared {
 enum PreparedData {
     Vnni {
         q: Vec<u8>,
+        /// Every row laid out for the AVX-512 VNNI kernel (`wide` only).
+        rows: Option<quantized::RowGroups>,
         sums: Vec<i32>,
         packed: quantized::PackedB,
         wide: bool,
@@ -143,6 +145,9 @@ fn prepare_with(a: &Descriptors, kernel: quantized::Kernel, quantise: bool) -> P
         let norms: Vec<f32> = q.chunks_exact(d.max(1)).map(sq).collect();
         let data = match kernel {
             Kernel::Avx512Vnni | Kernel::AvxVnni => PreparedData::Vnni {
+                // The AVX-512 kernel's row layout, made once for every pair and row block.
+                rows: (kernel == Kernel::Avx512Vnni)
+                    .then(|| quantized::RowGroups::new(true, &q, d, 0, n)),
                 sums: q
                     .chunks_exact(d.max(1))
                     .map(|r| r.iter().map(|&v| i32::from(v)).sum())
@@ -239,41 +244,46 @@ pub fn match_prepared(a: &Prepared, b: &Prepared, opts: &MatchOptions) -> Vec<Ma
             let mcols = if opts.mutual { m } else { 0 };
             let (mut col_val, mut col_row) =
                 (vec![f32::NEG_INFINITY; mcols], vec![u32::MAX; mcols]);
-            // The rows' layout for a VNNI kernel, made once for every column block.
+            // The AVX-512 VNNI kernel scans its register tiles itself: no score block.
+            if let (
+                PreparedData::Vnni {
+                    rows: Some(g),
+                    sums,
+                    ..
+                },
+                PreparedData::Vnni { packed, .. },
+            ) = (&a.data, &b.data)
+            {
+                let mut lanes = vec![RowLanes::NONE; rows];
+                for j0 in (0..m).step_by(COL_BLOCK) {
+                    let cols = COL_BLOCK.min(m - j0);
+                    let cols_best = opts
+                        .mutual
+                        .then(|| (&mut col_val[j0..j0 + cols], &mut col_row[j0..j0 + cols]));
+                    quantized::scan_scores_grouped(
+                        g,
+                        (i0, rows),
+                        sums,
+                        packed,
+                        j0,
+                        cols,
+                        &na[i0..i0 + rows],
+                        &nb[j0..j0 + cols],
+                        &mut lanes,
+                        cols_best,
+                    );
+                }
+                let best = lanes.iter().map(RowLanes::merge).collect();
+                let col_best = col_val.into_iter().zip(col_row).collect();
+                return (best, col_best);
+            }
+            // The rows' layout for the AVX-VNNI kernel, made once for every column block.
             let groups = match &a.data {
                 PreparedData::Vnni { q, wide, .. } => {
                     Some(quantized::RowGroups::new(*wide, q, d, i0, rows))
                 }
                 _ => None,
             };
-            // The AVX-512 VNNI kernel scans its register tiles itself: no score block.
-            if let (Some(g), PreparedData::Vnni { sums, .. }, PreparedData::Vnni { packed, .. }) =
-                (&groups, &a.data, &b.data)
-            {
-                if g.wide() {
-                    let mut lanes = vec![RowLanes::NONE; rows];
-                    for j0 in (0..m).step_by(COL_BLOCK) {
-                        let cols = COL_BLOCK.min(m - j0);
-                        let cols_best = opts
-                            .mutual
-                            .then(|| (&mut col_val[j0..j0 + cols], &mut col_row[j0..j0 + cols]));
-                        quantized::scan_scores_grouped(
-                            g,
-                            sums,
-                            packed,
-                            j0,
-                            cols,
-                            &na[i0..i0 + rows],
-                            &nb[j0..j0 + cols],
-                            &mut lanes,
-                            cols_best,
-                        );
-                    }
-                    let best = lanes.iter().map(RowLanes::merge).collect();
-                    let col_best = col_val.into_iter().zip(col_row).collect();
-                    return (best, col_best);
-                }
-            }
             let mut scores = vec![0f32; rows * COL_BLOCK.min(m)];
             for j0 in (0..m).step_by(COL_BLOCK) {
                 let cols = COL_BLOCK.min(m - j0);

@@ -305,14 +305,16 @@ pub fn scores_block_grouped(
     }
 }
 
-/// [`scores_block_grouped`] and [`crate::nearest::scan_block`] in one pass, by the AVX-512 VNNI
-/// kernel (`a` laid out `wide`): each register tile is scanned while still in registers, and no
-/// score block is written. The same result as the two calls once each row's `lanes` are merged
+/// [`scores_block_grouped`] and [`crate::nearest::scan_block`] in one pass over the rows
+/// `i0..i0 + rows` of `a` (laid out `wide`, for the AVX-512 VNNI kernel, from a row a whole number
+/// of chunks of 8 before `i0`: a whole image's layout serves every row block of it): each
+/// register tile is scanned while still in registers, and no score block is written. The same result as the two calls once each row's `lanes` are merged
 /// ([`RowLanes::merge`]): `na` are the rows' squared norms (`a.rows` of them), `nb` the columns'
 /// (`cols`), `lanes` one entry per row, `cols_best` one per column.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn scan_scores_grouped(
     a: &RowGroups,
+    (i0, rows): (usize, usize),
     suma: &[i32],
     b: &PackedB,
     j0: usize,
@@ -322,7 +324,13 @@ pub(crate) fn scan_scores_grouped(
     lanes: &mut [RowLanes],
     cols_best: Option<(&mut [f32], &mut [u32])>,
 ) {
-    let (i0, rows) = (a.i0, a.rows);
+    // The rows `i0..i0 + rows` of `a`, from a whole row chunk on.
+    #[cfg(target_arch = "x86_64")]
+    let per_chunk = vnni::ROWS;
+    #[cfg(not(target_arch = "x86_64"))]
+    let per_chunk = 8;
+    assert!(i0 >= a.i0 && (i0 - a.i0).is_multiple_of(per_chunk) && i0 + rows <= a.i0 + a.rows);
+    let abc = &a.abc[(i0 - a.i0) / per_chunk * a.groups * per_chunk..];
     assert!(j0.is_multiple_of(TILE) && j0 + cols <= b.len);
     assert!(suma.len() >= i0 + rows && a.groups == b.groups);
     assert!(na.len() >= rows && nb.len() >= cols && lanes.len() >= rows);
@@ -334,9 +342,7 @@ pub(crate) fn scan_scores_grouped(
     // SAFETY: the CPU has AVX-512 VNNI (asserted above); the asserted lengths cover every element
     // the kernel addresses, and `a` was laid out for its row chunks.
     unsafe {
-        vnni::block_scan(
-            &a.abc, suma, i0, rows, b, j0, cols, na, nb, lanes, cols_best,
-        )
+        vnni::block_scan(abc, suma, i0, rows, b, j0, cols, na, nb, lanes, cols_best)
     }
 }
 
@@ -545,6 +551,7 @@ mod tests {
                 scan_block(&block, &mut want, Some(cb));
                 scan_scores_grouped(
                     &groups,
+                    (i0, rows),
                     &suma,
                     &packed,
                     j0,
@@ -557,6 +564,46 @@ mod tests {
             }
             let got: Vec<Best2> = lanes.iter().map(RowLanes::merge).collect();
             assert_eq!(got, want, "{n}×{m}×{dim}");
+            // The whole set's layout, read from a row chunk on: the rows after the first chunk.
+            if n > 9 {
+                let whole = RowGroups::new(true, &qa, dim, 0, n);
+                let (k0, k) = (8, n - 8);
+                let mut out = vec![0f32; k * m];
+                scores_block_grouped(
+                    &RowGroups::new(true, &qa, dim, k0, k),
+                    &suma,
+                    &packed,
+                    0,
+                    m,
+                    &mut out,
+                );
+                let block = Block {
+                    s: &out,
+                    rows: k,
+                    cols: m,
+                    i0: k0,
+                    j0: 0,
+                    na: &na[k0..],
+                    nb: &nb,
+                };
+                let mut want = vec![Best2::NONE; k];
+                scan_block(&block, &mut want, None);
+                let mut lanes = vec![RowLanes::NONE; k];
+                scan_scores_grouped(
+                    &whole,
+                    (k0, k),
+                    &suma,
+                    &packed,
+                    0,
+                    m,
+                    &na[k0..],
+                    &nb,
+                    &mut lanes,
+                    None,
+                );
+                let got: Vec<Best2> = lanes.iter().map(RowLanes::merge).collect();
+                assert_eq!(got, want, "from row {k0}, {n}×{m}×{dim}");
+            }
             assert_eq!((gv, gk), (wv, wk), "{n}×{m}×{dim}");
             assert!(want.iter().any(|b| b.s1 == b.s2), "the case has ties");
         }

@@ -379,7 +379,7 @@ struct SeedSet {
 /// pairs, and preparing its seeds for each of them was a quarter of a low-texture set's matching
 /// (most of its pairs end after the first level), and 7 % of monstree-phone's (12 MP, 8 192
 /// keypoints: 182 of its 253 pairs reach the second level, each image in 16 of them). The second
-/// level's sets (about 2 MB each at 8 192 keypoints) are kept within [`SECOND_LEVEL_BYTES`];
+/// level's sets (about 3 MB each at 8 192 keypoints) are kept within [`SECOND_LEVEL_BYTES`];
 /// beyond it a pair prepares its own, as before.
 struct SeedCache {
     k: usize,
@@ -411,8 +411,8 @@ impl SeedCache {
             return Some(set);
         }
         if level == 1 {
-            // The quantised rows and their packed copy.
-            let bytes = 2 * seeds.min(f.descriptors.len()) * f.descriptors.dim;
+            // The quantised rows, their packed copy and (for the AVX-512 kernel) their row layout.
+            let bytes = 3 * seeds.min(f.descriptors.len()) * f.descriptors.dim;
             self.budget
                 .fetch_update(Ordering::Relaxed, Ordering::Relaxed, |b| {
                     b.checked_sub(bytes)
