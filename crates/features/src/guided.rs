@@ -89,6 +89,21 @@ pub fn guided_matches(
     let grid = Grid::for_keypoints(f2);
     let pencil = Pencil::new(f2, f);
     let rival_grid = Grid::new(f2, RIVAL_CELL_PX);
+    // The corners of image 2's keypoints' extent: a line's σ is largest at one of them.
+    let corners: Vec<Vector2<f64>> = {
+        let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+        for k in &f2.keypoints {
+            let (x, y) = (k.x as f64, k.y as f64);
+            lo = [lo[0].min(x), lo[1].min(y)];
+            hi = [hi[0].max(x), hi[1].max(y)];
+        }
+        vec![
+            Vector2::new(lo[0], lo[1]),
+            Vector2::new(hi[0], lo[1]),
+            Vector2::new(lo[0], hi[1]),
+            Vector2::new(hi[0], hi[1]),
+        ]
+    };
     let mut cand = Vec::new();
     let mut best: Vec<(f32, u32, u32)> = Vec::new();
     // Visit the keypoints in the order of their epipolar lines across image 2, so consecutive
@@ -152,7 +167,18 @@ pub fn guided_matches(
                 // The line is too uncertain there for its rivals to be seen.
                 continue;
             }
-            rival_grid.near_line(&l, rival_band, &mut wide);
+            // The farthest any keypoint's reach goes: σ is the norm of an affine function of the
+            // position (the line's covariance as a quadratic form, `LineUncertainty`), convex, so
+            // largest at a corner of the keypoints' extent (widened against rounding). Where that
+            // stays inside the rival band, every rival lies within it of the line, in a cell the
+            // band crosses: the epipole's pencil finds exactly those keypoints by two binary
+            // searches, where the grid walk hands back every keypoint of the cells along the
+            // whole line (most of guided matching's cost on fountain-P11). The same rivals.
+            let widest = corners.iter().map(&reach).fold(0.0, f64::max) * (1.0 + 1e-6) + 1e-9;
+            match &pencil {
+                Some(p) if widest <= rival_band => p.within_band(&l, widest, &mut wide),
+                _ => rival_grid.near_line(&l, rival_band, &mut wide),
+            }
             let mut rejected = false;
             for &b in &wide {
                 let x2 = point(f2, b);
