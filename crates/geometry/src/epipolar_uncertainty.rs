@@ -279,4 +279,30 @@ mod tests {
             mean_sigma[1]
         );
     }
+
+    #[test]
+    fn a_lines_sigma_is_largest_at_a_corner_of_a_box() {
+        // Guided matching bounds every keypoint's σ by the largest at the corners of their
+        // extent: σ is the norm of an affine function of the position, so convex.
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        for (seed, half) in [(0, false), (1, true), (2, true)] {
+            let (est, x1, x2, _) = setup(half, seed);
+            let u = EpipolarUncertainty::new(&est, &x1, &x2).unwrap();
+            for q in [Vector2::new(600.0, 400.0), Vector2::new(20.0, 30.0)] {
+                let line = u.line(&q);
+                let (lo, hi) = (Vector2::new(40.0, 10.0), Vector2::new(610.0, 470.0));
+                let corners = [lo, Vector2::new(hi.x, lo.y), Vector2::new(lo.x, hi.y), hi];
+                let top = corners.iter().map(|c| line.sigma(c)).fold(0.0, f64::max);
+                for _ in 0..2000 {
+                    let p =
+                        Vector2::new(rng.random_range(lo.x..hi.x), rng.random_range(lo.y..hi.y));
+                    assert!(
+                        line.sigma(&p) <= top * (1.0 + 1e-9),
+                        "{p:?}: {} > {top}",
+                        line.sigma(&p)
+                    );
+                }
+            }
+        }
+    }
 }
