@@ -245,28 +245,12 @@ impl Pencil {
     /// `None` where the epipole is at infinity, or nearer the keypoints' bounding box than its
     /// diagonal (the grid serves those).
     pub(crate) fn new(f2: &Features, f: &nalgebra::Matrix3<f64>) -> Option<Self> {
-        // The epipole e2 is Fᵀ's null vector: orthogonal to every column of F.
-        let cols = [
-            f.column(0).into_owned(),
-            f.column(1).into_owned(),
-            f.column(2).into_owned(),
-        ];
-        let e = [(0, 1), (0, 2), (1, 2)]
-            .iter()
-            .map(|&(a, b)| cols[a].cross(&cols[b]))
-            .max_by(|a, b| a.norm_squared().total_cmp(&b.norm_squared()))?;
-        let (lo, hi) = f2.keypoints.iter().fold(
-            ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]),
-            |(lo, hi), k| {
-                let (x, y) = (k.x as f64, k.y as f64);
-                ([lo[0].min(x), lo[1].min(y)], [hi[0].max(x), hi[1].max(y)])
-            },
-        );
+        let e = epipole(f)?;
+        let (lo, hi) = bounds(f2);
         let diag = ((hi[0] - lo[0]).powi(2) + (hi[1] - lo[1]).powi(2)).sqrt();
-        if !(diag.is_finite() && diag > 0.0 && e.z != 0.0) {
+        if !(diag.is_finite() && diag > 0.0) {
             return None;
         }
-        let e = [e.x / e.z, e.y / e.z];
         let dx = (lo[0] - e[0]).max(e[0] - hi[0]).max(0.0);
         let dy = (lo[1] - e[1]).max(e[1] - hi[1]).max(0.0);
         let r_min = (dx * dx + dy * dy).sqrt();
@@ -345,6 +329,154 @@ impl Pencil {
             }
         }
     }
+}
+
+/// Image 2's keypoints by their direction around the epipole, for the band queries of guided
+/// matching when the epipole lies inside the keypoints' extent or near it (forward motion: a
+/// car's camera, a walk through a corridor), where [`Pencil`] does not apply. Every epipolar
+/// line passes through the epipole, so a keypoint at least `r0` from it and within `band` of a
+/// line lies within asin((band + miss) / r0) of the line's direction or of its opposite; the
+/// keypoints nearer than `r0` are tested always. `r0` balances the two: the disc holds about
+/// `π r0²` of the area, the two wedges about `b R² / r0` (`R` the extent's half-diagonal), least
+/// for `r0³ = b R² / 2π`, taken at b = 4 px. The same exact test decides, so a query returns the
+/// same keypoints as [`Grid::within_band`] (kitti-seq1's band queries walked about 50 strips of
+/// cells each).
+pub(crate) struct Radial {
+    e: [f64; 2],
+    r0: f64,
+    /// The keypoints within `r0` of the epipole, with their positions.
+    near: Vec<u32>,
+    near_xy: Vec<[f64; 2]>,
+    /// The others' directions from the epipole in (−π, π], ascending, with index and position.
+    theta: Vec<f64>,
+    index: Vec<u32>,
+    xy: Vec<[f64; 2]>,
+}
+
+impl Radial {
+    /// The keypoints of `f2` about the epipole of `f` in image 2; `None` where the epipole is at
+    /// infinity, at least the keypoints' diagonal outside their bounding box ([`Pencil`]'s
+    /// case, and far enough for the line's miss of the epipole to lose its precision), or the
+    /// keypoints have no extent.
+    pub(crate) fn new(f2: &Features, f: &nalgebra::Matrix3<f64>) -> Option<Self> {
+        let e = epipole(f)?;
+        let (lo, hi) = bounds(f2);
+        let diag = ((hi[0] - lo[0]).powi(2) + (hi[1] - lo[1]).powi(2)).sqrt();
+        let dx = (lo[0] - e[0]).max(e[0] - hi[0]).max(0.0);
+        let dy = (lo[1] - e[1]).max(e[1] - hi[1]).max(0.0);
+        if !(diag.is_finite() && diag > 0.0 && (dx * dx + dy * dy).sqrt() < diag) {
+            return None;
+        }
+        let r0 = (4.0 * (diag / 2.0).powi(2) / std::f64::consts::TAU)
+            .cbrt()
+            .max(1.0);
+        let (mut near, mut near_xy, mut far) = (Vec::new(), Vec::new(), Vec::new());
+        for (i, k) in f2.keypoints.iter().enumerate() {
+            let (x, y) = (k.x as f64, k.y as f64);
+            let (dx, dy) = (x - e[0], y - e[1]);
+            if (dx * dx + dy * dy).sqrt() < r0 {
+                near.push(i as u32);
+                near_xy.push([x, y]);
+            } else {
+                far.push((dy.atan2(dx), i as u32, [x, y]));
+            }
+        }
+        far.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        Some(Self {
+            e,
+            r0,
+            near,
+            near_xy,
+            theta: far.iter().map(|p| p.0).collect(),
+            index: far.iter().map(|p| p.1).collect(),
+            xy: far.iter().map(|p| p.2).collect(),
+        })
+    }
+
+    /// [`Grid::within_band`]: the keypoints whose distance from `l` is at most `band` pixels,
+    /// measured as the caller would; those near the epipole first, then by direction.
+    pub(crate) fn within_band(&self, l: &Vector3<f64>, band: f64, out: &mut Vec<u32>) {
+        use std::f64::consts::PI;
+        out.clear();
+        let n = (l.x * l.x + l.y * l.y).sqrt();
+        if n < 1e-300 {
+            return;
+        }
+        let test = BandTest::new(l, band);
+        for (k, &[x, y]) in self.near_xy.iter().enumerate() {
+            if test.holds(x, y) {
+                out.push(self.near[k]);
+            }
+        }
+        let mut scan = |from: usize, to: usize| {
+            for k in from..to.max(from) {
+                let [x, y] = self.xy[k];
+                if test.holds(x, y) {
+                    out.push(self.index[k]);
+                }
+            }
+        };
+        // `l` passes within `miss` of the epipole (F's rank 2 in exact arithmetic only).
+        let miss = ((l.x * self.e[0] + l.y * self.e[1] + l.z) / n).abs();
+        let s = (band + miss) / self.r0;
+        if s.is_nan() || s >= 0.5 {
+            scan(0, self.xy.len());
+            return;
+        }
+        // Widened against rounding: the exact test decides.
+        let w = s.asin() * (1.0 + 1e-6) + 1e-12;
+        let phi = (-l.x / n).atan2(l.y / n);
+        let opposite = if phi > 0.0 { phi - PI } else { phi + PI };
+        let range = |lo: f64, hi: f64| {
+            (
+                self.theta.partition_point(|&t| t < lo),
+                self.theta.partition_point(|&t| t <= hi),
+            )
+        };
+        for c in [phi, opposite] {
+            let (lo, hi) = (c - w, c + w);
+            // Each window in (−π, π], split where it wraps.
+            let parts = if lo < -PI {
+                [(-PI, hi), (lo + 2.0 * PI, PI)]
+            } else if hi > PI {
+                [(lo, PI), (-PI, hi - 2.0 * PI)]
+            } else {
+                [(lo, hi), (1.0, 0.0)]
+            };
+            for (a, b) in parts {
+                if a <= b {
+                    let (from, to) = range(a, b);
+                    scan(from, to);
+                }
+            }
+        }
+    }
+}
+
+/// The epipole in image 2 of `f` (`Fᵀ`'s null vector: orthogonal to every column of `F`), or
+/// `None` at infinity.
+fn epipole(f: &nalgebra::Matrix3<f64>) -> Option<[f64; 2]> {
+    let cols = [
+        f.column(0).into_owned(),
+        f.column(1).into_owned(),
+        f.column(2).into_owned(),
+    ];
+    let e = [(0, 1), (0, 2), (1, 2)]
+        .iter()
+        .map(|&(a, b)| cols[a].cross(&cols[b]))
+        .max_by(|a, b| a.norm_squared().total_cmp(&b.norm_squared()))?;
+    (e.z != 0.0).then(|| [e.x / e.z, e.y / e.z])
+}
+
+/// The keypoints' bounding box, `(lo, hi)`.
+pub(crate) fn bounds(f: &Features) -> ([f64; 2], [f64; 2]) {
+    f.keypoints.iter().fold(
+        ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]),
+        |(lo, hi), k| {
+            let (x, y) = (k.x as f64, k.y as f64);
+            ([lo[0].min(x), lo[1].min(y)], [hi[0].max(x), hi[1].max(y)])
+        },
+    )
 }
 
 #[cfg(test)]
@@ -437,5 +569,41 @@ mod tests {
             }
         }
         assert!(used > 10, "only {used} epipoles far enough");
+    }
+
+    #[test]
+    fn the_radial_pencil_finds_exactly_the_keypoints_the_grid_does() {
+        let mut rnd = generator(7);
+        let f = scattered(4000, &mut rnd);
+        let grid = Grid::new(&f, 32.0);
+        let (mut a, mut b) = (Vec::new(), Vec::new());
+        for trial in 0..60 {
+            // Epipoles inside the keypoints' extent, near it, and on a keypoint.
+            let e = if trial == 0 {
+                let k = &f.keypoints[17];
+                Vector3::new(k.x as f64, k.y as f64, 1.0)
+            } else {
+                Vector3::new(
+                    500.0 + (rnd() - 0.5) * 1600.0,
+                    350.0 + (rnd() - 0.5) * 1200.0,
+                    1.0,
+                )
+            };
+            let ex = nalgebra::Matrix3::new(0.0, -e.z, e.y, e.z, 0.0, -e.x, -e.y, e.x, 0.0);
+            let m = nalgebra::Matrix3::from_fn(|_, _| rnd() - 0.5);
+            let fm = ex * m;
+            let radial = Radial::new(&f, &fm).expect("a finite epipole");
+            for band in [2.0, 7.5] {
+                for _ in 0..60 {
+                    let x1 = Vector3::new(rnd() * 1000.0, rnd() * 700.0, 1.0);
+                    let l = fm * x1;
+                    grid.within_band(&l, band, &mut a);
+                    radial.within_band(&l, band, &mut b);
+                    a.sort_unstable();
+                    b.sort_unstable();
+                    assert_eq!(a, b, "epipole {e:?}, band {band}");
+                }
+            }
+        }
     }
 }

@@ -7,7 +7,7 @@ use handheld_geometry::EpipolarUncertainty;
 use nalgebra::{Matrix3, Vector2, Vector3};
 
 use crate::detector::Features;
-use crate::epipolar_grid::{Grid, Pencil};
+use crate::epipolar_grid::{bounds, Grid, Pencil, Radial};
 use crate::verify::PairVerificationOptions;
 
 pub(crate) fn point(f: &Features, k: u32) -> Vector2<f64> {
@@ -88,15 +88,15 @@ pub fn guided_matches(
     // that set is kept as it was measured, on its own grid.
     let grid = Grid::for_keypoints(f2);
     let pencil = Pencil::new(f2, f);
+    // Where the epipole is inside the keypoints' extent or near it, its radial pencil.
+    let radial = match pencil {
+        Some(_) => None,
+        None => Radial::new(f2, f),
+    };
     let rival_grid = Grid::new(f2, RIVAL_CELL_PX);
     // The corners of image 2's keypoints' extent: a line's σ is largest at one of them.
     let corners: Vec<Vector2<f64>> = {
-        let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
-        for k in &f2.keypoints {
-            let (x, y) = (k.x as f64, k.y as f64);
-            lo = [lo[0].min(x), lo[1].min(y)];
-            hi = [hi[0].max(x), hi[1].max(y)];
-        }
+        let (lo, hi) = bounds(f2);
         vec![
             Vector2::new(lo[0], lo[1]),
             Vector2::new(hi[0], lo[1]),
@@ -135,9 +135,10 @@ pub fn guided_matches(
         // The nearest descriptor within the acceptance band, and the second nearest there
         // (taken keypoints included: they are rivals too).
         // Exactly the keypoints within the band (the grid tests them as `off` would).
-        match &pencil {
-            Some(p) => p.within_band(&l, band, &mut cand),
-            None => grid.within_band(&l, band, &mut cand),
+        match (&pencil, &radial) {
+            (Some(p), _) => p.within_band(&l, band, &mut cand),
+            (None, Some(r)) => r.within_band(&l, band, &mut cand),
+            (None, None) => grid.within_band(&l, band, &mut cand),
         }
         let (mut b1, mut s1, mut s2) = (u32::MAX, f32::INFINITY, f32::INFINITY);
         for &b in &cand {
@@ -175,8 +176,9 @@ pub fn guided_matches(
             // searches, where the grid walk hands back every keypoint of the cells along the
             // whole line (most of guided matching's cost on fountain-P11). The same rivals.
             let widest = corners.iter().map(&reach).fold(0.0, f64::max) * (1.0 + 1e-6) + 1e-9;
-            match &pencil {
-                Some(p) if widest <= rival_band => p.within_band(&l, widest, &mut wide),
+            match (&pencil, &radial) {
+                (Some(p), _) if widest <= rival_band => p.within_band(&l, widest, &mut wide),
+                (None, Some(r)) if widest <= rival_band => r.within_band(&l, widest, &mut wide),
                 _ => rival_grid.near_line(&l, rival_band, &mut wide),
             }
             let mut rejected = false;
