@@ -7,6 +7,25 @@ use std::arch::x86_64::*;
 /// Rows per register tile: 8 accumulators of 16 sums each.
 pub(super) const ROWS: usize = 8;
 
+/// The sums of one register tile: the row chunk's groups `chunk` (`ROWS` per group) against
+/// one tile of B (`bt`, one run of 64 bytes per group). A constant trip count over the rows, so
+/// the loop unrolls and the accumulators stay in registers.
+///
+/// # Safety
+/// AVX-512 F/BW/VNNI must be available, and `bt` must hold a run of 64 bytes per group of `chunk`.
+#[inline(always)]
+unsafe fn tile_sums(chunk: &[i32], bt: &[i8]) -> [__m512i; ROWS] {
+    let mut acc = [_mm512_setzero_si512(); ROWS];
+    for (g, ag) in chunk.chunks_exact(ROWS).enumerate() {
+        // SAFETY: `bt` holds a run of 64 bytes per group (the caller's contract).
+        let bv = unsafe { _mm512_loadu_si512(bt.as_ptr().add(g * 64).cast()) };
+        for (a, &w) in acc.iter_mut().zip(ag) {
+            *a = _mm512_dpbusd_epi32(*a, _mm512_set1_epi32(w), bv);
+        }
+    }
+    acc
+}
+
 /// The block's scores from its rows' groups `abc` (`super::RowGroups`, [`ROWS`] per chunk, for
 /// rows `i0..i0 + rows`).
 #[allow(clippy::too_many_arguments)]
@@ -30,16 +49,8 @@ pub(super) unsafe fn block(
         let chunk = &abc[(r0 / ROWS) * groups * ROWS..(r0 / ROWS + 1) * groups * ROWS];
         for t in 0..tiles {
             let bt = &b.data[(t0 + t) * groups * TILE * 4..(t0 + t + 1) * groups * TILE * 4];
-            // A constant trip count over the rows, so the loop unrolls and the accumulators
-            // stay in registers.
-            let mut acc = [_mm512_setzero_si512(); ROWS];
-            for (g, ag) in chunk.chunks_exact(ROWS).enumerate() {
-                // SAFETY: `bt` holds `groups` runs of 64 bytes.
-                let bv = unsafe { _mm512_loadu_si512(bt.as_ptr().add(g * 64).cast()) };
-                for (a, &w) in acc.iter_mut().zip(ag) {
-                    *a = _mm512_dpbusd_epi32(*a, _mm512_set1_epi32(w), bv);
-                }
-            }
+            // SAFETY: VNNI is enabled here; `bt` holds `groups` runs of 64 bytes.
+            let acc = unsafe { tile_sums(chunk, bt) };
             let c0 = t * TILE;
             let nc = TILE.min(cols - c0);
             let mask: __mmask16 = if nc == TILE { 0xffff } else { (1u16 << nc) - 1 };
@@ -88,14 +99,8 @@ pub(super) unsafe fn block_scan(
         let chunk = &abc[(r0 / ROWS) * groups * ROWS..(r0 / ROWS + 1) * groups * ROWS];
         for t in 0..tiles {
             let bt = &b.data[(t0 + t) * groups * TILE * 4..(t0 + t + 1) * groups * TILE * 4];
-            let mut acc = [_mm512_setzero_si512(); ROWS];
-            for (g, ag) in chunk.chunks_exact(ROWS).enumerate() {
-                // SAFETY: `bt` holds `groups` runs of 64 bytes.
-                let bv = unsafe { _mm512_loadu_si512(bt.as_ptr().add(g * 64).cast()) };
-                for (a, &w) in acc.iter_mut().zip(ag) {
-                    *a = _mm512_dpbusd_epi32(*a, _mm512_set1_epi32(w), bv);
-                }
-            }
+            // SAFETY: VNNI is enabled here; `bt` holds `groups` runs of 64 bytes.
+            let acc = unsafe { tile_sums(chunk, bt) };
             let c0 = t * TILE;
             let nc = TILE.min(cols - c0);
             let mask: __mmask16 = if nc == TILE { 0xffff } else { (1u16 << nc) - 1 };
