@@ -22,10 +22,12 @@
 //!
 //! Where the rest lives: shared intrinsics, masks (parameters held fixed), priors on the intrinsics and per-observation
 //! σ are part of [`Problem`]; a step that gains more than its model promised is tried again longer
-//! (`lm.rs`, [`BundleOptions::extrapolate`]).
+//! (`lm.rs`, [`BundleOptions::extrapolate`]); every point can be re-solved alone after each joint
+//! step (`embedded.rs`, [`BundleOptions::embedded_point_iterations`]).
 
 mod assembly;
 pub mod covariance;
+mod embedded;
 mod linear;
 mod lm;
 pub mod loss;

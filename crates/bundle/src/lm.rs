@@ -4,6 +4,8 @@
 //! (actual over model decrease) exceeds `min_relative_decrease`, then
 //! `radius ← radius / max(1/3, 1 − (2ρ − 1)³)`; a rejected step divides the radius by a factor that
 //! doubles at each consecutive failure. Stops on the gradient, step and relative-cost tolerances.
+//! Optionally, every point is re-solved with the cameras held before a step's gain is measured
+//! (embedded point iterations, `embedded.rs`).
 
 use std::time::Instant;
 
@@ -274,7 +276,11 @@ fn run(
         }
         let mut cand = plus(p, &st, dc, &dp);
         swap_params(p, &mut cand);
-        let cand_cost = p.cost(&loss);
+        let cand_cost =
+            match crate::embedded::refine_points(p, &st, &loss, opts.embedded_point_iterations) {
+                Some(data) => data + p.prior_cost(),
+                None => p.cost(&loss),
+            };
         let mut change = lin.cost - cand_cost;
         let ratio = change / model_decrease;
         let success =

@@ -59,6 +59,12 @@ pub struct BundleOptions {
     /// Try an accepted step again longer when it gained more than its model promised (a robust
     /// loss in its linear part, see `lm::extrapolate`). Default true.
     pub extrapolate: bool,
+    /// Gauss–Newton steps on each point alone, the cameras held, after every joint step and before
+    /// its gain is measured (embedded point iterations, Jeong et al. 2012 §4.2; `embedded.rs`).
+    /// They shorten the crawl of long chains of views near a minimum; from a rough start they can
+    /// change which minimum is reached. Metric problems only. Default 0 (off).
+    #[serde(default)]
+    pub embedded_point_iterations: usize,
 }
 
 impl Default for BundleOptions {
@@ -77,6 +83,7 @@ impl Default for BundleOptions {
             dense_max_dimension: 1500,
             num_threads: 0,
             extrapolate: true,
+            embedded_point_iterations: 0,
         }
     }
 }

@@ -220,6 +220,13 @@ fn adjust_metric_schedule(
             // Tight tolerances only for the last adjustment; the earlier ones feed a filter.
             function_tolerance: if name == "final" { 1e-6 } else { 1e-5 },
             parameter_tolerance: if name == "final" { 1e-10 } else { 1e-8 },
+            // Each point re-solved after every joint step (`BundleOptions::
+            // embedded_point_iterations`), but not from the rough start of the first step, where
+            // it changed which minimum a wrong frame reached (kitti-seq1's priors frame, 1 587 px
+            // against 708, ended at 2 256 px with 78 % of its observations removed instead of
+            // converging to the kept frame). Where the later steps crawl (a long walk's soft
+            // modes), they stop sooner: 400 views 91.6 → 73.6 s.
+            embedded_point_iterations: usize::from(name != "f+k1"),
             ..Default::default()
         };
         let s = bundle_adjust_metric(rec, &config, &bopts)
