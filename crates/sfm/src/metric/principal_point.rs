@@ -98,7 +98,11 @@ pub(crate) fn principal_point_test(
     ctx.hold_principal_point(true);
     let mut held = rec.clone();
     hold_at_centre(&mut held);
-    let adjusted = metric_ba::refine_metric(ctx, &mut held, estimate_aspect).and_then(|a| {
+    // The model was adjusted in full and filtered; held at the centre with its views turned to
+    // match, it explains the images as before to first order, so the last step of the schedule
+    // is all it needs (the whole schedule again, from its wide first-step loss, cost kitti-seq1
+    // 36 more iterations, 1 s, for the same model: AUC@5 78.82 against 78.85).
+    let adjusted = metric_ba::final_adjustment(ctx, &mut held, estimate_aspect).and_then(|a| {
         match guard::collapsed(&held, &a) {
             Some(why) => Err(why),
             None => Ok(a),
