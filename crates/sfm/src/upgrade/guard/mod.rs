@@ -26,6 +26,8 @@
 //! aspect ratio too, [`aspect_undetermined`]), or the kept frame's focal profile is flat
 //! ([`flat_profile`]).
 
+use std::time::Instant;
+
 use handheld_core::MetricReconstruction;
 use serde::Serialize;
 
@@ -83,6 +85,16 @@ pub struct CandidateRecord {
     /// Points of the subsample whose adjusted cameras the full adjustment started from (the warm
     /// start, [`screen`]). `None`: it started from the frame itself.
     pub warm_start_points: Option<usize>,
+    /// Wall-clock seconds spent on it: its adjustment on a subsample and its full one.
+    #[serde(default)]
+    pub seconds: Option<f64>,
+}
+
+/// Records on the last candidate tried the time since `clock`.
+fn stamp(tried: &mut [CandidateRecord], clock: Instant) {
+    if let Some(r) = tried.last_mut() {
+        r.seconds = Some(clock.elapsed().as_secs_f64());
+    }
 }
 
 /// Observations of the model's points.
@@ -217,6 +229,7 @@ pub(crate) fn first_sound<'a, C>(
     tried: &mut Vec<CandidateRecord>,
 ) -> Option<(&'a C, MetricReconstruction, Vec<MetricBaRecord>)> {
     for (c, source, rec) in candidates {
+        let clock = Instant::now();
         let start = match screen::screen(source, rec, projective_rms_px, &mut adjust, tried, false)
         {
             Screened::Decided(r) => {
@@ -225,11 +238,12 @@ pub(crate) fn first_sound<'a, C>(
                     r.rejected.as_deref().unwrap_or("decided on a subsample")
                 );
                 tried.push(r);
+                stamp(tried, clock);
                 continue;
             }
             s => s.start(),
         };
-        if let Some((adjusted, adjustments)) = adjust_in_full(
+        let found = adjust_in_full(
             source,
             rec,
             start,
@@ -237,7 +251,9 @@ pub(crate) fn first_sound<'a, C>(
             &mut adjust,
             None,
             tried,
-        ) {
+        );
+        stamp(tried, clock);
+        if let Some((adjusted, adjustments)) = found {
             return Some((c, adjusted, adjustments));
         }
     }
@@ -299,9 +315,11 @@ pub(crate) fn best_sound<'a, C>(
 ) -> Option<(&'a C, MetricReconstruction, Vec<MetricBaRecord>)> {
     let mut best: Option<(f64, usize, &'a C, MetricReconstruction, Vec<MetricBaRecord>)> = None;
     for (c, source, rec) in candidates {
+        let clock = Instant::now();
         let start = match screen::screen(source, rec, projective_rms_px, &mut adjust, tried, true) {
             Screened::Decided(r) => {
                 tried.push(r);
+                stamp(tried, clock);
                 continue;
             }
             s => s.start(),
@@ -318,8 +336,10 @@ pub(crate) fn best_sound<'a, C>(
             bar,
             tried,
         ) else {
+            stamp(tried, clock);
             continue;
         };
+        stamp(tried, clock);
         let full = tried
             .last()
             .and_then(|r| r.score)
@@ -501,6 +521,7 @@ pub(crate) fn challenge<'a, C>(
     lost: &str,
     won: &str,
 ) -> Option<(&'a C, MetricReconstruction, Vec<MetricBaRecord>)> {
+    let clock = Instant::now();
     let start = match screen::screen(
         candidate.1,
         candidate.2,
@@ -512,6 +533,7 @@ pub(crate) fn challenge<'a, C>(
         Screened::Decided(mut r) => {
             r.probe |= probe;
             tried.push(r);
+            stamp(tried, clock);
             return None;
         }
         s => s.start(),
@@ -532,6 +554,7 @@ pub(crate) fn challenge<'a, C>(
         &mut records,
     )
     .map(|(r, a)| (candidate.0, r, a));
+    stamp(&mut records, clock);
     let better = records
         .last()
         .filter(|r| r.accepted)

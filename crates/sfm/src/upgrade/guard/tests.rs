@@ -188,6 +188,11 @@ fn with_several_sound_candidates_the_best_adjusted_one_is_kept() {
     assert_eq!(tried.len(), 2);
     assert!(!tried[0].accepted && tried[1].accepted);
     assert!(tried[0].score < tried[1].score);
+    // Each frame records the time it cost (the summary's per-candidate `seconds`).
+    assert!(
+        tried.iter().all(|r| r.seconds.is_some_and(|s| s >= 0.0)),
+        "{tried:?}"
+    );
 }
 
 #[test]
