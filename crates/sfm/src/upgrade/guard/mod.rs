@@ -86,7 +86,6 @@ pub struct CandidateRecord {
     /// start, [`screen`]). `None`: it started from the frame itself.
     pub warm_start_points: Option<usize>,
     /// Wall-clock seconds spent on it: its adjustment on a subsample and its full one.
-    #[serde(default)]
     pub seconds: Option<f64>,
 }
 
@@ -327,7 +326,7 @@ pub(crate) fn best_sound<'a, C>(
         // A candidate that cannot come within `CLOSE_SCORE` of the best sound one so far may stop
         // early (`metric::ba::adjust_candidate`).
         let bar = best.as_ref().map(|b| CLOSE_SCORE * b.0);
-        let Some((adjusted, adjustments)) = adjust_in_full(
+        let found = adjust_in_full(
             source,
             rec,
             start,
@@ -335,11 +334,11 @@ pub(crate) fn best_sound<'a, C>(
             &mut adjust,
             bar,
             tried,
-        ) else {
-            stamp(tried, clock);
+        );
+        stamp(tried, clock);
+        let Some((adjusted, adjustments)) = found else {
             continue;
         };
-        stamp(tried, clock);
         let full = tried
             .last()
             .and_then(|r| r.score)
