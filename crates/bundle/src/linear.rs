@@ -51,6 +51,18 @@ impl Factorizer {
         })
     }
 
+    /// The share of the `n × n` storage the factor fills (`1` when dense): the supernodal factor's
+    /// entries over `n²` (each supernode stores its whole diagonal block, so a full pattern comes
+    /// to about 1).
+    pub fn fill(&self, n: usize) -> f64 {
+        match self {
+            Factorizer::Dense => 1.0,
+            Factorizer::Sparse { symbolic, .. } => {
+                symbolic.len_val() as f64 / (n * n).max(1) as f64
+            }
+        }
+    }
+
     /// Factorises `m` (destroying its values when dense) and solves `m x = rhs` in place. Returns
     /// `false` when the matrix is not numerically positive definite.
     pub fn solve(&mut self, m: &mut ReducedMatrix, rhs: &mut [f64]) -> bool {

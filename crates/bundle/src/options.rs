@@ -10,7 +10,9 @@ use crate::loss::RobustLoss;
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum LinearSolverKind {
-    /// Dense Cholesky for up to [`BundleOptions::dense_max_dimension`] reduced parameters, else sparse.
+    /// Sparse Cholesky beyond [`BundleOptions::dense_max_dimension`] reduced parameters, dense for
+    /// small systems, and in between whichever the pattern favours: sparse when its factor (AMD
+    /// ordering) fills at most half of the dense one's storage, as a walk's banded system does.
     Auto,
     /// Dense Cholesky (faer, blocked) of the full reduced matrix.
     DenseSchur,
@@ -52,7 +54,8 @@ pub struct BundleOptions {
     pub loss: RobustLoss,
     /// Linear solver for the reduced camera system. Default [`LinearSolverKind::Auto`].
     pub linear_solver: LinearSolverKind,
-    /// `Auto` uses dense Cholesky up to this many reduced (camera-side) parameters. Default 1500.
+    /// `Auto` never uses dense Cholesky beyond this many reduced (camera-side) parameters (below
+    /// it, the pattern decides). Default 1500.
     pub dense_max_dimension: usize,
     /// Worker threads; 0 uses rayon's global pool. Default 0.
     pub num_threads: usize,
