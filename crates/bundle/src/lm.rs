@@ -13,7 +13,7 @@ use handheld_core::Progress;
 use rayon::prelude::*;
 
 use crate::assembly::assemble;
-use crate::linear::Factorizer;
+use crate::linear::{analyse, flop_ratio, Factorizer};
 use crate::loss::RobustLoss;
 use crate::options::{BundleError, BundleOptions, BundleSummary, LinearSolverKind, Termination};
 use crate::problem::{CameraModel, Problem};
@@ -179,19 +179,20 @@ pub(crate) fn solve(
 /// sparse analysis would save.
 const DENSE_ALWAYS_MAX: usize = 256;
 
-/// With [`LinearSolverKind::Auto`], the sparse factor is kept when it fills at most this share of
-/// the dense factor's storage ([`Factorizer::fill`]). Its work goes as the square of its fill (a
-/// band that fills half the storage costs about a quarter of the dense flops), and the dense
-/// assembly writes all `n²` entries at every iteration. A walk's reduced matrix is banded
-/// (`bench bundle --synthetic 150x20000`: fill 0.12, 44 ms an iteration against 80 ms dense), an
-/// orbit's where every view sees the object is full (BAL problem-49: fill 1.0, and the dense
-/// solve 10 % faster).
-const SPARSE_MAX_FILL: f64 = 0.5;
+/// With [`LinearSolverKind::Auto`], the sparse factor is kept when its work is at most this share
+/// of the dense factor's ([`flop_ratio`]): supernodal kernels on narrow supernodes do less per
+/// flop than the dense blocked one, and the dense assembly also writes all `n²` entries at every
+/// iteration, so the margin is wide. A walk's reduced matrix is banded (`bench bundle --synthetic
+/// 150x20000`, 1 350 parameters: a flop ratio of 0.03, 44 ms an iteration against 80 ms dense), an
+/// orbit's where every view sees the object is full (BAL problem-49: 1.0, and the dense solve
+/// 10 % faster).
+const SPARSE_MAX_FLOP_RATIO: f64 = 0.25;
 
 /// The reduced camera system's storage and solver. [`LinearSolverKind::Auto`] takes the dense
 /// Cholesky for small systems, the sparse one beyond `dense_max_dimension`, and in between
-/// whichever the pattern favours: the sparse factor when its fill (from the symbolic analysis with
-/// the AMD ordering, made once) is at most [`SPARSE_MAX_FILL`].
+/// whichever the pattern favours: the sparse factor when its work, from the symbolic analysis with
+/// the AMD ordering (made once per adjustment), is at most [`SPARSE_MAX_FLOP_RATIO`] of the dense
+/// one's. A pattern the analysis cannot handle is solved dense.
 fn reduced_system(
     st: &Structure,
     opts: &BundleOptions,
@@ -204,11 +205,16 @@ fn reduced_system(
         LinearSolverKind::Auto if n <= DENSE_ALWAYS_MAX => true,
         LinearSolverKind::Auto => {
             let m = ReducedMatrix::new(st, false);
-            let factor = Factorizer::new(&m)?;
-            let fill = factor.fill(n);
-            tracing::trace!(n, fill, "reduced camera system's factor fill");
-            if fill <= SPARSE_MAX_FILL {
-                return Ok((m, factor));
+            match analyse(&m) {
+                Ok(symbolic) => {
+                    let ratio = flop_ratio(&symbolic, n);
+                    tracing::trace!(n, ratio, "reduced camera system: sparse over dense flops");
+                    if ratio <= SPARSE_MAX_FLOP_RATIO {
+                        let factor = Factorizer::sparse(symbolic)?;
+                        return Ok((m, factor));
+                    }
+                }
+                Err(e) => tracing::debug!("sparse analysis failed ({e}): solved dense"),
             }
             true
         }

@@ -12,7 +12,7 @@ use crate::loss::RobustLoss;
 pub enum LinearSolverKind {
     /// Sparse Cholesky beyond [`BundleOptions::dense_max_dimension`] reduced parameters, dense for
     /// small systems, and in between whichever the pattern favours: sparse when its factor (AMD
-    /// ordering) fills at most half of the dense one's storage, as a walk's banded system does.
+    /// ordering) costs at most a quarter of the dense one's flops, as a walk's banded system does.
     Auto,
     /// Dense Cholesky (faer, blocked) of the full reduced matrix.
     DenseSchur,

@@ -1,5 +1,5 @@
 //! `LinearSolverKind::Auto` between the dense and the sparse Cholesky of the reduced camera system:
-//! by the sparse factor's fill, not by the dimension alone. A ring of views, each point seen by a
+//! by the sparse factor's work against the dense one's, not by the dimension alone. A ring of views, each point seen by a
 //! few neighbours (a walk's banded pattern), goes sparse; views that all see the same points go
 //! dense. Either way the optimum is the one the other solver reaches.
 

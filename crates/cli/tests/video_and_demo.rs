@@ -333,6 +333,27 @@ fn phone_is_right(extra: &[&str]) {
         rot <= 0.2,
         "{extra:?}: rotations {rot:.3}° off at the median: {s}"
     );
+    // Every candidate says what it cost, the calibrated incremental starts included.
+    let summary: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(out.join("workspace/sparse/summary.json")).unwrap(),
+    )
+    .unwrap();
+    let candidates = summary["self_calibration"]["candidates"]
+        .as_array()
+        .unwrap();
+    let calibrated: Vec<_> = candidates
+        .iter()
+        .filter(|c| {
+            c["source"]
+                .as_str()
+                .unwrap_or("")
+                .starts_with("calibrated incremental")
+        })
+        .collect();
+    assert!(!calibrated.is_empty(), "{candidates:?}");
+    for c in calibrated {
+        assert!(c["seconds"].as_f64().is_some_and(|t| t > 0.0), "{c}");
+    }
 }
 
 /// Runs the demo with `extra` arguments up to the sparse model and checks it against the exact

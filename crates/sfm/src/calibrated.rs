@@ -164,8 +164,10 @@ pub(crate) fn build_all(
         let s = starts[next].clone();
         next += 1;
         progress.inc(1);
+        let clock = std::time::Instant::now();
         match build(ctx, allowed, &s, estimate_aspect) {
-            Ok(b) => {
+            Ok(mut b) => {
+                b.record.seconds = Some(clock.elapsed().as_secs_f64());
                 tracing::info!(
                     "{} from f = {:.0} px: {} views, f = {:.0} px, {} rejected",
                     s.source,
@@ -192,6 +194,7 @@ pub(crate) fn build_all(
                     focal_before_px: vec![s.focal_px],
                     tried: true,
                     rejected: Some(e),
+                    seconds: Some(clock.elapsed().as_secs_f64()),
                     ..Default::default()
                 });
             }

@@ -85,7 +85,9 @@ pub struct CandidateRecord {
     /// Points of the subsample whose adjusted cameras the full adjustment started from (the warm
     /// start, [`screen`]). `None`: it started from the frame itself.
     pub warm_start_points: Option<usize>,
-    /// Wall-clock seconds spent on it: its adjustment on a subsample and its full one.
+    /// Wall-clock seconds spent on it: its adjustment on a subsample and its full one (a
+    /// calibrated incremental start: its whole build, from the initial pair to the last
+    /// adjustment).
     pub seconds: Option<f64>,
 }
 
