@@ -33,7 +33,8 @@ pub(crate) fn analyse(m: &ReducedMatrix) -> Result<SymbolicCholesky<usize>, Bund
 /// `w` columns with `r` rows below its diagonal block has columns of `w + r, w − 1 + r, …, 1 + r`
 /// entries.
 pub(crate) fn flop_ratio(symbolic: &SymbolicCholesky<usize>, n: usize) -> f64 {
-    let dense: f64 = (1..=n).map(|k| (k as f64).powi(2)).sum();
+    let nf = n as f64;
+    let dense = nf * (nf + 1.0) * (2.0 * nf + 1.0) / 6.0;
     let sparse: f64 = match symbolic.raw() {
         SymbolicCholeskyRaw::Supernodal(sn) => {
             let (begin, end, rows) = (
