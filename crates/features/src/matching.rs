@@ -9,15 +9,31 @@
 //! Hellinger distance of Arandjelović & Zisserman (CVPR 2012). The ratio test is Lowe (IJCV 2004,
 //! §7.1): accept the nearest neighbour when `d₁ < ratio · d₂`.
 //!
+//! **Coarse to fine** (the default for quantised 128-dimensional descriptors and more than
+//! [`COARSE_MIN_COLUMNS`] columns; issue #34): the products over all 128 dimensions are most of
+//! brute force's cost, and without AVX-512 VNNI they run at the integer multipliers' limit. So each
+//! row first scans every column on 32 bytes, its descriptor's projections on the first 32
+//! principal axes of RootSIFT ([`quantized::coarse_codes`]: 85 % of the descriptors' variance), and
+//! keeps per lane of 16 columns its two best ([`RowLanes2`], 32 candidates); then each candidate
+//! is ranked on the full quantised descriptors, with the keys and ties of the full search. A
+//! projection on orthonormal axes only shortens distances, so a row's nearest columns by code are
+//! close to its nearest by descriptor, and both of the ratio test's neighbours are among the 32
+//! unless two nearer columns share their lane. A column's best row is taken over the rows that
+//! have it as a candidate. On the ten real sets' pairs the matches are those of the full search
+//! but for a few in a thousand (a second neighbour missed, so a ratio test passed); the
+//! full search stays behind `coarse_to_fine: false`. Every kernel gives the same matches either
+//! way.
+//!
 //! Also here, because they decide which pairs are matched: [`sequential_pairs`] for video-like input
 //! and [`exhaustive_pairs`] for unordered sets, and [`match_pairs`], parallel over pairs.
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
+use std::sync::OnceLock;
 
 use crate::detector::{Descriptors, Features};
 use crate::error::{check, FeatureError};
-use crate::nearest::{scan_block, Best2, Block, RowLanes};
+use crate::nearest::{scan_block, scan_lanes2, Best2, Block, RowLanes, RowLanes2};
 use crate::quantized;
 
 /// A correspondence between descriptor `i` of the first set and descriptor `j` of the second.
@@ -39,7 +55,21 @@ pub struct MatchOptions {
     pub mutual: bool,
     /// Largest accepted descriptor distance (default `None`: no limit). For RootSIFT distances are in [0, √2].
     pub max_distance: Option<f32>,
+    /// Coarse to fine (default true): each descriptor's 32 candidates are found on 32 principal
+    /// components of RootSIFT ([`quantized::coarse_codes`]) and ranked on all 128 dimensions,
+    /// instead of all 128 dimensions over every column. Only for quantised 128-dimensional
+    /// descriptors, with more than [`COARSE_MIN_COLUMNS`] columns; see the module notes.
+    #[serde(default = "yes")]
+    pub coarse_to_fine: bool,
 }
+
+fn yes() -> bool {
+    true
+}
+
+/// Fewer columns than this are searched on the full descriptors alone: the coarse pass would keep
+/// most of them as candidates.
+pub const COARSE_MIN_COLUMNS: usize = 64;
 
 impl Default for MatchOptions {
     fn default() -> Self {
@@ -47,6 +77,7 @@ impl Default for MatchOptions {
             ratio: 0.8,
             mutual: true,
             max_distance: None,
+            coarse_to_fine: true,
         }
     }
 }
@@ -74,9 +105,12 @@ const ROW_BLOCK: usize = 256;
 /// resolve to the smallest index whatever the blocks, so the matches are the same).
 const COL_BLOCK: usize = 256;
 
-/// One descriptor set ready to be either operand of the brute-force product: quantised, packed
-/// and normed once ([`prepare`]), so that an image matched against many others pays for that
-/// once (seeded matching matches each image's seeds against every other image's).
+/// One descriptor set ready to be either operand of the brute-force product: quantised and
+/// normed once ([`prepare`]), so that an image matched against many others pays for that once
+/// (seeded matching matches each image's seeds against every other image's). The kernels' layouts
+/// are made on first use and kept: a set that is only ever matched coarse to fine never makes the
+/// full search's (a third of its memory; on the low-texture set the prepared images no longer
+/// fill the CPU's last-level cache).
 pub struct Prepared {
     n: usize,
     d: usize,
@@ -84,25 +118,36 @@ pub struct Prepared {
     norms: Vec<f32>,
     /// Scores per unit of squared descriptor distance (`quantized::SCALE`, or 1 unquantised).
     unit: f32,
-    data: PreparedData,
+    kernel: quantized::Kernel,
+    rows: Rows,
+    /// The layout of the kernel, made on first use.
+    layout: OnceLock<Layout>,
+    /// The coarse codes ([`quantized::coarse_codes`]), prepared alike (quantised 128-dimensional
+    /// sets only).
+    coarse: Option<Box<Prepared>>,
+}
+
+/// The rows, row-major: quantised, with each row's `Σ q` (the VNNI kernels' correction), or the
+/// raw values of descriptors that are not in [0, 1].
+enum Rows {
+    Quantised { q: Vec<u8>, sums: Vec<i32> },
+    Raw(Vec<f32>),
 }
 
 /// How the score blocks are computed: a VNNI kernel (512- or 256-bit, `wide`) on the quantised
 /// first set (with its row sums) and the packed second set, the AVX2 kernel, or the f32 GEMM (on
 /// the quantised values, the same numbers; see `quantized`), or on the raw values of descriptors
-/// that are not in [0, 1].
-enum PreparedData {
+/// that are not in [0, 1] (`F32(None)`: the rows themselves).
+enum Layout {
     Vnni {
-        q: Vec<u8>,
         /// Every row laid out for the AVX-512 VNNI kernel (`wide` only).
         rows: Option<quantized::RowGroups>,
-        sums: Vec<i32>,
         packed: quantized::PackedB,
         wide: bool,
     },
     /// Without VNNI: rows as pairs of i16 and the set packed ([`quantized::scores_block_avx2`]).
     Avx2(Vec<i32>, quantized::PackedI16),
-    F32(Vec<f32>),
+    F32(Option<Vec<f32>>),
 }
 
 impl Prepared {
@@ -116,14 +161,58 @@ impl Prepared {
     }
 
     fn quantised(&self) -> bool {
-        self.unit != 1.0
+        matches!(self.rows, Rows::Quantised { .. })
     }
 
     /// Whether the two sets were prepared alike (the same kernel, both quantised or both raw), so
     /// that [`match_prepared`] can match them.
     pub fn alike(&self, other: &Prepared) -> bool {
         self.quantised() == other.quantised()
-            && std::mem::discriminant(&self.data) == std::mem::discriminant(&other.data)
+            && self.kernel == other.kernel
+            && self.coarse.is_some() == other.coarse.is_some()
+    }
+
+    /// The quantised rows and their sums (empty for raw rows).
+    fn q(&self) -> (&[u8], &[i32]) {
+        match &self.rows {
+            Rows::Quantised { q, sums } => (q, sums),
+            Rows::Raw(_) => (&[], &[]),
+        }
+    }
+
+    /// The kernel's layout, made on first use.
+    fn layout(&self) -> &Layout {
+        use quantized::Kernel;
+        self.layout.get_or_init(|| {
+            let d = self.d;
+            match (&self.rows, self.kernel) {
+                (Rows::Raw(_), _) => Layout::F32(None),
+                (Rows::Quantised { q, .. }, Kernel::Avx512Vnni | Kernel::AvxVnni) => {
+                    let wide = self.kernel == Kernel::Avx512Vnni;
+                    Layout::Vnni {
+                        // The AVX-512 kernel's row layout, made once for every pair and row block.
+                        rows: wide.then(|| quantized::RowGroups::new(true, q, d, 0, self.n)),
+                        packed: quantized::PackedB::new(q, d),
+                        wide,
+                    }
+                }
+                (Rows::Quantised { q, .. }, Kernel::Avx2) => {
+                    Layout::Avx2(quantized::pairs_of(q, d), quantized::PackedI16::new(q, d))
+                }
+                (Rows::Quantised { q, .. }, Kernel::Portable) => {
+                    Layout::F32(Some(quantized::dequantized(q)))
+                }
+            }
+        })
+    }
+
+    /// The rows as f32 for the portable path.
+    fn f32_rows(&self) -> &[f32] {
+        match (self.layout(), &self.rows) {
+            (Layout::F32(Some(v)), _) => v,
+            (_, Rows::Raw(v)) => v,
+            _ => &[],
+        }
     }
 }
 
@@ -136,37 +225,15 @@ pub fn prepare(a: &Descriptors) -> Prepared {
 /// [`prepare`] with the given kernel: quantised when `quantise` (the caller has checked that the
 /// values fit, [`quantized::fits`]), else the raw f32 values.
 fn prepare_with(a: &Descriptors, kernel: quantized::Kernel, quantise: bool) -> Prepared {
-    use quantized::Kernel;
     let (n, d) = (a.len(), a.dim);
     let data = &a.data[..n * d];
     if quantise {
         let q = quantized::quantize(data);
-        let sq = |v: &[u8]| v.iter().map(|&x| u32::from(x) * u32::from(x)).sum::<u32>() as f32;
-        let norms: Vec<f32> = q.chunks_exact(d.max(1)).map(sq).collect();
-        let data = match kernel {
-            Kernel::Avx512Vnni | Kernel::AvxVnni => PreparedData::Vnni {
-                // The AVX-512 kernel's row layout, made once for every pair and row block.
-                rows: (kernel == Kernel::Avx512Vnni)
-                    .then(|| quantized::RowGroups::new(true, &q, d, 0, n)),
-                sums: q
-                    .chunks_exact(d.max(1))
-                    .map(|r| r.iter().map(|&v| i32::from(v)).sum())
-                    .collect(),
-                packed: quantized::PackedB::new(&q, d),
-                wide: kernel == Kernel::Avx512Vnni,
-                q,
-            },
-            Kernel::Avx2 => {
-                PreparedData::Avx2(quantized::pairs_of(&q, d), quantized::PackedI16::new(&q, d))
-            }
-            Kernel::Portable => PreparedData::F32(quantized::dequantized(&q)),
-        };
+        let coarse = quantized::coarse_codes(&q, d)
+            .map(|codes| Box::new(prepare_codes(codes, n, quantized::COARSE_DIM, kernel)));
         Prepared {
-            n,
-            d,
-            norms,
-            unit: quantized::SCALE,
-            data,
+            coarse,
+            ..prepare_codes(q, n, d, kernel)
         }
     } else {
         let sq = |v: &[f32]| v.iter().map(|x| x * x).sum::<f32>();
@@ -175,8 +242,31 @@ fn prepare_with(a: &Descriptors, kernel: quantized::Kernel, quantise: bool) -> P
             d,
             norms: data.chunks_exact(d.max(1)).map(sq).collect(),
             unit: 1.0,
-            data: PreparedData::F32(data.to_vec()),
+            kernel,
+            rows: Rows::Raw(data.to_vec()),
+            layout: OnceLock::new(),
+            coarse: None,
         }
+    }
+}
+
+/// `n` byte vectors of `d` dimensions (`q`, row-major) prepared for `kernel`.
+fn prepare_codes(q: Vec<u8>, n: usize, d: usize, kernel: quantized::Kernel) -> Prepared {
+    let sq = |v: &[u8]| v.iter().map(|&x| u32::from(x) * u32::from(x)).sum::<u32>() as f32;
+    let norms: Vec<f32> = q.chunks_exact(d.max(1)).map(sq).collect();
+    let sums = q
+        .chunks_exact(d.max(1))
+        .map(|r| r.iter().map(|&v| i32::from(v)).sum())
+        .collect();
+    Prepared {
+        n,
+        d,
+        norms,
+        unit: quantized::SCALE,
+        kernel,
+        rows: Rows::Quantised { q, sums },
+        layout: OnceLock::new(),
+        coarse: None,
     }
 }
 
@@ -231,8 +321,14 @@ pub fn match_prepared(a: &Prepared, b: &Prepared, opts: &MatchOptions) -> Vec<Ma
         tracing::warn!("descriptor sets prepared differently: no matches");
         return Vec::new();
     }
-    let (n, m, d) = (a.n, b.n, a.d);
-    let (na, nb, unit) = (&a.norms, &b.norms, a.unit);
+    if opts.coarse_to_fine && b.n > COARSE_MIN_COLUMNS {
+        if let (Some(ca), Some(cb)) = (&a.coarse, &b.coarse) {
+            let blocks = coarse_to_fine(a, b, ca, cb, opts.mutual);
+            return select(a, b, &blocks, opts);
+        }
+    }
+    let (n, m) = (a.n, b.n);
+    let (na, nb) = (&a.norms, &b.norms);
 
     // Per row block: the rows' two best and, for the mutual check, each column's best row in this block.
     let blocks: Vec<BlockResult> = (0..n.div_ceil(ROW_BLOCK))
@@ -245,15 +341,10 @@ pub fn match_prepared(a: &Prepared, b: &Prepared, opts: &MatchOptions) -> Vec<Ma
             let (mut col_val, mut col_row) =
                 (vec![f32::NEG_INFINITY; mcols], vec![u32::MAX; mcols]);
             // The AVX-512 VNNI kernel scans its register tiles itself: no score block.
-            if let (
-                PreparedData::Vnni {
-                    rows: Some(g),
-                    sums,
-                    ..
-                },
-                PreparedData::Vnni { packed, .. },
-            ) = (&a.data, &b.data)
+            if let (Layout::Vnni { rows: Some(g), .. }, Layout::Vnni { packed, .. }) =
+                (a.layout(), b.layout())
             {
+                let sums = a.q().1;
                 let mut lanes = vec![RowLanes::NONE; rows];
                 for j0 in (0..m).step_by(COL_BLOCK) {
                     let cols = COL_BLOCK.min(m - j0);
@@ -277,36 +368,10 @@ pub fn match_prepared(a: &Prepared, b: &Prepared, opts: &MatchOptions) -> Vec<Ma
                 let col_best = col_val.into_iter().zip(col_row).collect();
                 return (best, col_best);
             }
-            // The rows' layout for the AVX-VNNI kernel, made once for every column block.
-            let groups = match &a.data {
-                PreparedData::Vnni { q, wide, .. } => {
-                    Some(quantized::RowGroups::new(*wide, q, d, i0, rows))
-                }
-                _ => None,
-            };
-            let mut scores = vec![0f32; rows * COL_BLOCK.min(m)];
+            let mut scorer = Scorer::new(a, b, i0, rows);
             for j0 in (0..m).step_by(COL_BLOCK) {
                 let cols = COL_BLOCK.min(m - j0);
-                let s = &mut scores[..rows * cols];
-                match (&a.data, &b.data) {
-                    (PreparedData::Vnni { sums, .. }, PreparedData::Vnni { packed, .. }) => {
-                        if let Some(g) = &groups {
-                            quantized::scores_block_grouped(g, sums, packed, j0, cols, s)
-                        }
-                    }
-                    (PreparedData::Avx2(pa, _), PreparedData::Avx2(_, packed)) => {
-                        quantized::scores_block_avx2(pa, d, i0, rows, packed, j0, cols, s)
-                    }
-                    (PreparedData::F32(fa), PreparedData::F32(fb)) => gemm_abt(
-                        &fa[i0 * d..(i0 + rows) * d],
-                        &fb[j0 * d..(j0 + cols) * d],
-                        rows,
-                        cols,
-                        d,
-                        s,
-                    ),
-                    _ => unreachable!("checked above: both sets prepared alike"),
-                }
+                let s = scorer.scores(j0, cols);
                 let block = Block {
                     s,
                     rows,
@@ -325,9 +390,240 @@ pub fn match_prepared(a: &Prepared, b: &Prepared, opts: &MatchOptions) -> Vec<Ma
             (best, col_best)
         })
         .collect();
+    select(a, b, &blocks, opts)
+}
 
-    let mut col_best = vec![(f32::NEG_INFINITY, u32::MAX); if opts.mutual { m } else { 0 }];
-    for (_, cb) in &blocks {
+/// The score blocks of one row block (rows `i0..i0 + rows` of `a`) against column blocks of `b`,
+/// by the kernel both were prepared for, for the paths that store a block before scanning it.
+struct Scorer<'a> {
+    a: &'a Prepared,
+    b: &'a Prepared,
+    i0: usize,
+    rows: usize,
+    /// The rows' layout for the AVX-VNNI kernel, made once for every column block.
+    groups: Option<quantized::RowGroups>,
+    scores: Vec<f32>,
+}
+
+impl<'a> Scorer<'a> {
+    fn new(a: &'a Prepared, b: &'a Prepared, i0: usize, rows: usize) -> Self {
+        let groups = match a.layout() {
+            Layout::Vnni { wide, .. } => {
+                Some(quantized::RowGroups::new(*wide, a.q().0, a.d, i0, rows))
+            }
+            _ => None,
+        };
+        Self {
+            a,
+            b,
+            i0,
+            rows,
+            groups,
+            scores: vec![0f32; rows * COL_BLOCK.min(b.n)],
+        }
+    }
+
+    /// The `rows × cols` scores against columns `j0..j0 + cols` (`cols ≤ COL_BLOCK`), row-major.
+    fn scores(&mut self, j0: usize, cols: usize) -> &[f32] {
+        let (i0, rows, d) = (self.i0, self.rows, self.a.d);
+        let s = &mut self.scores[..rows * cols];
+        match (self.a.layout(), self.b.layout()) {
+            (Layout::Vnni { .. }, Layout::Vnni { packed, .. }) => {
+                if let Some(g) = &self.groups {
+                    quantized::scores_block_grouped(g, self.a.q().1, packed, j0, cols, s)
+                }
+            }
+            (Layout::Avx2(pa, _), Layout::Avx2(_, packed)) => {
+                quantized::scores_block_avx2(pa, d, i0, rows, packed, j0, cols, s)
+            }
+            (Layout::F32(_), Layout::F32(_)) => gemm_abt(
+                &self.a.f32_rows()[i0 * d..(i0 + rows) * d],
+                &self.b.f32_rows()[j0 * d..(j0 + cols) * d],
+                rows,
+                cols,
+                d,
+                s,
+            ),
+            _ => unreachable!("checked by the caller: both sets prepared alike"),
+        }
+        s
+    }
+}
+
+/// Coarse to fine: per row block, every row's 32 candidates by the coarse codes ([`RowLanes2`]),
+/// then each candidate's key on the full quantised descriptors, offered in increasing column order
+/// to the row's two best and (`mutual`) to the column's best row, as the exact search offers them,
+/// so a candidate's key and the ties are the exact search's. A column's best row is taken over the
+/// rows that have it as a candidate.
+fn coarse_to_fine(
+    a: &Prepared,
+    b: &Prepared,
+    xa: &Prepared,
+    xb: &Prepared,
+    mutual: bool,
+) -> Vec<BlockResult> {
+    let (n, m, d) = (a.n, b.n, a.d);
+    (0..n.div_ceil(ROW_BLOCK))
+        .into_par_iter()
+        .map(|blk| {
+            let i0 = blk * ROW_BLOCK;
+            let rows = ROW_BLOCK.min(n - i0);
+            let mut lanes = vec![RowLanes2::NONE; rows];
+            if let (Layout::Vnni { rows: Some(g), .. }, Layout::Vnni { packed, .. }) =
+                (xa.layout(), xb.layout())
+            {
+                let sums = xa.q().1;
+                for j0 in (0..m).step_by(COL_BLOCK) {
+                    let cols = COL_BLOCK.min(m - j0);
+                    quantized::scan_lanes2_grouped(
+                        g,
+                        (i0, rows),
+                        sums,
+                        packed,
+                        j0,
+                        cols,
+                        &xb.norms[j0..j0 + cols],
+                        &mut lanes,
+                    );
+                }
+            } else {
+                let mut scorer = Scorer::new(xa, xb, i0, rows);
+                for j0 in (0..m).step_by(COL_BLOCK) {
+                    let cols = COL_BLOCK.min(m - j0);
+                    let block = Block {
+                        s: scorer.scores(j0, cols),
+                        rows,
+                        cols,
+                        i0,
+                        j0,
+                        na: &xa.norms[i0..i0 + rows],
+                        nb: &xb.norms[j0..j0 + cols],
+                    };
+                    scan_lanes2(&block, &mut lanes);
+                }
+            }
+            let mut best = vec![Best2::NONE; rows];
+            let mut col_best = vec![(f32::NEG_INFINITY, u32::MAX); if mutual { m } else { 0 }];
+            let ranking = Ranking {
+                a,
+                b,
+                i0,
+                lanes: &lanes,
+            };
+            match a.kernel {
+                quantized::Kernel::Avx512Vnni if quantized::cpu_has_vnni() => {
+                    // SAFETY: the CPU has AVX-512 VNNI (checked just above).
+                    #[cfg(target_arch = "x86_64")]
+                    unsafe {
+                        ranking.run_vnni(&mut best, mutual.then_some(&mut col_best[..]))
+                    }
+                }
+                _ => {
+                    let (qa, qb) = (a.q().0, b.q().0);
+                    ranking.run(&mut best, mutual.then_some(&mut col_best[..]), |i, j| {
+                        dot_u8(&qa[i * d..(i + 1) * d], &qb[j * d..(j + 1) * d])
+                    })
+                }
+            }
+            (best, col_best)
+        })
+        .collect()
+}
+
+/// The fine pass of coarse-to-fine matching over one row block: every row's candidates
+/// ([`RowLanes2`]) ranked on the full quantised descriptors.
+struct Ranking<'a> {
+    a: &'a Prepared,
+    b: &'a Prepared,
+    i0: usize,
+    lanes: &'a [RowLanes2],
+}
+
+impl Ranking<'_> {
+    /// Offers every row's candidates, with their keys on the full descriptors (`dot(i, j)`, the
+    /// exact integer product), to the row's two best in any order ([`Best2::offer_unordered`]:
+    /// the same two best as the exact search's, given the same columns) and (`col_best`) to each
+    /// candidate column's best row, rows in increasing order with strict `>` as the exact search
+    /// offers them, so the first of equal rows stays.
+    #[inline(always)]
+    fn run(
+        &self,
+        best: &mut [Best2],
+        mut col_best: Option<&mut [(f32, u32)]>,
+        dot: impl Fn(usize, usize) -> u32,
+    ) {
+        let (na, nb) = (&self.a.norms, &self.b.norms);
+        for (r, (ln, bst)) in self.lanes.iter().zip(best).enumerate() {
+            let i = self.i0 + r;
+            for &j in ln.j1.iter().chain(&ln.j2) {
+                if j == u32::MAX {
+                    continue;
+                }
+                let jj = j as usize;
+                let twice = 2.0 * dot(i, jj) as f32;
+                bst.offer_unordered(twice - nb[jj], j);
+                if let Some(cb) = col_best.as_deref_mut() {
+                    let key = twice - na[i];
+                    let c = &mut cb[jj];
+                    *c = if key > c.0 { (key, i as u32) } else { *c };
+                }
+            }
+        }
+    }
+
+    /// [`Ranking::run`] with the products by AVX-512 VNNI, inlined.
+    ///
+    /// # Safety
+    /// The CPU must have AVX-512 F/BW/VNNI.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f,avx512bw,avx512vnni")]
+    unsafe fn run_vnni(&self, best: &mut [Best2], col_best: Option<&mut [(f32, u32)]>) {
+        let d = self.a.d;
+        let ((qa, sums), qb) = (self.a.q(), self.b.q().0);
+        self.run(best, col_best, |i, j| {
+            // SAFETY: the CPU has AVX-512 VNNI (the caller's contract); both rows hold `d` = 128
+            // bytes.
+            unsafe { quantized::dot128(&qa[i * d..(i + 1) * d], &qb[j * d..(j + 1) * d], sums[i]) }
+        })
+    }
+}
+
+/// `a · b` of two byte vectors, exact (128 · 255² < 2²⁴, so exact in f32 as well).
+#[inline]
+fn dot_u8(a: &[u8], b: &[u8]) -> u32 {
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    if a.len() == b.len() && a.len().is_multiple_of(16) {
+        use std::arch::x86_64::*;
+        // SAFETY: AVX2 is enabled at compile time; every load reads 16 bytes inside `a` and `b`
+        // (equal lengths, a multiple of 16).
+        unsafe {
+            let mut acc = _mm256_setzero_si256();
+            for k in (0..a.len()).step_by(16) {
+                let x = _mm256_cvtepu8_epi16(_mm_loadu_si128(a.as_ptr().add(k).cast()));
+                let y = _mm256_cvtepu8_epi16(_mm_loadu_si128(b.as_ptr().add(k).cast()));
+                acc = _mm256_add_epi32(acc, _mm256_madd_epi16(x, y));
+            }
+            let h = _mm_add_epi32(
+                _mm256_castsi256_si128(acc),
+                _mm256_extracti128_si256(acc, 1),
+            );
+            let h = _mm_add_epi32(h, _mm_shuffle_epi32(h, 0b01_00_11_10));
+            let h = _mm_add_epi32(h, _mm_shuffle_epi32(h, 0b10_11_00_01));
+            return _mm_cvtsi128_si32(h) as u32;
+        }
+    }
+    a.iter()
+        .zip(b)
+        .map(|(&x, &y)| u32::from(x) * u32::from(y))
+        .sum()
+}
+
+/// The matches from the row blocks' two bests and column bests: Lowe's ratio test, the mutual
+/// check and the distance limit.
+fn select(a: &Prepared, b: &Prepared, blocks: &[BlockResult], opts: &MatchOptions) -> Vec<Match> {
+    let (na, unit) = (&a.norms, a.unit);
+    let mut col_best = vec![(f32::NEG_INFINITY, u32::MAX); if opts.mutual { b.n } else { 0 }];
+    for (_, cb) in blocks {
         // Blocks come in increasing row order, so strict `>` keeps the smallest row among ties.
         for (acc, &v) in col_best.iter_mut().zip(cb) {
             if v.0 > acc.0 {
@@ -462,6 +758,31 @@ mod tests {
     )]
     fn every_kernel_gives_the_same_matches() {
         assert!(quantized::cpu_has_vnni(), "this CPU has no AVX-512 VNNI");
+        let (a, b) = planted();
+        let o = MatchOptions::default();
+        let x = match_with(&a, &b, &o, quantized::Kernel::Avx512Vnni);
+        assert!(x.len() >= 250, "{} matches", x.len());
+        let mut others = vec![quantized::Kernel::Portable];
+        if quantized::cpu_has_avx2() {
+            others.push(quantized::Kernel::Avx2);
+        }
+        if quantized::cpu_has_avx_vnni() {
+            others.push(quantized::Kernel::AvxVnni);
+        }
+        let exact = MatchOptions {
+            coarse_to_fine: false,
+            ..o.clone()
+        };
+        let y = match_with(&a, &b, &exact, quantized::Kernel::Avx512Vnni);
+        for k in others {
+            assert_eq!(x, match_with(&a, &b, &o, k), "{k:?}, coarse to fine");
+            assert_eq!(y, match_with(&a, &b, &exact, k), "{k:?}, full search");
+        }
+    }
+
+    /// RootSIFT-like descriptors (non-negative, unit norm): 700 in `a`, 1 100 in `b`, of which the
+    /// first 300 are noisy copies of `a`'s.
+    fn planted() -> (Descriptors, Descriptors) {
         let mut s = 11u64;
         let mut rnd = || {
             s = s
@@ -469,7 +790,6 @@ mod tests {
                 .wrapping_add(1442695040888963407);
             (s >> 40) as f32 / (1u64 << 24) as f32
         };
-        // RootSIFT-like: non-negative, unit norm; b's first 300 are noisy copies of a's.
         let mut unit = |base: Option<&[f32]>| {
             let v: Vec<f32> = (0..128)
                 .map(|k| {
@@ -493,19 +813,31 @@ mod tests {
             dim: 128,
             data: v.concat(),
         };
-        let (a, b) = (flat(&a), flat(&b));
-        let o = MatchOptions::default();
-        let x = match_with(&a, &b, &o, quantized::Kernel::Avx512Vnni);
-        assert!(x.len() >= 250, "{} matches", x.len());
-        let mut others = vec![quantized::Kernel::Portable];
-        if quantized::cpu_has_avx2() {
-            others.push(quantized::Kernel::Avx2);
-        }
-        if quantized::cpu_has_avx_vnni() {
-            others.push(quantized::Kernel::AvxVnni);
-        }
-        for k in others {
-            assert_eq!(x, match_with(&a, &b, &o, k), "{k:?}");
-        }
+        (flat(&a), flat(&b))
+    }
+
+    /// Coarse to fine finds every planted match the full search finds, and nothing else here;
+    /// below `COARSE_MIN_COLUMNS` columns the full search runs.
+    #[test]
+    fn coarse_to_fine_finds_what_the_full_search_finds() {
+        let (a, b) = planted();
+        let kernel = quantized::kernel();
+        let full = MatchOptions {
+            coarse_to_fine: false,
+            ..Default::default()
+        };
+        let want = match_with(&a, &b, &full, kernel);
+        let got = match_with(&a, &b, &MatchOptions::default(), kernel);
+        let planted = |m: &[Match]| m.iter().filter(|m| m.i == m.j && m.i < 300).count();
+        assert!(planted(&want) >= 290, "{} of 300", planted(&want));
+        assert_eq!(got, want);
+        let small = Descriptors {
+            dim: 128,
+            data: b.data[..40 * 128].to_vec(),
+        };
+        assert_eq!(
+            match_with(&a, &small, &MatchOptions::default(), kernel),
+            match_with(&a, &small, &full, kernel)
+        );
     }
 }

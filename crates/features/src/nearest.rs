@@ -32,6 +32,20 @@ impl Best2 {
         s2: f32::NEG_INFINITY,
     };
 
+    /// Offers column `j` with key `key`, in any order of columns: the same two best as
+    /// [`Best2::offer`] given the same columns in increasing order (the first column of the
+    /// largest key, and the second largest key).
+    #[inline]
+    pub(crate) fn offer_unordered(&mut self, key: f32, j: u32) {
+        if key > self.s1 || (key == self.s1 && j < self.j1) {
+            self.s2 = self.s1;
+            self.s1 = key;
+            self.j1 = j;
+        } else if key > self.s2 {
+            self.s2 = key;
+        }
+    }
+
     /// Offers column `j` with key `key`.
     #[inline]
     pub(crate) fn offer(&mut self, key: f32, j: u32) {
@@ -100,6 +114,86 @@ impl RowLanes {
         }
         out.s2 = s2;
         out
+    }
+}
+
+/// A row's coarse candidates (coarse-to-fine matching, [`crate::matching`]): per lane `l` of a
+/// 16-column tile (the columns `j ≡ l (mod 16)`, offered in increasing order), the two best keys
+/// and both their columns. The 32 columns are the row's candidates, ranked again on the full
+/// descriptors: a row's nearest columns are found unless two nearer ones share their lane.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[repr(C, align(64))]
+pub(crate) struct RowLanes2 {
+    pub b1: [f32; 16],
+    pub b2: [f32; 16],
+    pub j1: [u32; 16],
+    pub j2: [u32; 16],
+}
+
+impl RowLanes2 {
+    pub const NONE: RowLanes2 = RowLanes2 {
+        b1: [f32::NEG_INFINITY; 16],
+        b2: [f32::NEG_INFINITY; 16],
+        j1: [u32::MAX; 16],
+        j2: [u32::MAX; 16],
+    };
+
+    /// Offers column `j` with key `key` to lane `l`: strict `>`, so the first of equal keys stays.
+    #[inline(always)]
+    pub(crate) fn offer(&mut self, l: usize, key: f32, j: u32) {
+        let (m1, m2) = (key > self.b1[l], key > self.b2[l]);
+        let (b1, j1) = (self.b1[l], self.j1[l]);
+        self.b2[l] = if m1 {
+            b1
+        } else if m2 {
+            key
+        } else {
+            self.b2[l]
+        };
+        self.j2[l] = if m1 {
+            j1
+        } else if m2 {
+            j
+        } else {
+            self.j2[l]
+        };
+        self.b1[l] = if m1 { key } else { b1 };
+        self.j1[l] = if m1 { j } else { j1 };
+    }
+}
+
+/// Offers every score of `block` to its row's lanes ([`RowLanes2`], one per row of the block):
+/// key `2s − ‖b‖²`, column `j0 + c` to lane `c mod 16` (`j0` a multiple of 16).
+pub(crate) fn scan_lanes2(block: &Block<'_>, lanes: &mut [RowLanes2]) {
+    let Block {
+        s,
+        rows,
+        cols,
+        j0,
+        nb,
+        ..
+    } = *block;
+    assert!(s.len() >= rows * cols && lanes.len() >= rows && nb.len() >= cols);
+    assert!(j0.is_multiple_of(16));
+    let full = cols / 16 * 16;
+    for (r, ln) in lanes[..rows].iter_mut().enumerate() {
+        let row = &s[r * cols..(r + 1) * cols];
+        // The row's lanes live in locals (registers) along the row; whole tiles first.
+        let mut here = *ln;
+        for (t, (sc, nc)) in row[..full]
+            .chunks_exact(16)
+            .zip(nb[..full].chunks_exact(16))
+            .enumerate()
+        {
+            let j = (j0 + 16 * t) as u32;
+            for l in 0..16 {
+                here.offer(l, (sc[l] + sc[l]) - nc[l], j + l as u32);
+            }
+        }
+        for c in full..cols {
+            here.offer(c % 16, (row[c] + row[c]) - nb[c], (j0 + c) as u32);
+        }
+        *ln = here;
     }
 }
 
@@ -517,6 +611,80 @@ mod tests {
                     assert_eq!((&b1, &v1, &k1), (&b4, &v4, &k4));
                 }
             }
+        }
+    }
+}
+
+#[cfg(test)]
+mod lanes2_tests {
+    use super::*;
+
+    /// Per lane, the two best keys and their columns, offered in increasing column order with
+    /// strict `>` (the first of equal keys stays), and the block scan gives the same.
+    #[test]
+    fn the_lane_scan_keeps_each_lanes_first_two_best_ties_included() {
+        let mut s = 5u64;
+        let mut rnd = move || {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (s >> 33) as u32
+        };
+        let (rows, cols, j0) = (9usize, 70usize, 32usize);
+        let scores: Vec<f32> = (0..rows * cols).map(|_| (rnd() % 4) as f32).collect();
+        let nb: Vec<f32> = (0..cols).map(|_| (rnd() % 3) as f32).collect();
+        let na = vec![0f32; rows];
+        let block = Block {
+            s: &scores,
+            rows,
+            cols,
+            i0: 0,
+            j0,
+            na: &na,
+            nb: &nb,
+        };
+        let mut lanes = vec![RowLanes2::NONE; rows];
+        scan_lanes2(&block, &mut lanes);
+        for r in 0..rows {
+            for l in 0..16 {
+                // The lane's columns, by key descending then column ascending.
+                let mut cand: Vec<(f32, u32)> = (0..cols)
+                    .filter(|c| (j0 + c) % 16 == l)
+                    .map(|c| (2.0 * scores[r * cols + c] - nb[c], (j0 + c) as u32))
+                    .collect();
+                cand.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+                let ln = &lanes[r];
+                assert_eq!((ln.b1[l], ln.j1[l]), cand[0], "row {r} lane {l}");
+                assert_eq!((ln.b2[l], ln.j2[l]), cand[1], "row {r} lane {l}");
+            }
+        }
+    }
+
+    /// Offered in any order, the two best are those of the columns offered in increasing order.
+    #[test]
+    fn unordered_offers_give_the_ordered_two_best() {
+        let mut s = 9u64;
+        let mut rnd = move || {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (s >> 33) as u32
+        };
+        for _ in 0..500 {
+            let keys: Vec<f32> = (0..12).map(|_| (rnd() % 5) as f32).collect();
+            let mut ordered = Best2::NONE;
+            for (j, &k) in keys.iter().enumerate() {
+                ordered.offer(k, j as u32);
+            }
+            let mut order: Vec<usize> = (0..keys.len()).collect();
+            for i in (1..order.len()).rev() {
+                order.swap(i, rnd() as usize % (i + 1));
+            }
+            let mut any = Best2::NONE;
+            for j in order {
+                any.offer_unordered(keys[j], j as u32);
+            }
+            assert_eq!(any, ordered, "{keys:?}");
         }
     }
 }

@@ -11,7 +11,7 @@
 //! `vpdpbusd` multiplies unsigned by signed bytes, so the second operand is stored as `qb − 128`
 //! (signed) and `qa · qb = qa · (qb − 128) + 128 Σ qa`.
 
-use crate::nearest::RowLanes;
+use crate::nearest::{RowLanes, RowLanes2};
 
 /// The quantisation scale of [`quantize`].
 pub const SCALE: f32 = 512.0;
@@ -215,6 +215,32 @@ pub struct RowGroups {
 }
 
 impl RowGroups {
+    /// The layout from row `i0` on, for the fused AVX-512 kernels over rows `i0..i0 + rows` (a
+    /// whole number of row chunks after the layout's first row) and columns `j0..j0 + cols` of
+    /// `b` (`j0` a multiple of the tile); asserts that the operands fit.
+    fn wide_rows(
+        &self,
+        i0: usize,
+        rows: usize,
+        suma: &[i32],
+        b: &PackedB,
+        j0: usize,
+        cols: usize,
+    ) -> &[i32] {
+        #[cfg(target_arch = "x86_64")]
+        let per_chunk = vnni::ROWS;
+        #[cfg(not(target_arch = "x86_64"))]
+        let per_chunk = 8;
+        assert!(
+            i0 >= self.i0
+                && (i0 - self.i0).is_multiple_of(per_chunk)
+                && i0 + rows <= self.i0 + self.rows
+        );
+        assert!(j0.is_multiple_of(TILE) && j0 + cols <= b.len);
+        assert!(suma.len() >= i0 + rows && self.groups == b.groups);
+        &self.abc[(i0 - self.i0) / per_chunk * self.groups * per_chunk..]
+    }
+
     /// Whether laid out for the AVX-512 VNNI kernel (else for AVX-VNNI).
     pub fn wide(&self) -> bool {
         self.wide
@@ -324,15 +350,7 @@ pub(crate) fn scan_scores_grouped(
     lanes: &mut [RowLanes],
     cols_best: Option<(&mut [f32], &mut [u32])>,
 ) {
-    // The rows `i0..i0 + rows` of `a`, from a whole row chunk on.
-    #[cfg(target_arch = "x86_64")]
-    let per_chunk = vnni::ROWS;
-    #[cfg(not(target_arch = "x86_64"))]
-    let per_chunk = 8;
-    assert!(i0 >= a.i0 && (i0 - a.i0).is_multiple_of(per_chunk) && i0 + rows <= a.i0 + a.rows);
-    let abc = &a.abc[(i0 - a.i0) / per_chunk * a.groups * per_chunk..];
-    assert!(j0.is_multiple_of(TILE) && j0 + cols <= b.len);
-    assert!(suma.len() >= i0 + rows && a.groups == b.groups);
+    let abc = a.wide_rows(i0, rows, suma, b, j0, cols);
     assert!(na.len() >= rows && nb.len() >= cols && lanes.len() >= rows);
     if let Some((v, k)) = &cols_best {
         assert!(v.len() >= cols && k.len() >= cols);
@@ -344,6 +362,46 @@ pub(crate) fn scan_scores_grouped(
     unsafe {
         vnni::block_scan(abc, suma, i0, rows, b, j0, cols, na, nb, lanes, cols_best)
     }
+}
+
+/// The coarse pass of coarse-to-fine matching over rows `i0..i0 + rows` of `a` (laid out as for
+/// [`scan_scores_grouped`]) and columns `j0..j0 + cols`: each row's lanes keep their two best
+/// keys and both columns ([`RowLanes2`]); the same lanes as [`scores_block_grouped`] followed by
+/// [`crate::nearest::scan_lanes2`]. Only where the CPU has AVX-512 VNNI.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn scan_lanes2_grouped(
+    a: &RowGroups,
+    (i0, rows): (usize, usize),
+    suma: &[i32],
+    b: &PackedB,
+    j0: usize,
+    cols: usize,
+    nb: &[f32],
+    lanes: &mut [RowLanes2],
+) {
+    let abc = a.wide_rows(i0, rows, suma, b, j0, cols);
+    assert!(nb.len() >= cols && lanes.len() >= rows);
+    assert!(a.wide && cpu_has_vnni());
+    #[cfg(target_arch = "x86_64")]
+    // SAFETY: the CPU has AVX-512 VNNI (asserted above); the asserted lengths cover every element
+    // the kernel addresses, and `a` was laid out for its row chunks.
+    unsafe {
+        vnni::block_scan2(abc, suma, i0, rows, b, j0, cols, nb, lanes)
+    }
+}
+
+/// `a · b` of two quantised 128-dimensional descriptors by AVX-512 VNNI, with `sum_a = Σ a`:
+/// exact, the same number as any other path's.
+///
+/// # Safety
+/// The CPU must have AVX-512 F/BW/VNNI ([`cpu_has_vnni`]).
+#[cfg(target_arch = "x86_64")]
+#[inline]
+#[target_feature(enable = "avx512f,avx512bw,avx512vnni")]
+pub unsafe fn dot128(a: &[u8], b: &[u8], sum_a: i32) -> u32 {
+    assert!(a.len() == 128 && b.len() == 128);
+    // SAFETY: the CPU has AVX-512 VNNI (the caller's contract); both hold 128 bytes.
+    unsafe { vnni::dot128(a, b, sum_a) as u32 }
 }
 
 /// Columns per tile of the AVX2 kernel: two 256-bit registers of i32 sums.
@@ -429,6 +487,54 @@ pub fn scores_block_avx2(
         avx2::block(pa, i0, rows, b, j0, cols, out)
     }
 }
+
+/// Dimensions of the coarse codes ([`coarse_codes`]).
+pub const COARSE_DIM: usize = 32;
+
+/// The coarse codes of quantised 128-dimensional descriptors (`q`, row-major, from [`quantize`]):
+/// each descriptor `q / 512` projected on the first [`COARSE_DIM`] principal axes of RootSIFT
+/// (`pca.rs`, made by `scripts/sift_pca.py`) and stored as `round(s · y) + 128` in a byte, so that
+/// the brute-force kernels rank descriptors by these codes exactly as they rank them by the full
+/// descriptors, at a quarter of the products. A projection on orthonormal axes only shortens
+/// distances, and 85 % of the descriptors' variance lies on these 32 axes, so a descriptor's nearest
+/// neighbours are among the nearest by code ([`crate::matching`] keeps 32 of them per row and ranks
+/// those on all 128 dimensions). The sums run in a fixed order in f32, so the codes are the same on
+/// every machine. `None` for any other dimension.
+pub fn coarse_codes(q: &[u8], dim: usize) -> Option<Vec<u8>> {
+    if dim != pca::MEAN.len() {
+        return None;
+    }
+    // The axes by dimension, so that the 32 projections of a row accumulate side by side (each
+    // still over the dimensions in order: the same sums as one axis at a time).
+    static BY_DIMENSION: std::sync::OnceLock<Vec<[f32; COARSE_DIM]>> = std::sync::OnceLock::new();
+    let by_dimension = BY_DIMENSION.get_or_init(|| {
+        (0..dim)
+            .map(|k| std::array::from_fn(|c| pca::AXES[c][k]))
+            .collect()
+    });
+    let mut out = vec![0u8; q.len() / dim * COARSE_DIM];
+    for (row, code) in q.chunks_exact(dim).zip(out.chunks_exact_mut(COARSE_DIM)) {
+        let mut y = [0f32; COARSE_DIM];
+        for ((&v, m), axes) in row.iter().zip(&pca::MEAN).zip(by_dimension) {
+            let x = f32::from(v) / SCALE - m;
+            for (y, a) in y.iter_mut().zip(axes) {
+                *y += a * x;
+            }
+        }
+        for (c, y) in code.iter_mut().zip(y) {
+            *c = ((y * pca::SCALE).round().clamp(-128.0, 127.0) + 128.0) as u8;
+        }
+    }
+    Some(out)
+}
+
+/// Code units per unit of projection of [`coarse_codes`].
+pub fn coarse_scale() -> f32 {
+    pca::SCALE
+}
+
+#[rustfmt::skip]
+mod pca;
 
 #[cfg(target_arch = "x86_64")]
 mod avx2;

@@ -316,16 +316,23 @@ fn matcher_equals_naive_reference() {
             ratio: 1.0,
             mutual: false,
             max_distance: None,
+            ..Default::default()
         },
         MatchOptions {
             ratio: 1.0,
             mutual: true,
             max_distance: Some(0.2),
+            ..Default::default()
         },
         MatchOptions {
             ratio: 0.6,
             mutual: true,
             max_distance: None,
+            ..Default::default()
+        },
+        MatchOptions {
+            coarse_to_fine: false,
+            ..Default::default()
         },
     ];
     for o in &variants {

@@ -10,6 +10,31 @@ fn lcg(mut s: u64) -> impl FnMut() -> u32 {
     }
 }
 
+/// Test operands with many ties: `n` and `m` rows of `dim` bytes taking three values, with every
+/// `every`-th row of the second set a copy of an earlier one; each first row's `Σ q` and both
+/// sets' squared norms.
+#[allow(clippy::type_complexity)]
+fn tied(
+    rnd: &mut impl FnMut() -> u32,
+    (n, m, dim): (usize, usize, usize),
+    every: usize,
+) -> (Vec<u8>, Vec<u8>, Vec<i32>, Vec<f32>, Vec<f32>) {
+    let qa: Vec<u8> = (0..n * dim).map(|_| (rnd() % 3) as u8 * 60).collect();
+    let mut qb: Vec<u8> = (0..m * dim).map(|_| (rnd() % 3) as u8 * 60).collect();
+    for j in (0..m).step_by(every).skip(1) {
+        let src = (rnd() as usize) % j;
+        qb.copy_within(src * dim..(src + 1) * dim, j * dim);
+    }
+    let suma = qa
+        .chunks_exact(dim)
+        .map(|r| r.iter().map(|&v| i32::from(v)).sum())
+        .collect();
+    let sq = |v: &[u8]| v.iter().map(|&x| u32::from(x) * u32::from(x)).sum::<u32>() as f32;
+    let na = qa.chunks_exact(dim).map(sq).collect();
+    let nb = qb.chunks_exact(dim).map(sq).collect();
+    (qa, qb, suma, na, nb)
+}
+
 /// Every score of the block `(i0, rows, j0, cols)` equals the exact integer product.
 fn assert_exact(
     qa: &[u8],
@@ -70,19 +95,7 @@ fn the_fused_scan_equals_the_scores_then_the_scan_ties_included() {
         (5, 37, 10),
         (70, 100, 16),
     ] {
-        let qa: Vec<u8> = (0..n * dim).map(|_| (rnd() % 3) as u8 * 60).collect();
-        let mut qb: Vec<u8> = (0..m * dim).map(|_| (rnd() % 3) as u8 * 60).collect();
-        for j in (0..m).step_by(5).skip(1) {
-            let src = (rnd() as usize) % j;
-            qb.copy_within(src * dim..(src + 1) * dim, j * dim);
-        }
-        let suma: Vec<i32> = qa
-            .chunks_exact(dim)
-            .map(|r| r.iter().map(|&v| i32::from(v)).sum())
-            .collect();
-        let sq = |v: &[u8]| v.iter().map(|&x| u32::from(x) * u32::from(x)).sum::<u32>() as f32;
-        let na: Vec<f32> = qa.chunks_exact(dim).map(sq).collect();
-        let nb: Vec<f32> = qb.chunks_exact(dim).map(sq).collect();
+        let (qa, qb, suma, na, nb) = tied(&mut rnd, (n, m, dim), 5);
         let packed = PackedB::new(&qb, dim);
         let (i0, rows) = (1, n - 2);
         let groups = RowGroups::new(true, &qa, dim, i0, rows);
@@ -221,5 +234,111 @@ fn avx2_scores_equal_the_exact_integer_products() {
         let mut out = vec![0f32; rows * cols];
         scores_block_avx2(&pa, dim, i0, rows, &packed, j0, cols, &mut out);
         assert_exact(&qa, &qb, dim, (i0, rows, j0, cols), &out);
+    }
+}
+
+#[test]
+#[cfg_attr(
+    not(has_vnni),
+    ignore = "needs a CPU with AVX-512 VNNI (this one has none)"
+)]
+fn the_fused_coarse_scan_equals_the_scores_then_the_lane_scan_ties_included() {
+    use crate::nearest::{scan_lanes2, Block, RowLanes2};
+    assert!(cpu_has_vnni(), "this CPU has no AVX-512 VNNI");
+    let mut rnd = lcg(23);
+    for &(n, m, dim) in &[
+        (37usize, 53usize, 32usize),
+        (9, 16, 32),
+        (70, 300, 32),
+        (13, 37, 12),
+    ] {
+        // Few distinct values and repeated columns: many keys tie within a lane.
+        let (qa, qb, suma, na, nb) = tied(&mut rnd, (n, m, dim), 7);
+        let packed = PackedB::new(&qb, dim);
+        let (i0, rows) = (8, n - 8);
+        let groups = RowGroups::new(true, &qa, dim, 0, n);
+        let (mut want, mut got) = (vec![RowLanes2::NONE; rows], vec![RowLanes2::NONE; rows]);
+        // Column blocks of 256 and a partial last one, the lanes carried across them.
+        for j0 in (0..m).step_by(256) {
+            let cols = 256.min(m - j0);
+            let mut out = vec![0f32; rows * cols];
+            let rg = RowGroups::new(true, &qa, dim, i0, rows);
+            scores_block_grouped(&rg, &suma, &packed, j0, cols, &mut out);
+            let block = Block {
+                s: &out,
+                rows,
+                cols,
+                i0,
+                j0,
+                na: &na[i0..i0 + rows],
+                nb: &nb[j0..j0 + cols],
+            };
+            scan_lanes2(&block, &mut want);
+            scan_lanes2_grouped(
+                &groups,
+                (i0, rows),
+                &suma,
+                &packed,
+                j0,
+                cols,
+                &nb[j0..j0 + cols],
+                &mut got,
+            );
+        }
+        assert_eq!(got, want, "n {n} m {m} dim {dim}");
+    }
+}
+
+#[test]
+#[cfg_attr(
+    not(has_vnni),
+    ignore = "needs a CPU with AVX-512 VNNI (this one has none)"
+)]
+fn the_vnni_dot_equals_the_exact_integer_product() {
+    assert!(cpu_has_vnni(), "this CPU has no AVX-512 VNNI");
+    let mut rnd = lcg(29);
+    for _ in 0..200 {
+        let a: Vec<u8> = (0..128).map(|_| rnd() as u8).collect();
+        let b: Vec<u8> = (0..128).map(|_| rnd() as u8).collect();
+        let sum_a = a.iter().map(|&v| i32::from(v)).sum();
+        let exact: u32 = a
+            .iter()
+            .zip(&b)
+            .map(|(&x, &y)| u32::from(x) * u32::from(y))
+            .sum();
+        // SAFETY: the CPU has AVX-512 VNNI (asserted above).
+        assert_eq!(unsafe { dot128(&a, &b, sum_a) }, exact);
+    }
+}
+
+#[test]
+fn coarse_codes_are_the_projections_on_the_principal_axes() {
+    // A descriptor at the mean plus t along axis c (quantised as the matcher quantises) codes to
+    // 128 + round(t · s) on axis c and about 128 on the others (the axes are orthonormal; the
+    // quantisation of the descriptor moves each projection by well under a code unit).
+    let s = coarse_scale();
+    for (c, t) in [(0usize, 0.3f32), (5, -0.2), (31, 0.1)] {
+        let v: Vec<f32> = (0..128)
+            .map(|k| (pca::MEAN[k] + t * pca::AXES[c][k]).clamp(0.0, 1.0))
+            .collect();
+        let q = quantize(&v);
+        let code = coarse_codes(&q, 128).expect("128 dimensions");
+        assert_eq!(code.len(), COARSE_DIM);
+        for (k, &x) in code.iter().enumerate() {
+            let want = if k == c { 128.0 + t * s } else { 128.0 };
+            assert!(
+                (f32::from(x) - want).abs() <= 3.0,
+                "axis {k}: {x} against {want}"
+            );
+        }
+    }
+    assert!(coarse_codes(&[0u8; 64], 64).is_none());
+    // The axes are unit vectors and orthogonal to each other.
+    for a in 0..COARSE_DIM {
+        for b in 0..COARSE_DIM {
+            let dot: f32 = (0..128).map(|k| pca::AXES[a][k] * pca::AXES[b][k]).sum();
+            let want = if a == b { 1.0 } else { 0.0 };
+            assert!((dot - want).abs() < 1e-4, "axes {a}, {b}: {dot}");
+        }
     }
 }

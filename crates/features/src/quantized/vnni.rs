@@ -1,7 +1,7 @@
 //! The AVX-512 VNNI kernel of [`super::scores_block`]: `vpdpbusd` on 512-bit registers.
 
 use super::{PackedB, TILE};
-use crate::nearest::RowLanes;
+use crate::nearest::{RowLanes, RowLanes2};
 use std::arch::x86_64::*;
 
 /// Rows per register tile: 8 accumulators of 16 sums each.
@@ -154,5 +154,89 @@ pub(super) unsafe fn block_scan(
             }
         }
         r0 += nr;
+    }
+}
+
+/// The coarse pass of coarse-to-fine matching (`crate::matching`): [`block`] with each register
+/// tile offered to the rows' lanes while still in registers, keeping per lane the two best keys
+/// and **both** their columns ([`RowLanes2`]), and no column bests. Per lane the same comparisons
+/// in the same order as [`crate::nearest::scan_lanes2`] over the stored block (columns in
+/// increasing order, strict `>`), so the same lanes.
+#[allow(clippy::too_many_arguments)]
+#[target_feature(enable = "avx512f,avx512bw,avx512vnni")]
+pub(super) unsafe fn block_scan2(
+    abc: &[i32],
+    suma: &[i32],
+    i0: usize,
+    rows: usize,
+    b: &PackedB,
+    j0: usize,
+    cols: usize,
+    nb: &[f32],
+    lanes: &mut [RowLanes2],
+) {
+    let groups = b.groups;
+    let t0 = j0 / TILE;
+    let tiles = cols.div_ceil(TILE);
+    let lane_index = _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+    let mut r0 = 0;
+    while r0 < rows {
+        let nr = ROWS.min(rows - r0);
+        let chunk = &abc[(r0 / ROWS) * groups * ROWS..(r0 / ROWS + 1) * groups * ROWS];
+        for t in 0..tiles {
+            let bt = &b.data[(t0 + t) * groups * TILE * 4..(t0 + t + 1) * groups * TILE * 4];
+            // SAFETY: VNNI is enabled here; `bt` holds `groups` runs of 64 bytes.
+            let acc = unsafe { tile_sums(chunk, bt) };
+            let c0 = t * TILE;
+            let nc = TILE.min(cols - c0);
+            let mask: __mmask16 = if nc == TILE { 0xffff } else { (1u16 << nc) - 1 };
+            // SAFETY: the mask reads only the tile's `nc` norms.
+            let nbv = unsafe { _mm512_maskz_loadu_ps(mask, nb[c0..c0 + nc].as_ptr()) };
+            let jl = _mm512_add_epi32(_mm512_set1_epi32((j0 + c0) as i32), lane_index);
+            for (r, a) in acc.iter().enumerate().take(nr) {
+                let corr = _mm512_set1_epi32(128 * suma[i0 + r0 + r]);
+                let s = _mm512_cvtepi32_ps(_mm512_add_epi32(*a, corr));
+                let rk = _mm512_sub_ps(_mm512_add_ps(s, s), nbv);
+                let ln = &mut lanes[r0 + r];
+                // SAFETY: `RowLanes2` holds four runs of 16 lanes.
+                unsafe {
+                    let b1 = _mm512_loadu_ps(ln.b1.as_ptr());
+                    let b2 = _mm512_loadu_ps(ln.b2.as_ptr());
+                    let m1 = _mm512_mask_cmp_ps_mask::<_CMP_GT_OQ>(mask, rk, b1);
+                    let m2 = _mm512_mask_cmp_ps_mask::<_CMP_GT_OQ>(mask, rk, b2);
+                    let j1 = _mm512_loadu_si512(ln.j1.as_ptr().cast());
+                    let j2 = _mm512_loadu_si512(ln.j2.as_ptr().cast());
+                    let b2 = _mm512_mask_blend_ps(m1, _mm512_mask_blend_ps(m2, b2, rk), b1);
+                    let j2 = _mm512_mask_blend_epi32(m1, _mm512_mask_blend_epi32(m2, j2, jl), j1);
+                    _mm512_storeu_ps(ln.b2.as_mut_ptr(), b2);
+                    _mm512_storeu_si512(ln.j2.as_mut_ptr().cast(), j2);
+                    _mm512_storeu_ps(ln.b1.as_mut_ptr(), _mm512_mask_blend_ps(m1, b1, rk));
+                    _mm512_mask_storeu_epi32(ln.j1.as_mut_ptr().cast(), m1, jl);
+                }
+            }
+        }
+        r0 += nr;
+    }
+}
+
+/// `Σ a·b` over 128 bytes with `sum_a = Σ a`: `vpdpbusd` on `a` and `b − 128` (the top bit of
+/// each byte flipped), plus `128 Σ a`. One candidate of coarse-to-fine matching ranked on its
+/// full descriptor.
+///
+/// # Safety
+/// AVX-512 F/BW/VNNI must be available; `a` and `b` must hold 128 bytes.
+#[inline]
+#[target_feature(enable = "avx512f,avx512bw,avx512vnni")]
+pub(super) unsafe fn dot128(a: &[u8], b: &[u8], sum_a: i32) -> i32 {
+    let top = _mm512_set1_epi8(-128);
+    // SAFETY: both hold 128 bytes (the caller's contract): two 64-byte loads each.
+    unsafe {
+        let a0 = _mm512_loadu_si512(a.as_ptr().cast());
+        let a1 = _mm512_loadu_si512(a.as_ptr().add(64).cast());
+        let b0 = _mm512_xor_si512(_mm512_loadu_si512(b.as_ptr().cast()), top);
+        let b1 = _mm512_xor_si512(_mm512_loadu_si512(b.as_ptr().add(64).cast()), top);
+        let acc = _mm512_dpbusd_epi32(_mm512_setzero_si512(), a0, b0);
+        let acc = _mm512_dpbusd_epi32(acc, a1, b1);
+        _mm512_reduce_add_epi32(acc) + 128 * sum_a
     }
 }
