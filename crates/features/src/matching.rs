@@ -571,20 +571,41 @@ impl Ranking<'_> {
         }
     }
 
-    /// [`Ranking::run`] with the products by AVX-512 VNNI, inlined.
+    /// [`Ranking::run`] with the products by AVX-512 VNNI, sixteen candidates at a time
+    /// ([`quantized::dots16`]).
     ///
     /// # Safety
     /// The CPU must have AVX-512 F/BW/VNNI.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx512f,avx512bw,avx512vnni")]
-    unsafe fn run_vnni(&self, best: &mut [Best2], col_best: Option<&mut [(f32, u32)]>) {
+    unsafe fn run_vnni(&self, best: &mut [Best2], mut col_best: Option<&mut [(f32, u32)]>) {
         let d = self.a.d;
         let ((qa, sums), qb) = (self.a.q(), self.b.q().0);
-        self.run(best, col_best, |i, j| {
-            // SAFETY: the CPU has AVX-512 VNNI (the caller's contract); both rows hold `d` = 128
-            // bytes.
-            unsafe { quantized::dot128(&qa[i * d..(i + 1) * d], &qb[j * d..(j + 1) * d], sums[i]) }
-        })
+        let (na, nb) = (&self.a.norms, &self.b.norms);
+        for (r, (ln, bst)) in self.lanes.iter().zip(best).enumerate() {
+            let i = self.i0 + r;
+            let row = &qa[i * d..(i + 1) * d];
+            // SAFETY: the CPU has AVX-512 VNNI (the caller's contract).
+            let (s1, s2) = unsafe {
+                (
+                    quantized::dots16(row, sums[i], qb, &ln.j1),
+                    quantized::dots16(row, sums[i], qb, &ln.j2),
+                )
+            };
+            for (&j, &s) in ln.j1.iter().chain(&ln.j2).zip(s1.iter().chain(&s2)) {
+                if j == u32::MAX {
+                    continue;
+                }
+                let jj = j as usize;
+                let twice = 2.0 * s as f32;
+                bst.offer_unordered(twice - nb[jj], j);
+                if let Some(cb) = col_best.as_deref_mut() {
+                    let key = twice - na[i];
+                    let c = &mut cb[jj];
+                    *c = if key > c.0 { (key, i as u32) } else { *c };
+                }
+            }
+        }
     }
 }
 

@@ -390,18 +390,19 @@ pub(crate) fn scan_lanes2_grouped(
     }
 }
 
-/// `a · b` of two quantised 128-dimensional descriptors by AVX-512 VNNI, with `sum_a = Σ a`:
-/// exact, the same number as any other path's.
+/// The exact products of one quantised 128-dimensional row `a` (`sum_a = Σ a`) with the 16 rows
+/// `js` of `b` (row-major; `u32::MAX` reads row 0, to be ignored) by AVX-512 VNNI.
 ///
 /// # Safety
 /// The CPU must have AVX-512 F/BW/VNNI ([`cpu_has_vnni`]).
 #[cfg(target_arch = "x86_64")]
 #[inline]
 #[target_feature(enable = "avx512f,avx512bw,avx512vnni")]
-pub unsafe fn dot128(a: &[u8], b: &[u8], sum_a: i32) -> u32 {
-    assert!(a.len() == 128 && b.len() == 128);
-    // SAFETY: the CPU has AVX-512 VNNI (the caller's contract); both hold 128 bytes.
-    unsafe { vnni::dot128(a, b, sum_a) as u32 }
+pub unsafe fn dots16(a: &[u8], sum_a: i32, b: &[u8], js: &[u32; 16]) -> [i32; 16] {
+    assert!(a.len() == 128 && !b.is_empty() && b.len().is_multiple_of(128));
+    assert!(js.iter().all(|&j| j == u32::MAX || (j as usize + 1) * 128 <= b.len()));
+    // SAFETY: the CPU has AVX-512 VNNI (the caller's contract); every row read is in `b`.
+    unsafe { vnni::dots16(a, sum_a, b, js) }
 }
 
 /// Columns per tile of the AVX2 kernel: two 256-bit registers of i32 sums.

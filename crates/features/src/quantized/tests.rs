@@ -294,20 +294,22 @@ fn the_fused_coarse_scan_equals_the_scores_then_the_lane_scan_ties_included() {
     not(has_vnni),
     ignore = "needs a CPU with AVX-512 VNNI (this one has none)"
 )]
-fn the_vnni_dot_equals_the_exact_integer_product() {
+fn sixteen_vnni_dots_equal_the_exact_integer_products() {
     assert!(cpu_has_vnni(), "this CPU has no AVX-512 VNNI");
     let mut rnd = lcg(29);
-    for _ in 0..200 {
+    let b: Vec<u8> = (0..40 * 128).map(|_| rnd() as u8).collect();
+    for _ in 0..50 {
         let a: Vec<u8> = (0..128).map(|_| rnd() as u8).collect();
-        let b: Vec<u8> = (0..128).map(|_| rnd() as u8).collect();
         let sum_a = a.iter().map(|&v| i32::from(v)).sum();
-        let exact: u32 = a
-            .iter()
-            .zip(&b)
-            .map(|(&x, &y)| u32::from(x) * u32::from(y))
-            .sum();
+        let js: [u32; 16] =
+            std::array::from_fn(|k| if k == 5 { u32::MAX } else { rnd() % 40 });
         // SAFETY: the CPU has AVX-512 VNNI (asserted above).
-        assert_eq!(unsafe { dot128(&a, &b, sum_a) }, exact);
+        let got = unsafe { dots16(&a, sum_a, &b, &js) };
+        for (k, &j) in js.iter().enumerate().filter(|(_, &j)| j != u32::MAX) {
+            let row = &b[j as usize * 128..(j as usize + 1) * 128];
+            let exact: i32 = a.iter().zip(row).map(|(&x, &y)| i32::from(x) * i32::from(y)).sum();
+            assert_eq!(got[k], exact, "lane {k}, row {j}");
+        }
     }
 }
 

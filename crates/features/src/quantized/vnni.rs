@@ -219,24 +219,50 @@ pub(super) unsafe fn block_scan2(
     }
 }
 
-/// `Σ a·b` over 128 bytes with `sum_a = Σ a`: `vpdpbusd` on `a` and `b − 128` (the top bit of
-/// each byte flipped), plus `128 Σ a`. One candidate of coarse-to-fine matching ranked on its
-/// full descriptor.
+/// The exact products `a · b_k` of one row `a` (128 bytes, `sum_a = Σ a`) with the 16 rows
+/// `js[k]` of `b` (row-major, 128 bytes a row), lane `k` of the result for `js[k]`; a `js[k]` of
+/// `u32::MAX` reads row 0 (the caller ignores that lane). Each product is two `vpdpbusd` on `a`
+/// and `b − 128` plus `128 Σ a`, and the 16 accumulators are summed across their lanes together
+/// (a transpose-and-add tree: 45 instructions for the 16 sums instead of a reduction each).
 ///
 /// # Safety
-/// AVX-512 F/BW/VNNI must be available; `a` and `b` must hold 128 bytes.
-#[inline]
+/// AVX-512 F/BW/VNNI must be available; `a` must hold 128 bytes and `b` every row `js` names.
 #[target_feature(enable = "avx512f,avx512bw,avx512vnni")]
-pub(super) unsafe fn dot128(a: &[u8], b: &[u8], sum_a: i32) -> i32 {
+pub(super) unsafe fn dots16(a: &[u8], sum_a: i32, b: &[u8], js: &[u32; 16]) -> [i32; 16] {
     let top = _mm512_set1_epi8(-128);
-    // SAFETY: both hold 128 bytes (the caller's contract): two 64-byte loads each.
+    let mut acc = [_mm512_setzero_si512(); 16];
+    // SAFETY: `a` holds 128 bytes and every row read is inside `b` (the caller's contract).
     unsafe {
         let a0 = _mm512_loadu_si512(a.as_ptr().cast());
         let a1 = _mm512_loadu_si512(a.as_ptr().add(64).cast());
-        let b0 = _mm512_xor_si512(_mm512_loadu_si512(b.as_ptr().cast()), top);
-        let b1 = _mm512_xor_si512(_mm512_loadu_si512(b.as_ptr().add(64).cast()), top);
-        let acc = _mm512_dpbusd_epi32(_mm512_setzero_si512(), a0, b0);
-        let acc = _mm512_dpbusd_epi32(acc, a1, b1);
-        _mm512_reduce_add_epi32(acc) + 128 * sum_a
+        for (v, &j) in acc.iter_mut().zip(js) {
+            let row = b.as_ptr().add(if j == u32::MAX { 0 } else { j as usize * 128 });
+            let b0 = _mm512_xor_si512(_mm512_loadu_si512(row.cast()), top);
+            let b1 = _mm512_xor_si512(_mm512_loadu_si512(row.add(64).cast()), top);
+            *v = _mm512_dpbusd_epi32(_mm512_dpbusd_epi32(*v, a0, b0), a1, b1);
+        }
     }
+    // Pairs of rows: within each 128-bit lane, [k0+k2, k'0+k'2, k1+k3, k'1+k'3].
+    let w: [__m512i; 8] = std::array::from_fn(|p| {
+        let (x, y) = (acc[2 * p], acc[2 * p + 1]);
+        _mm512_add_epi32(_mm512_unpacklo_epi32(x, y), _mm512_unpackhi_epi32(x, y))
+    });
+    // Quads: within each 128-bit lane, the four rows' sums over that lane.
+    let x: [__m512i; 4] = std::array::from_fn(|q| {
+        let (u, v) = (w[2 * q], w[2 * q + 1]);
+        _mm512_add_epi32(_mm512_unpacklo_epi64(u, v), _mm512_unpackhi_epi64(u, v))
+    });
+    // Across the 128-bit lanes: lanes (0 + 1, 2 + 3) of each quad, then of each pair of quads.
+    let fold = |u: __m512i, v: __m512i| {
+        _mm512_add_epi32(
+            _mm512_shuffle_i32x4::<0b10_00_10_00>(u, v),
+            _mm512_shuffle_i32x4::<0b11_01_11_01>(u, v),
+        )
+    };
+    let (y, z) = (fold(x[0], x[1]), fold(x[2], x[3]));
+    let sums = _mm512_add_epi32(fold(y, z), _mm512_set1_epi32(128 * sum_a));
+    let mut out = [0i32; 16];
+    // SAFETY: `out` holds 16 i32.
+    unsafe { _mm512_storeu_si512(out.as_mut_ptr().cast(), sums) };
+    out
 }
