@@ -178,8 +178,13 @@ pub(crate) fn scan_lanes2(block: &Block<'_>, lanes: &mut [RowLanes2]) {
     let full = cols / 16 * 16;
     for (r, ln) in lanes[..rows].iter_mut().enumerate() {
         let row = &s[r * cols..(r + 1) * cols];
-        // The row's lanes live in locals (registers) along the row; whole tiles first.
-        let mut here = *ln;
+        // Whole tiles first, the row's lanes in registers along the row.
+        #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+        // SAFETY: AVX2 is enabled at compile time; `row` and `nb` hold `full` values.
+        unsafe {
+            avx2::lanes2_row(&row[..full], &nb[..full], j0 as u32, ln)
+        };
+        #[cfg(not(all(target_arch = "x86_64", target_feature = "avx2")))]
         for (t, (sc, nc)) in row[..full]
             .chunks_exact(16)
             .zip(nb[..full].chunks_exact(16))
@@ -187,13 +192,12 @@ pub(crate) fn scan_lanes2(block: &Block<'_>, lanes: &mut [RowLanes2]) {
         {
             let j = (j0 + 16 * t) as u32;
             for l in 0..16 {
-                here.offer(l, (sc[l] + sc[l]) - nc[l], j + l as u32);
+                ln.offer(l, (sc[l] + sc[l]) - nc[l], j + l as u32);
             }
         }
         for c in full..cols {
-            here.offer(c % 16, (row[c] + row[c]) - nb[c], (j0 + c) as u32);
+            ln.offer(c % 16, (row[c] + row[c]) - nb[c], (j0 + c) as u32);
         }
-        *ln = here;
     }
 }
 
@@ -364,6 +368,73 @@ fn portable_tile(
 mod avx2 {
     use super::{Best2, Tile, TILE};
     use std::arch::x86_64::*;
+
+    /// [`super::scan_lanes2`]'s whole tiles of one row on AVX2 registers: the row's lanes
+    /// (`ln`, two best keys and columns per lane, 8 registers) are loaded once, offered the row's
+    /// scores `s` (whole tiles of 16; columns `j0..`, squared norms `nb`) and stored back. The
+    /// same comparisons as [`super::RowLanes2::offer`] in the same order.
+    ///
+    /// # Safety
+    /// AVX2 must be available; `s` and `nb` must have the same length, a multiple of 16.
+    #[inline]
+    pub(super) unsafe fn lanes2_row(s: &[f32], nb: &[f32], j0: u32, ln: &mut super::RowLanes2) {
+        debug_assert!(s.len() == nb.len() && s.len().is_multiple_of(16));
+        // SAFETY: `RowLanes2` holds four runs of 16 lanes; every load below reads 8 values of
+        // `s` or `nb` inside their common length (the caller's contract).
+        unsafe {
+            let mut b1 = [
+                _mm256_loadu_ps(ln.b1.as_ptr()),
+                _mm256_loadu_ps(ln.b1.as_ptr().add(8)),
+            ];
+            let mut b2 = [
+                _mm256_loadu_ps(ln.b2.as_ptr()),
+                _mm256_loadu_ps(ln.b2.as_ptr().add(8)),
+            ];
+            let ld = |p: *const u32| _mm256_castsi256_ps(_mm256_loadu_si256(p.cast()));
+            let mut j1 = [ld(ln.j1.as_ptr()), ld(ln.j1.as_ptr().add(8))];
+            let mut j2 = [ld(ln.j2.as_ptr()), ld(ln.j2.as_ptr().add(8))];
+            let mut jl = [
+                _mm256_add_epi32(
+                    _mm256_set1_epi32(j0 as i32),
+                    _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7),
+                ),
+                _mm256_add_epi32(
+                    _mm256_set1_epi32(j0 as i32),
+                    _mm256_setr_epi32(8, 9, 10, 11, 12, 13, 14, 15),
+                ),
+            ];
+            let step = _mm256_set1_epi32(16);
+            for c in (0..s.len()).step_by(16) {
+                for h in 0..2 {
+                    let sv = _mm256_loadu_ps(s.as_ptr().add(c + 8 * h));
+                    let rk = _mm256_sub_ps(
+                        _mm256_add_ps(sv, sv),
+                        _mm256_loadu_ps(nb.as_ptr().add(c + 8 * h)),
+                    );
+                    let m1 = _mm256_cmp_ps::<_CMP_GT_OQ>(rk, b1[h]);
+                    let m2 = _mm256_cmp_ps::<_CMP_GT_OQ>(rk, b2[h]);
+                    let jv = _mm256_castsi256_ps(jl[h]);
+                    b2[h] = _mm256_blendv_ps(_mm256_blendv_ps(b2[h], rk, m2), b1[h], m1);
+                    j2[h] = _mm256_blendv_ps(_mm256_blendv_ps(j2[h], jv, m2), j1[h], m1);
+                    b1[h] = _mm256_blendv_ps(b1[h], rk, m1);
+                    j1[h] = _mm256_blendv_ps(j1[h], jv, m1);
+                    jl[h] = _mm256_add_epi32(jl[h], step);
+                }
+            }
+            for h in 0..2 {
+                _mm256_storeu_ps(ln.b1.as_mut_ptr().add(8 * h), b1[h]);
+                _mm256_storeu_ps(ln.b2.as_mut_ptr().add(8 * h), b2[h]);
+                _mm256_storeu_si256(
+                    ln.j1.as_mut_ptr().add(8 * h).cast(),
+                    _mm256_castps_si256(j1[h]),
+                );
+                _mm256_storeu_si256(
+                    ln.j2.as_mut_ptr().add(8 * h).cast(),
+                    _mm256_castps_si256(j2[h]),
+                );
+            }
+        }
+    }
 
     /// [`super::portable_tile`] on two registers of keys and two of row indices, held across
     /// the rows. `2s` is `s + s` (exact), and a row's test takes the larger of its two halves'

@@ -400,7 +400,9 @@ pub(crate) fn scan_lanes2_grouped(
 #[target_feature(enable = "avx512f,avx512bw,avx512vnni")]
 pub unsafe fn dots16(a: &[u8], sum_a: i32, b: &[u8], js: &[u32; 16]) -> [i32; 16] {
     assert!(a.len() == 128 && !b.is_empty() && b.len().is_multiple_of(128));
-    assert!(js.iter().all(|&j| j == u32::MAX || (j as usize + 1) * 128 <= b.len()));
+    assert!(js
+        .iter()
+        .all(|&j| j == u32::MAX || (j as usize + 1) * 128 <= b.len()));
     // SAFETY: the CPU has AVX-512 VNNI (the caller's contract); every row read is in `b`.
     unsafe { vnni::dots16(a, sum_a, b, js) }
 }

@@ -301,13 +301,16 @@ fn sixteen_vnni_dots_equal_the_exact_integer_products() {
     for _ in 0..50 {
         let a: Vec<u8> = (0..128).map(|_| rnd() as u8).collect();
         let sum_a = a.iter().map(|&v| i32::from(v)).sum();
-        let js: [u32; 16] =
-            std::array::from_fn(|k| if k == 5 { u32::MAX } else { rnd() % 40 });
+        let js: [u32; 16] = std::array::from_fn(|k| if k == 5 { u32::MAX } else { rnd() % 40 });
         // SAFETY: the CPU has AVX-512 VNNI (asserted above).
         let got = unsafe { dots16(&a, sum_a, &b, &js) };
         for (k, &j) in js.iter().enumerate().filter(|(_, &j)| j != u32::MAX) {
             let row = &b[j as usize * 128..(j as usize + 1) * 128];
-            let exact: i32 = a.iter().zip(row).map(|(&x, &y)| i32::from(x) * i32::from(y)).sum();
+            let exact: i32 = a
+                .iter()
+                .zip(row)
+                .map(|(&x, &y)| i32::from(x) * i32::from(y))
+                .sum();
             assert_eq!(got[k], exact, "lane {k}, row {j}");
         }
     }

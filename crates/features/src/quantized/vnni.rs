@@ -236,7 +236,9 @@ pub(super) unsafe fn dots16(a: &[u8], sum_a: i32, b: &[u8], js: &[u32; 16]) -> [
         let a0 = _mm512_loadu_si512(a.as_ptr().cast());
         let a1 = _mm512_loadu_si512(a.as_ptr().add(64).cast());
         for (v, &j) in acc.iter_mut().zip(js) {
-            let row = b.as_ptr().add(if j == u32::MAX { 0 } else { j as usize * 128 });
+            let row = b
+                .as_ptr()
+                .add(if j == u32::MAX { 0 } else { j as usize * 128 });
             let b0 = _mm512_xor_si512(_mm512_loadu_si512(row.cast()), top);
             let b1 = _mm512_xor_si512(_mm512_loadu_si512(row.add(64).cast()), top);
             *v = _mm512_dpbusd_epi32(_mm512_dpbusd_epi32(*v, a0, b0), a1, b1);
