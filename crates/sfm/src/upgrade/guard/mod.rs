@@ -89,6 +89,11 @@ pub struct CandidateRecord {
     /// calibrated incremental start: its whole build, from the initial pair to the last
     /// adjustment).
     pub seconds: Option<f64>,
+    /// Registered views whose pose disagrees with their verified image pairs
+    /// (`metric::consistency`): judged on the calibrated incremental candidate's sound models,
+    /// which are ranked by the views that agree.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub disagreeing_views: Option<usize>,
 }
 
 /// Records on the last candidate tried the time since `clock`.
