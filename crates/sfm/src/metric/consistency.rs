@@ -93,12 +93,18 @@ impl ConsistencyReport {
     }
 }
 
-/// The registered views of `rec` that have a pair the check can use (general, enough inliers)
-/// with a view of `removed` and none with a view kept: registered beside misplaced views, often
-/// through their points, and confirmed by nothing once those are gone. A synthetic hemisphere at an
-/// 11° field of view kept one 50° off this way, silently. Flagging them instead of warning sent
-/// that model down another path that kept two other views wrong (2026-11-28), so they are only
-/// named.
+/// The registered views of `rec` that no usable pair (general, enough inliers) ties to the rest of
+/// the model once the views of `removed` are gone, and that were registered beside them: the kept
+/// views joined by usable pairs fall into pieces, and every piece but the largest that has a
+/// verified pair with a removed view is unconfirmed. Such views were placed beside misplaced views,
+/// often through their points, and nothing confirms them once those are gone.
+///
+/// A piece may hold one view (the first case seen: a synthetic hemisphere at an 11° field of view
+/// kept one 50° off this way, silently) or several that agree with one another: the same
+/// hemisphere (seed 3) kept four views of its lowest ring, joined by strong pairs among themselves,
+/// at 90° from the truth; their only usable pairs with the rest were with views taken out. Flagging
+/// them instead of warning sent a model down another path that kept two other views wrong
+/// (2026-11-28), so they are only named.
 pub(crate) fn unconfirmed(
     ctx: &Context,
     rec: &MetricReconstruction,
@@ -107,32 +113,50 @@ pub(crate) fn unconfirmed(
     if removed.is_empty() {
         return Vec::new();
     }
-    let registered = |i: usize| rec.views.contains_key(&ctx.input.images[i].id);
-    // Per kept view: (a usable pair with a removed view, a usable pair with a kept view).
-    let mut seen: BTreeMap<usize, (bool, bool)> = BTreeMap::new();
+    let n = ctx.input.images.len();
+    let kept: Vec<bool> = (0..n)
+        .map(|i| rec.views.contains_key(&ctx.input.images[i].id) && !removed.contains(&i))
+        .collect();
+    // The pieces: union-find over the usable pairs between kept views.
+    let mut parent: Vec<usize> = (0..n).collect();
+    fn root(parent: &mut [usize], mut i: usize) -> usize {
+        while parent[i] != i {
+            parent[i] = parent[parent[i]];
+            i = parent[i];
+        }
+        i
+    }
+    let mut beside_removed = vec![false; n];
     for p in &ctx.input.pairs {
-        if p.configuration != TwoViewConfiguration::General
-            || p.matches.len() < MIN_PAIR_INLIERS
-            || p.f.is_none()
-        {
-            continue;
+        let usable = p.configuration == TwoViewConfiguration::General
+            && p.matches.len() >= MIN_PAIR_INLIERS
+            && p.f.is_some();
+        if usable && kept[p.a] && kept[p.b] {
+            let (ra, rb) = (root(&mut parent, p.a), root(&mut parent, p.b));
+            parent[ra.max(rb)] = ra.min(rb);
         }
         for (me, other) in [(p.a, p.b), (p.b, p.a)] {
-            if !registered(me) || removed.contains(&me) {
-                continue;
-            }
-            let e = seen.entry(me).or_default();
-            if removed.contains(&other) {
-                e.0 = true;
-            } else if registered(other) {
-                e.1 = true;
+            if kept[me] && removed.contains(&other) {
+                beside_removed[me] = true;
             }
         }
     }
-    seen.into_iter()
-        .filter(|(_, (with_removed, with_kept))| *with_removed && !*with_kept)
-        .map(|(i, _)| i)
-        .collect()
+    let mut pieces: BTreeMap<usize, Vec<usize>> = BTreeMap::new();
+    for i in (0..n).filter(|&i| kept[i]) {
+        pieces.entry(root(&mut parent, i)).or_default().push(i);
+    }
+    // The largest piece (the first of equals) is the model.
+    let main = pieces
+        .iter()
+        .max_by(|x, y| x.1.len().cmp(&y.1.len()).then(y.0.cmp(x.0)))
+        .map(|(r, _)| *r);
+    let mut out: Vec<usize> = pieces
+        .into_iter()
+        .filter(|(r, views)| Some(*r) != main && views.iter().any(|&i| beside_removed[i]))
+        .flat_map(|(_, views)| views)
+        .collect();
+    out.sort_unstable();
+    out
 }
 
 /// The angle (degrees) between the relative rotation of views `a` → `b` in `rec` and the one of
@@ -502,6 +526,24 @@ mod tests {
         assert_eq!(unconfirmed(&ctx, &rec, &BTreeSet::from([2])), vec![3]);
         // Removing a view with many partners leaves every other view a kept partner.
         assert!(unconfirmed(&ctx, &rec, &BTreeSet::from([5])).is_empty());
+    }
+
+    #[test]
+    fn views_tied_to_the_model_only_through_removed_views_are_unconfirmed_together() {
+        let (mut input, rec) = scene();
+        // Views 3 and 4 keep their pair with each other and their pairs with view 2 alone.
+        input.pairs.retain(|p| {
+            let (a, b) = (p.a.min(p.b), p.a.max(p.b));
+            let inside = |v: usize| v == 3 || v == 4;
+            (!inside(a) && !inside(b)) || (a, b) == (3, 4) || (a == 2 && inside(b))
+        });
+        let graph = CorrespondenceGraph::build(&input, 8);
+        let opts = SfmOptions::default();
+        let ctx = Context::new(&input, &graph, &opts);
+        // With view 2 in the model, it ties them to the rest.
+        assert!(unconfirmed(&ctx, &rec, &BTreeSet::from([6])).is_empty());
+        // Without it, they agree with each other and with nothing else.
+        assert_eq!(unconfirmed(&ctx, &rec, &BTreeSet::from([2])), vec![3, 4]);
     }
 
     #[test]
