@@ -94,6 +94,10 @@ pub struct CandidateRecord {
     /// which are ranked by the views that agree.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub disagreeing_views: Option<usize>,
+    /// The focal lengths its subsample's adjustment came to, when its full adjustment started from
+    /// there ([`screen`]): another candidate whose subsample comes to them is the same frame.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub subsample_focal_px: Option<Vec<f64>>,
 }
 
 /// Records on the last candidate tried the time since `clock`.
@@ -284,6 +288,7 @@ fn adjust_in_full(
     let mut record = record_before(source, rec);
     record.tried = true;
     record.warm_start_points = start.as_ref().map(|s| s.1);
+    record.subsample_focal_px = start.as_ref().map(|s| focal_lengths(&s.0));
     let mut adjusted = start.map_or_else(|| rec.clone(), |s| s.0);
     let why = match adjust(&mut adjusted, bar) {
         Ok(adjustments) => match judge(&mut record, &adjusted, &adjustments, projective_rms_px) {
