@@ -123,6 +123,9 @@ pub struct Prepared {
     unit: f32,
     kernel: quantized::Kernel,
     rows: Rows,
+    /// Every value below 128 (the coarse codes): the AVX2 path multiplies bytes
+    /// ([`quantized::scores_block_avx2_bytes`]).
+    seven_bit: bool,
     /// The layout of the kernel, made on first use.
     layout: OnceLock<Layout>,
     /// The coarse codes ([`quantized::coarse_codes`]), prepared alike (quantised 128-dimensional
@@ -150,6 +153,9 @@ enum Layout {
     },
     /// Without VNNI: rows as pairs of i16 and the set packed ([`quantized::scores_block_avx2`]).
     Avx2(Vec<i32>, quantized::PackedI16),
+    /// Without VNNI, values below 128: rows as groups of four bytes and the set packed
+    /// ([`quantized::scores_block_avx2_bytes`]).
+    Avx2Bytes(Vec<i32>, quantized::PackedBytes),
     F32(Option<Vec<f32>>),
 }
 
@@ -172,6 +178,7 @@ impl Prepared {
     pub fn alike(&self, other: &Prepared) -> bool {
         self.quantised() == other.quantised()
             && self.kernel == other.kernel
+            && self.seven_bit == other.seven_bit
             && self.coarse.is_some() == other.coarse.is_some()
     }
 
@@ -198,6 +205,9 @@ impl Prepared {
                         packed: quantized::PackedB::new(q, d),
                         wide,
                     }
+                }
+                (Rows::Quantised { q, .. }, Kernel::Avx2) if self.seven_bit => {
+                    Layout::Avx2Bytes(quantized::quads_of(q, d), quantized::PackedBytes::new(q, d))
                 }
                 (Rows::Quantised { q, .. }, Kernel::Avx2) => {
                     Layout::Avx2(quantized::pairs_of(q, d), quantized::PackedI16::new(q, d))
@@ -233,10 +243,10 @@ fn prepare_with(a: &Descriptors, kernel: quantized::Kernel, quantise: bool) -> P
     if quantise {
         let q = quantized::quantize(data);
         let coarse = quantized::coarse_codes(&q, d)
-            .map(|codes| Box::new(prepare_codes(codes, n, quantized::COARSE_DIM, kernel)));
+            .map(|codes| Box::new(prepare_codes(codes, n, quantized::COARSE_DIM, kernel, true)));
         Prepared {
             coarse,
-            ..prepare_codes(q, n, d, kernel)
+            ..prepare_codes(q, n, d, kernel, false)
         }
     } else {
         let sq = |v: &[f32]| v.iter().map(|x| x * x).sum::<f32>();
@@ -247,14 +257,23 @@ fn prepare_with(a: &Descriptors, kernel: quantized::Kernel, quantise: bool) -> P
             unit: 1.0,
             kernel,
             rows: Rows::Raw(data.to_vec()),
+            seven_bit: false,
             layout: OnceLock::new(),
             coarse: None,
         }
     }
 }
 
-/// `n` byte vectors of `d` dimensions (`q`, row-major) prepared for `kernel`.
-fn prepare_codes(q: Vec<u8>, n: usize, d: usize, kernel: quantized::Kernel) -> Prepared {
+/// `n` byte vectors of `d` dimensions (`q`, row-major) prepared for `kernel`; `seven_bit` when
+/// every value is below 128 by construction (the coarse codes).
+fn prepare_codes(
+    q: Vec<u8>,
+    n: usize,
+    d: usize,
+    kernel: quantized::Kernel,
+    seven_bit: bool,
+) -> Prepared {
+    debug_assert!(!seven_bit || q.iter().all(|&v| v < 128));
     let sq = |v: &[u8]| v.iter().map(|&x| u32::from(x) * u32::from(x)).sum::<u32>() as f32;
     let norms: Vec<f32> = q.chunks_exact(d.max(1)).map(sq).collect();
     let sums = q
@@ -268,6 +287,7 @@ fn prepare_codes(q: Vec<u8>, n: usize, d: usize, kernel: quantized::Kernel) -> P
         unit: quantized::SCALE,
         kernel,
         rows: Rows::Quantised { q, sums },
+        seven_bit,
         layout: OnceLock::new(),
         coarse: None,
     }
@@ -438,6 +458,19 @@ impl<'a> Scorer<'a> {
             }
             (Layout::Avx2(pa, _), Layout::Avx2(_, packed)) => {
                 quantized::scores_block_avx2(pa, d, i0, rows, packed, j0, cols, s)
+            }
+            (Layout::Avx2Bytes(pa, _), Layout::Avx2Bytes(_, packed)) => {
+                quantized::scores_block_avx2_bytes(
+                    pa,
+                    self.a.q().1,
+                    d,
+                    i0,
+                    rows,
+                    packed,
+                    j0,
+                    cols,
+                    s,
+                )
             }
             (Layout::F32(_), Layout::F32(_)) => gemm_abt(
                 &self.a.f32_rows()[i0 * d..(i0 + rows) * d],

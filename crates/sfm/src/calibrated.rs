@@ -34,8 +34,8 @@ use nalgebra::{Rotation3, UnitQuaternion, Vector2};
 use crate::common::image_centre;
 use crate::context::Context;
 use crate::metric::ba::MetricBaRecord;
-use crate::metric::consistency;
 use crate::metric::ba::{filter_metric, first_step_loss, keep_scale, refine_metric, setup};
+use crate::metric::consistency;
 use crate::metric::register::{matches_2d3d, register_calibrated, triangulate_new};
 use crate::metric::resect::{insert_view, register_one};
 use crate::projective::init::{can_start, essential_pose, initial_pair_candidates};
@@ -580,6 +580,9 @@ mod tests {
         assert_eq!(ranks_before((45, 0, 1.0), (45, 0, 9.0)), Greater);
         // As many agreeing views: the score decides.
         assert_eq!(ranks_before((46, 4, 2.0), (43, 1, 1.0)), Less);
-        assert_eq!(ranks_before((46, 4, f64::NEG_INFINITY), (42, 0, 1.0)), Greater);
+        assert_eq!(
+            ranks_before((46, 4, f64::NEG_INFINITY), (42, 0, 1.0)),
+            Greater
+        );
     }
 }

@@ -238,6 +238,41 @@ fn avx2_scores_equal_the_exact_integer_products() {
 }
 
 #[test]
+fn avx2_byte_scores_equal_the_exact_integer_products() {
+    if !cpu_has_avx2() {
+        eprintln!("skipped: this CPU has no AVX2");
+        return;
+    }
+    let mut rnd = lcg(13);
+    // Partial row groups (of 4), partial tiles (of 16), an odd number of four-dimension groups and
+    // a partial one; then the extremes: every value 127, where the row's bytes and the set's less
+    // 64 give the largest pair sums (2 · 127 · 63 per group), and every value 0 (the set's −64).
+    for &(n, m, dim, fill) in &[
+        (37usize, 53usize, 32usize, None),
+        (8, 16, 32, None),
+        (5, 37, 10, None),
+        (6, 33, 7, None),
+        (11, 40, 20, None),
+        (9, 40, 32, Some(127u8)),
+        (9, 40, 32, Some(0u8)),
+    ] {
+        let mut draw = || fill.unwrap_or_else(|| (rnd() % 128) as u8);
+        let qa: Vec<u8> = (0..n * dim).map(|_| draw()).collect();
+        let qb: Vec<u8> = (0..m * dim).map(|_| draw()).collect();
+        let sums: Vec<i32> = qa
+            .chunks_exact(dim)
+            .map(|r| r.iter().map(|&v| i32::from(v)).sum())
+            .collect();
+        let packed = PackedBytes::new(&qb, dim);
+        let pa = quads_of(&qa, dim);
+        let (i0, rows, j0, cols) = (1, n - 2, 16, m - 16);
+        let mut out = vec![0f32; rows * cols];
+        scores_block_avx2_bytes(&pa, &sums, dim, i0, rows, &packed, j0, cols, &mut out);
+        assert_exact(&qa, &qb, dim, (i0, rows, j0, cols), &out);
+    }
+}
+
+#[test]
 #[cfg_attr(
     not(has_vnni),
     ignore = "needs a CPU with AVX-512 VNNI (this one has none)"
@@ -319,7 +354,7 @@ fn sixteen_vnni_dots_equal_the_exact_integer_products() {
 #[test]
 fn coarse_codes_are_the_projections_on_the_principal_axes() {
     // A descriptor at the mean plus t along axis c (quantised as the matcher quantises) codes to
-    // 128 + round(t · s) on axis c and about 128 on the others (the axes are orthonormal; the
+    // 64 + round(t · s) on axis c and about 64 on the others (the axes are orthonormal; the
     // quantisation of the descriptor moves each projection by well under a code unit).
     let s = coarse_scale();
     for (c, t) in [(0usize, 0.3f32), (5, -0.2), (31, 0.1)] {
@@ -330,7 +365,7 @@ fn coarse_codes_are_the_projections_on_the_principal_axes() {
         let code = coarse_codes(&q, 128).expect("128 dimensions");
         assert_eq!(code.len(), COARSE_DIM);
         for (k, &x) in code.iter().enumerate() {
-            let want = if k == c { 128.0 + t * s } else { 128.0 };
+            let want = if k == c { 64.0 + t * s } else { 64.0 };
             assert!(
                 (f32::from(x) - want).abs() <= 3.0,
                 "axis {k}: {x} against {want}"

@@ -219,8 +219,7 @@ fn same_calibration<'a>(focal: &[f64], tried: &'a [CandidateRecord]) -> Option<(
         .filter(|r| r.sound && r.screened_points.is_none() && r.score.is_some())
         .find(|r| {
             super::same_focal(&r.focal_after_px, focal)
-                || r
-                    .subsample_focal_px
+                || r.subsample_focal_px
                     .as_ref()
                     .is_some_and(|s| super::same_focal(s, focal))
         })
