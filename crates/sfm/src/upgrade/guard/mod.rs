@@ -92,11 +92,11 @@ pub struct CandidateRecord {
     /// Registered views whose pose disagrees with their verified image pairs
     /// (`metric::consistency`): judged on the calibrated incremental candidate's sound models,
     /// which are ranked by the views that agree.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(default)]
     pub disagreeing_views: Option<usize>,
     /// The focal lengths its subsample's adjustment came to, when its full adjustment started from
     /// there ([`screen`]): another candidate whose subsample comes to them is the same frame.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(default)]
     pub subsample_focal_px: Option<Vec<f64>>,
 }
 

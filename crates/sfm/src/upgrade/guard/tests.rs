@@ -354,3 +354,20 @@ fn an_adjustment_after_the_frame_that_removes_most_observations_is_a_collapse() 
     let why = collapsed(&rec, &adjusted(160, 0.3)).expect("a collapse");
     assert!(why.contains("80 %"), "{why}");
 }
+
+#[test]
+fn candidate_records_survive_a_format_without_field_names() {
+    // A cluster's model travels between processes as postcard (the pipeline's sparse units, the
+    // Python package's Dask tasks), which writes no field names: a field skipped when empty
+    // shifts every byte after it (a skipped `disagreeing_views` broke the Dask benchmark's merge).
+    let full = CandidateRecord {
+        disagreeing_views: Some(3),
+        subsample_focal_px: Some(vec![771.0]),
+        ..record("self-calibration", 708.0, 1.0, true, true)
+    };
+    for r in [full, CandidateRecord::default()] {
+        let bytes = postcard::to_stdvec(&r).expect("encodes");
+        let back: CandidateRecord = postcard::from_bytes(&bytes).expect("decodes");
+        assert_eq!(back, r);
+    }
+}
