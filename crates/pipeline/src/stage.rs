@@ -85,6 +85,34 @@ impl StageContext<'_> {
     }
 }
 
+/// A unit's outcome file taken into the stage folder (postcard), read and removed. `None` when
+/// it cannot be read or decoded, with a warning naming it: the stage then computes that unit
+/// itself. An outcome written by another version of Handheld (a worker not upgraded with the
+/// others) does not decode, and would otherwise be redone without a word.
+pub(crate) fn read_unit_outcome<T: serde::de::DeserializeOwned>(path: &Path) -> Option<T> {
+    let outcome = match std::fs::read(path) {
+        Ok(bytes) => match postcard::from_bytes(&bytes) {
+            Ok(o) => Some(o),
+            Err(e) => {
+                tracing::warn!(
+                    "{}: a unit's outcome that does not decode ({e}; written by another version of Handheld?): it is computed again here",
+                    path.display()
+                );
+                None
+            }
+        },
+        Err(e) => {
+            tracing::warn!(
+                "{}: a unit's outcome that cannot be read ({e}): it is computed again here",
+                path.display()
+            );
+            None
+        }
+    };
+    let _ = std::fs::remove_file(path);
+    outcome
+}
+
 /// The marker of unit `k`: its result, written after its files.
 fn unit_marker(k: usize) -> String {
     format!("unit-{k}.json")
@@ -436,3 +464,26 @@ impl<T: Stage> AnyStage for T {
 
 mod graph;
 pub use graph::Pipeline;
+
+#[cfg(test)]
+mod tests {
+    use super::read_unit_outcome;
+
+    #[test]
+    fn a_unit_outcome_is_read_once_and_one_that_does_not_decode_is_none() {
+        let dir = tempfile::tempdir().expect("a temporary folder");
+        let path = dir.path().join("unit.bin");
+        let value = (3u32, vec![1.5f64, 2.5], Some("k".to_string()));
+        std::fs::write(&path, postcard::to_stdvec(&value).expect("encodes")).expect("written");
+        assert_eq!(read_unit_outcome(&path), Some(value));
+        assert!(!path.exists(), "taken");
+        // Cut short, as a format another version wrote would read.
+        std::fs::write(&path, [7u8]).expect("written");
+        assert_eq!(
+            read_unit_outcome::<(u32, Vec<f64>, Option<String>)>(&path),
+            None
+        );
+        assert!(!path.exists());
+        assert_eq!(read_unit_outcome::<u32>(&path), None);
+    }
+}

@@ -286,12 +286,7 @@ impl Stage for Dense {
         let matched = |p: usize| -> Option<std::result::Result<PairDisparity, String>> {
             let name = pair_file(p);
             ctx.take_unit(p, std::slice::from_ref(&name), dir).ok()??;
-            let path = dir.join(&name);
-            let outcome = std::fs::read(&path)
-                .ok()
-                .and_then(|b| postcard::from_bytes(&b).ok());
-            let _ = std::fs::remove_file(&path);
-            outcome
+            crate::stage::read_unit_outcome(&dir.join(&name))
         };
         densify_with(
             &rec,

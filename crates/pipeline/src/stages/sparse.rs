@@ -100,14 +100,7 @@ impl Sparse {
         for k in 0..clusters.len() {
             let name = cluster_file(k);
             outcomes.push(match ctx.take_unit(k, std::slice::from_ref(&name), dir)? {
-                Some(_) => {
-                    let path = dir.join(&name);
-                    let o = std::fs::read(&path)
-                        .ok()
-                        .and_then(|b| postcard::from_bytes(&b).ok());
-                    let _ = std::fs::remove_file(&path);
-                    o
-                }
+                Some(_) => crate::stage::read_unit_outcome(&dir.join(&name)),
                 None => None,
             });
         }
