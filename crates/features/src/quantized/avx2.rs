@@ -51,23 +51,7 @@ pub(super) unsafe fn block(
             let nc = TILE_I16.min(cols - c0);
             for r in 0..nr {
                 let at = (r0 + r) * cols + c0;
-                let dst = &mut out[at..at + nc];
-                let (l, h) = (_mm256_cvtepi32_ps(lo[r]), _mm256_cvtepi32_ps(hi[r]));
-                if nc == TILE_I16 {
-                    // SAFETY: `dst` holds 16 floats.
-                    unsafe {
-                        _mm256_storeu_ps(dst.as_mut_ptr(), l);
-                        _mm256_storeu_ps(dst.as_mut_ptr().add(8), h);
-                    }
-                } else {
-                    let mut tile = [0f32; TILE_I16];
-                    // SAFETY: `tile` holds 16 floats.
-                    unsafe {
-                        _mm256_storeu_ps(tile.as_mut_ptr(), l);
-                        _mm256_storeu_ps(tile.as_mut_ptr().add(8), h);
-                    }
-                    dst.copy_from_slice(&tile[..nc]);
-                }
+                store_tile(lo[r], hi[r], &mut out[at..at + nc]);
             }
         }
         r0 += nr;
@@ -157,27 +141,36 @@ pub(super) unsafe fn block_bytes(
             let nc = TILE_I16.min(cols - c0);
             for r in 0..nr {
                 let back = _mm256_set1_epi32(64 * sums[i0 + r0 + r]);
-                let l = _mm256_cvtepi32_ps(_mm256_add_epi32(lo[r], back));
-                let h = _mm256_cvtepi32_ps(_mm256_add_epi32(hi[r], back));
                 let at = (r0 + r) * cols + c0;
-                let dst = &mut out[at..at + nc];
-                if nc == TILE_I16 {
-                    // SAFETY: `dst` holds 16 floats.
-                    unsafe {
-                        _mm256_storeu_ps(dst.as_mut_ptr(), l);
-                        _mm256_storeu_ps(dst.as_mut_ptr().add(8), h);
-                    }
-                } else {
-                    let mut tile = [0f32; TILE_I16];
-                    // SAFETY: `tile` holds 16 floats.
-                    unsafe {
-                        _mm256_storeu_ps(tile.as_mut_ptr(), l);
-                        _mm256_storeu_ps(tile.as_mut_ptr().add(8), h);
-                    }
-                    dst.copy_from_slice(&tile[..nc]);
-                }
+                store_tile(
+                    _mm256_add_epi32(lo[r], back),
+                    _mm256_add_epi32(hi[r], back),
+                    &mut out[at..at + nc],
+                );
             }
         }
         r0 += nr;
+    }
+}
+
+/// A row's 16 sums (`lo`, `hi`) as floats into `dst` (at most 16 long; a partial tile's first).
+#[target_feature(enable = "avx2")]
+#[inline]
+fn store_tile(lo: __m256i, hi: __m256i, dst: &mut [f32]) {
+    let (l, h) = (_mm256_cvtepi32_ps(lo), _mm256_cvtepi32_ps(hi));
+    if dst.len() == TILE_I16 {
+        // SAFETY: `dst` holds 16 floats.
+        unsafe {
+            _mm256_storeu_ps(dst.as_mut_ptr(), l);
+            _mm256_storeu_ps(dst.as_mut_ptr().add(8), h);
+        }
+    } else {
+        let mut tile = [0f32; TILE_I16];
+        // SAFETY: `tile` holds 16 floats.
+        unsafe {
+            _mm256_storeu_ps(tile.as_mut_ptr(), l);
+            _mm256_storeu_ps(tile.as_mut_ptr().add(8), h);
+        }
+        dst.copy_from_slice(&tile[..dst.len()]);
     }
 }
