@@ -205,12 +205,7 @@ impl Stage for Matches {
         for (k, _) in plan.pairs.chunks(PAIRS_PER_UNIT).enumerate() {
             let name = block_file(k);
             blocks.push(match ctx.take_unit(k, std::slice::from_ref(&name), dir)? {
-                Some(_) => {
-                    let path = dir.join(&name);
-                    let block = read_block(&path);
-                    let _ = std::fs::remove_file(&path);
-                    block
-                }
+                Some(_) => crate::stage::read_unit_outcome(&dir.join(&name)),
                 None => None,
             });
         }
@@ -303,10 +298,32 @@ fn read_all_features(ctx: &StageContext, n: usize) -> Result<Vec<Features>> {
         .collect()
 }
 
-/// The pair list the driver wrote into the unit folder, if any.
+/// The pair list the driver wrote into the unit folder, if any. One that cannot be read or
+/// decoded (another version's driver) is made again here, with a warning naming the file: the
+/// pair list is a function of the images and the options, so both sides make the same one.
 fn read_plan(ctx: &StageContext) -> Option<PairList> {
-    let bytes = std::fs::read(ctx.units.as_ref()?.join(PLAN_FILE)).ok()?;
-    postcard::from_bytes(&bytes).ok()
+    let path = ctx.units.as_ref()?.join(PLAN_FILE);
+    let bytes = match std::fs::read(&path) {
+        Ok(b) => b,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return None,
+        Err(e) => {
+            tracing::warn!(
+                "{}: the pair list cannot be read ({e}): it is made again here",
+                path.display()
+            );
+            return None;
+        }
+    };
+    match postcard::from_bytes(&bytes) {
+        Ok(plan) => Some(plan),
+        Err(e) => {
+            tracing::warn!(
+                "{}: a pair list that does not decode ({e}; written by another version of Handheld?): it is made again here",
+                path.display()
+            );
+            None
+        }
+    }
 }
 
 fn block_file(k: usize) -> String {
@@ -320,10 +337,6 @@ fn write_block(path: &Path, verified: &[VerifiedPair]) -> Result<()> {
     })?;
     handheld_io::atomic::write_bytes_atomic(path, &bytes)?;
     Ok(())
-}
-
-fn read_block(path: &Path) -> Option<Vec<VerifiedPair>> {
-    postcard::from_bytes(&std::fs::read(path).ok()?).ok()
 }
 
 /// Writes the database and `pairs.json`, and summarises the verified pairs.
