@@ -105,6 +105,14 @@ impl ConsistencyReport {
 /// at 90° from the truth; their only usable pairs with the rest were with views taken out. Flagging
 /// them instead of warning sent a model down another path that kept two other views wrong
 /// (2026-11-28), so they are only named.
+///
+/// A view joined to the model by a usable pair may still rest on nothing else: once its
+/// neighbours were out, the hemisphere's seed 0 kept a view 153° off whose points were seen by
+/// one other view each (58 of them with the one partner its usable pair joins it to, whose
+/// two-view rotation it matched: a long lens leaves a two-view pose this uncertain). A view beside
+/// a removed one that sees fewer points held by two other views than its registration needed
+/// (`min_resection_inliers`) is named too. The kept views of dinoSparseRing, beside its two
+/// removed ones, see 167–346 such points each.
 pub(crate) fn unconfirmed(
     ctx: &Context,
     rec: &MetricReconstruction,
@@ -155,8 +163,44 @@ pub(crate) fn unconfirmed(
         .filter(|(r, views)| Some(*r) != main && views.iter().any(|&i| beside_removed[i]))
         .flat_map(|(_, views)| views)
         .collect();
+    // A view beside a removed one that no longer sees enough points held by two other views
+    // (what its registration needed: `min_resection_inliers`) is posed by two-view tracks alone.
+    let kept_ids: BTreeSet<ImageId> = (0..n)
+        .filter(|&i| kept[i])
+        .map(|i| ctx.input.images[i].id)
+        .collect();
+    let loose: Vec<usize> = (0..n)
+        .filter(|&i| kept[i] && beside_removed[i] && !out.contains(&i))
+        .filter(|&i| {
+            let id = ctx.input.images[i].id;
+            anchored_observations(rec, id, &kept_ids) < ctx.opts.min_resection_inliers
+        })
+        .collect();
+    out.extend(loose);
     out.sort_unstable();
     out
+}
+
+/// Observations of the view `id` whose points at least two other `kept` views observe.
+fn anchored_observations(
+    rec: &MetricReconstruction,
+    id: ImageId,
+    kept: &BTreeSet<ImageId>,
+) -> usize {
+    let others = |p: &handheld_core::Point3D| {
+        p.track
+            .elements
+            .iter()
+            .filter(|e| e.image_id != id && kept.contains(&e.image_id))
+            .count()
+    };
+    rec.views.get(&id).map_or(0, |v| {
+        v.observations
+            .iter()
+            .filter_map(|o| o.point_id)
+            .filter(|pid| rec.points.get(pid).is_some_and(|p| others(p) >= 2))
+            .count()
+    })
 }
 
 /// The angle (degrees) between the relative rotation of views `a` → `b` in `rec` and the one of
@@ -544,6 +588,32 @@ mod tests {
         assert!(unconfirmed(&ctx, &rec, &BTreeSet::from([6])).is_empty());
         // Without it, they agree with each other and with nothing else.
         assert_eq!(unconfirmed(&ctx, &rec, &BTreeSet::from([2])), vec![3, 4]);
+    }
+
+    #[test]
+    fn a_view_beside_a_removed_one_that_rests_on_two_view_tracks_is_unconfirmed() {
+        let (input, mut rec) = scene();
+        let graph = CorrespondenceGraph::build(&input, 8);
+        let opts = SfmOptions::default();
+        let ctx = Context::new(&input, &graph, &opts);
+        assert!(unconfirmed(&ctx, &rec, &BTreeSet::from([2])).is_empty());
+        // View 3 keeps 10 of its points (each seen by every view): its usable pairs still tie it
+        // to the model, but fewer points than a registration needs place it.
+        let v3 = input.images[3].id;
+        let dropped: Vec<handheld_core::PointId> = rec.points.keys().skip(10).copied().collect();
+        for pid in &dropped {
+            if let Some(p) = rec.points.get_mut(pid) {
+                p.track.elements.retain(|e| e.image_id != v3);
+            }
+        }
+        for o in &mut rec.views.get_mut(&v3).expect("view 3").observations {
+            if o.point_id.is_some_and(|pid| dropped.contains(&pid)) {
+                o.point_id = None;
+            }
+        }
+        assert_eq!(unconfirmed(&ctx, &rec, &BTreeSet::from([2])), vec![3]);
+        // Nothing was removed: nothing to say.
+        assert!(unconfirmed(&ctx, &rec, &BTreeSet::new()).is_empty());
     }
 
     #[test]
