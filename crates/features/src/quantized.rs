@@ -48,20 +48,48 @@ pub struct PackedB {
 
 impl PackedB {
     pub fn new(q: &[u8], dim: usize) -> Self {
-        let len = q.len().checked_div(dim).unwrap_or(0);
-        let groups = dim.div_ceil(4);
-        let tiles = len.div_ceil(TILE);
-        let mut data = vec![0i8; tiles * groups * TILE * 4];
-        for j in 0..len {
-            let (t, c) = (j / TILE, j % TILE);
-            for k in 0..dim {
-                let (g, b) = (k / 4, k % 4);
-                data[((t * groups + g) * TILE + c) * 4 + b] =
-                    (i16::from(q[j * dim + k]) - 128) as i8;
-            }
-        }
+        let (data, groups, len) = pack_tiles(q, dim, TILE, 4, |v| (i16::from(v) - 128) as i8);
         Self { data, groups, len }
     }
+}
+
+/// The `q.len() / dim` vectors of `q` packed for a kernel that takes `tile` vectors at a time and
+/// `per` dimensions per word: for each tile and each group of `per` dimensions, the tile's vectors'
+/// `per` values in turn (vector-major), each made by `f`; zero past `dim` and past the last
+/// vector. Returns the data, the groups per vector and the vectors.
+pub(crate) fn pack_tiles<T: Copy + Default>(
+    q: &[u8],
+    dim: usize,
+    tile: usize,
+    per: usize,
+    f: impl Fn(u8) -> T,
+) -> (Vec<T>, usize, usize) {
+    let len = q.len().checked_div(dim).unwrap_or(0);
+    let groups = dim.div_ceil(per);
+    let mut data = vec![T::default(); len.div_ceil(tile) * groups * tile * per];
+    for j in 0..len {
+        let (t, c) = (j / tile, j % tile);
+        for k in 0..dim {
+            let (g, b) = (k / per, k % per);
+            data[((t * groups + g) * tile + c) * per + b] = f(q[j * dim + k]);
+        }
+    }
+    (data, groups, len)
+}
+
+/// Each vector of `q` (`dim` values) as `dim.div_ceil(per)` words of `per` values, `32 / per` bits
+/// each, the lowest first, zero past `dim`: the first operand's rows of the AVX2 kernels.
+pub(crate) fn words_of(q: &[u8], dim: usize, per: usize) -> Vec<i32> {
+    let (groups, bits) = (dim.div_ceil(per), 32 / per);
+    q.chunks_exact(dim.max(1))
+        .flat_map(|row| {
+            (0..groups).map(move |g| {
+                (0..per).fold(0u32, |w, k| {
+                    w | row.get(per * g + k).map_or(0, |&v| u32::from(v)) << (bits * k)
+                }) as i32
+            })
+        })
+        .collect()
 }
 
 /// The environment variable that picks the matching kernel: `avx2` runs the AVX2 path (the same

@@ -19,17 +19,7 @@ pub struct PackedI16 {
 
 impl PackedI16 {
     pub fn new(q: &[u8], dim: usize) -> Self {
-        let len = q.len().checked_div(dim).unwrap_or(0);
-        let pairs = dim.div_ceil(2);
-        let tiles = len.div_ceil(TILE_I16);
-        let mut data = vec![0i16; tiles * pairs * TILE_I16 * 2];
-        for j in 0..len {
-            let (t, c) = (j / TILE_I16, j % TILE_I16);
-            for k in 0..dim {
-                let (g, b) = (k / 2, k % 2);
-                data[((t * pairs + g) * TILE_I16 + c) * 2 + b] = i16::from(q[j * dim + k]);
-            }
-        }
+        let (data, pairs, len) = super::pack_tiles(q, dim, TILE_I16, 2, i16::from);
         Self { data, pairs, len }
     }
 }
@@ -37,16 +27,7 @@ impl PackedI16 {
 /// The rows of A for [`scores_block_avx2`]: row `i`'s dimensions `(2g, 2g + 1)` as two i16 in one
 /// i32 (low half first), `dim.div_ceil(2)` words per row, zero past `dim`.
 pub fn pairs_of(q: &[u8], dim: usize) -> Vec<i32> {
-    let pairs = dim.div_ceil(2);
-    q.chunks_exact(dim.max(1))
-        .flat_map(|row| {
-            (0..pairs).map(move |g| {
-                let lo = u32::from(row[2 * g]);
-                let hi = row.get(2 * g + 1).map_or(0, |&v| u32::from(v));
-                (lo | (hi << 16)) as i32
-            })
-        })
-        .collect()
+    super::words_of(q, dim, 2)
 }
 
 /// Whether this CPU runs the AVX2 kernel.
@@ -102,17 +83,7 @@ impl PackedBytes {
     /// `q` holds vectors of `dim` values below 128 (checked).
     pub fn new(q: &[u8], dim: usize) -> Self {
         assert!(q.iter().all(|&v| v < 128), "values of 7 bits");
-        let len = q.len().checked_div(dim).unwrap_or(0);
-        let groups = dim.div_ceil(4);
-        let tiles = len.div_ceil(TILE_I16);
-        let mut data = vec![0i8; tiles * groups * TILE_I16 * 4];
-        for j in 0..len {
-            let (t, c) = (j / TILE_I16, j % TILE_I16);
-            for k in 0..dim {
-                let (g, b) = (k / 4, k % 4);
-                data[((t * groups + g) * TILE_I16 + c) * 4 + b] = q[j * dim + k] as i8 - 64;
-            }
-        }
+        let (data, groups, len) = super::pack_tiles(q, dim, TILE_I16, 4, |v| v as i8 - 64);
         Self { data, groups, len }
     }
 }
@@ -120,15 +91,7 @@ impl PackedBytes {
 /// The rows of A for [`scores_block_avx2_bytes`]: row `i`'s dimensions `4g..4g + 4` as four bytes
 /// of one i32 (the lowest first), `dim.div_ceil(4)` words per row, zero past `dim`.
 pub fn quads_of(q: &[u8], dim: usize) -> Vec<i32> {
-    let groups = dim.div_ceil(4);
-    q.chunks_exact(dim.max(1))
-        .flat_map(|row| {
-            (0..groups).map(move |g| {
-                let byte = |k: usize| row.get(4 * g + k).map_or(0, |&v| u32::from(v));
-                (byte(0) | byte(1) << 8 | byte(2) << 16 | byte(3) << 24) as i32
-            })
-        })
-        .collect()
+    super::words_of(q, dim, 4)
 }
 
 /// [`scores_block_avx2`] for vectors of values below 128 (the coarse codes, [`super::coarse_codes`]):
