@@ -78,6 +78,14 @@ pub(super) fn coarse_to_fine(
                         col_best = c.key.into_iter().zip(c.row).collect();
                     }
                 }
+                #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+                _ if a.d == 128 => {
+                    let mut cols = mutual.then(|| ColBest::new(m));
+                    ranking.run_avx2(&mut best, cols.as_mut());
+                    if let Some(c) = cols {
+                        col_best = c.key.into_iter().zip(c.row).collect();
+                    }
+                }
                 _ => {
                     let (qa, qb) = (a.q().0, b.q().0);
                     ranking.run(&mut best, mutual.then_some(&mut col_best[..]), |i, j| {
@@ -184,6 +192,78 @@ impl Ranking<'_> {
             bst.offer_unordered(k2, u32::MAX);
         }
     }
+
+    /// [`Ranking::run`] on AVX2 (the CPUs without AVX-512): eight candidates' exact products at a
+    /// time ([`dots8`], on the row widened to 16 bits once), and the offers reduced as in
+    /// [`Ranking::run_vnni`], the column bests by a gather and a comparison, then a store per
+    /// improved column. The same bests as [`Ranking::run`]'s, key for key.
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    fn run_avx2(&self, best: &mut [Best2], mut cols: Option<&mut ColBest>) {
+        use std::arch::x86_64::*;
+        let d = self.a.d;
+        assert_eq!(d, 128);
+        let (qa, qb) = (self.a.q().0, self.b.q().0);
+        let (na, nb) = (&self.a.norms, &self.b.norms);
+        assert!(self
+            .lanes
+            .iter()
+            .flat_map(|ln| ln.j1.iter().chain(&ln.j2))
+            .all(
+                |&j| j == u32::MAX || ((j as usize) < nb.len() && (j as usize + 1) * d <= qb.len())
+            ));
+        assert!(cols
+            .as_ref()
+            .is_none_or(|c| c.key.len() >= nb.len() && c.row.len() >= nb.len()));
+        // SAFETY: AVX2 is enabled at compile time; every row read is in `qa` or `qb` and every
+        // gathered or stored column below `nb.len()` (asserted above); invalid lanes are masked.
+        unsafe {
+            let none = _mm256_set1_epi32(-1);
+            let low = _mm256_set1_ps(f32::NEG_INFINITY);
+            for (r, (ln, bst)) in self.lanes.iter().zip(best).enumerate() {
+                let i = self.i0 + r;
+                let wide: [__m256i; 8] = std::array::from_fn(|k| {
+                    _mm256_cvtepu8_epi16(_mm_loadu_si128(qa.as_ptr().add(i * d + 16 * k).cast()))
+                });
+                let mut keys = [low; 4];
+                let mut jv = [none; 4];
+                for (h, js) in ln
+                    .j1
+                    .chunks_exact(8)
+                    .chain(ln.j2.chunks_exact(8))
+                    .enumerate()
+                {
+                    let j = _mm256_loadu_si256(js.as_ptr().cast());
+                    let v = _mm256_xor_si256(_mm256_cmpeq_epi32(j, none), none);
+                    let s = _mm256_cvtepi32_ps(dots8(&wide, qb, js));
+                    let twice = _mm256_add_ps(s, s);
+                    let vf = _mm256_castsi256_ps(v);
+                    let nbj = _mm256_mask_i32gather_ps::<4>(low, nb.as_ptr(), j, vf);
+                    keys[h] = _mm256_blendv_ps(low, _mm256_sub_ps(twice, nbj), vf);
+                    jv[h] = j;
+                    if let Some(c) = cols.as_deref_mut() {
+                        let key = _mm256_sub_ps(twice, _mm256_set1_ps(na[i]));
+                        let cur = _mm256_mask_i32gather_ps::<4>(low, c.key.as_ptr(), j, vf);
+                        let up = _mm256_and_ps(_mm256_cmp_ps::<_CMP_GT_OQ>(key, cur), vf);
+                        let mut bits = _mm256_movemask_ps(up) as u32;
+                        if bits != 0 {
+                            let mut kk = [0f32; 8];
+                            _mm256_storeu_ps(kk.as_mut_ptr(), key);
+                            while bits != 0 {
+                                let l = bits.trailing_zeros() as usize;
+                                bits &= bits - 1;
+                                let jj = js[l] as usize;
+                                *c.key.get_unchecked_mut(jj) = kk[l];
+                                *c.row.get_unchecked_mut(jj) = i as u32;
+                            }
+                        }
+                    }
+                }
+                let (k1, j1, k2) = offer32_avx2(keys, jv);
+                bst.offer_unordered(k1, j1);
+                bst.offer_unordered(k2, u32::MAX);
+            }
+        }
+    }
 }
 
 /// Each column's best row so far, in two arrays (for the gathers and scatters of
@@ -229,6 +309,104 @@ unsafe fn offer32(
     };
     let k2 = _mm512_reduce_max_ps(_mm512_max_ps(rest(0, t0), rest(1, t1)));
     (k1, j1, k2)
+}
+
+/// The exact products of one row (its 128 bytes widened to 16 bits: `wide`) with the eight rows
+/// `js` of `b` (128 bytes a row; a `u32::MAX` reads row 0, whose lane the caller ignores), lane `k`
+/// for `js[k]`: `vpmaddwd` on 16-bit pairs, exact in i32 (128 · 255² < 2³¹), the eight sums
+/// reduced together by a tree of horizontal adds.
+///
+/// # Safety
+/// Every row `js` names must lie inside `b`.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+#[inline(always)]
+unsafe fn dots8(
+    wide: &[std::arch::x86_64::__m256i; 8],
+    b: &[u8],
+    js: &[u32],
+) -> std::arch::x86_64::__m256i {
+    use std::arch::x86_64::*;
+    // SAFETY: the rows read are inside `b` (the caller's contract); AVX2 is enabled.
+    unsafe {
+        let acc: [__m256i; 8] = std::array::from_fn(|k| {
+            let j = js[k];
+            let row = b
+                .as_ptr()
+                .add(if j == u32::MAX { 0 } else { j as usize * 128 });
+            let mut v = _mm256_setzero_si256();
+            for (t, w) in wide.iter().enumerate() {
+                let x = _mm256_cvtepu8_epi16(_mm_loadu_si128(row.add(16 * t).cast()));
+                v = _mm256_add_epi32(v, _mm256_madd_epi16(x, *w));
+            }
+            v
+        });
+        // [a0+a1, a2+a3, b0+b1, b2+b3 | a4+a5, a6+a7, b4+b5, b6+b7] and so on, then the halves.
+        let p = |x: usize| _mm256_hadd_epi32(acc[x], acc[x + 1]);
+        let (p0, p1, p2, p3) = (p(0), p(2), p(4), p(6));
+        let q0 = _mm256_hadd_epi32(p0, p1);
+        let q1 = _mm256_hadd_epi32(p2, p3);
+        // q0 lanes: [r0, r1, r2, r3 | r0', r1', r2', r3'] (the two 128-bit halves' partial sums).
+        let lo = _mm256_permute2x128_si256::<0x20>(q0, q1);
+        let hi = _mm256_permute2x128_si256::<0x31>(q0, q1);
+        _mm256_add_epi32(lo, hi)
+    }
+}
+
+/// [`offer32`] on AVX2: the two best of a row's 32 keys (invalid lanes at −∞, in four registers
+/// of eight), as [`Best2::offer_unordered`] leaves them whatever the order.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+#[inline(always)]
+fn offer32_avx2(
+    keys: [std::arch::x86_64::__m256; 4],
+    js: [std::arch::x86_64::__m256i; 4],
+) -> (f32, u32, f32) {
+    use std::arch::x86_64::*;
+    // SAFETY: AVX2 is enabled at compile time.
+    unsafe {
+        let hmax = |v: __m256| {
+            let m = _mm_max_ps(_mm256_castps256_ps128(v), _mm256_extractf128_ps::<1>(v));
+            let m = _mm_max_ps(m, _mm_movehl_ps(m, m));
+            _mm_cvtss_f32(_mm_max_ss(m, _mm_shuffle_ps::<0b01>(m, m)))
+        };
+        let hmin_u = |v: __m256i| {
+            let m = _mm_min_epu32(_mm256_castsi256_si128(v), _mm256_extracti128_si256::<1>(v));
+            let m = _mm_min_epu32(m, _mm_shuffle_epi32::<0b01_00_11_10>(m));
+            _mm_cvtsi128_si32(_mm_min_epu32(m, _mm_shuffle_epi32::<0b10_11_00_01>(m))) as u32
+        };
+        let all = _mm256_max_ps(
+            _mm256_max_ps(keys[0], keys[1]),
+            _mm256_max_ps(keys[2], keys[3]),
+        );
+        let k1 = hmax(all);
+        let k1v = _mm256_set1_ps(k1);
+        // Lanes holding the best key (a valid one: −∞ only in invalid lanes when any is valid).
+        let top: [__m256i; 4] =
+            std::array::from_fn(|h| _mm256_castps_si256(_mm256_cmp_ps::<_CMP_EQ_OQ>(keys[h], k1v)));
+        let none = _mm256_set1_epi32(-1);
+        let cand: [__m256i; 4] = std::array::from_fn(|h| _mm256_blendv_epi8(none, js[h], top[h]));
+        let j1 = if k1 == f32::NEG_INFINITY {
+            u32::MAX
+        } else {
+            hmin_u(_mm256_min_epu32(
+                _mm256_min_epu32(cand[0], cand[1]),
+                _mm256_min_epu32(cand[2], cand[3]),
+            ))
+        };
+        let j1v = _mm256_set1_epi32(j1 as i32);
+        let rest: [__m256; 4] = std::array::from_fn(|h| {
+            let at = _mm256_and_si256(top[h], _mm256_cmpeq_epi32(js[h], j1v));
+            _mm256_blendv_ps(
+                keys[h],
+                _mm256_set1_ps(f32::NEG_INFINITY),
+                _mm256_castsi256_ps(at),
+            )
+        });
+        let k2 = hmax(_mm256_max_ps(
+            _mm256_max_ps(rest[0], rest[1]),
+            _mm256_max_ps(rest[2], rest[3]),
+        ));
+        (k1, j1, k2)
+    }
 }
 
 /// `a · b` of two byte vectors, exact (128 · 255² < 2²⁴, so exact in f32 as well).
@@ -311,6 +489,56 @@ mod tests {
                 b
             };
             assert_eq!((got.s1, got.j1, got.s2), (want.s1, want.j1, want.s2));
+            #[cfg(target_feature = "avx2")]
+            {
+                // SAFETY: AVX2 is enabled at compile time; the arrays hold 8 lanes a half.
+                let (k1, j1, k2) = unsafe {
+                    let kv: [__m256; 4] = std::array::from_fn(|q| {
+                        _mm256_loadu_ps(keys[q / 2][8 * (q % 2)..].as_ptr())
+                    });
+                    let jv: [__m256i; 4] = std::array::from_fn(|q| {
+                        _mm256_loadu_si256(js[q / 2][8 * (q % 2)..].as_ptr().cast())
+                    });
+                    offer32_avx2(kv, jv)
+                };
+                let mut b = Best2::NONE;
+                b.offer_unordered(k1, j1);
+                b.offer_unordered(k2, u32::MAX);
+                assert_eq!((b.s1, b.j1, b.s2), (want.s1, want.j1, want.s2));
+            }
+        }
+    }
+
+    /// [`dots8`] gives the exact products of [`dot_u8`], extreme bytes included.
+    #[cfg(target_feature = "avx2")]
+    #[test]
+    fn dots8_is_exact() {
+        let mut state = 0x9e37_79b9_7f4a_7c15_u64;
+        let mut byte = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            [0u8, 255, (state >> 32) as u8][(state % 3) as usize]
+        };
+        let b: Vec<u8> = (0..20 * 128).map(|_| byte()).collect();
+        let a: Vec<u8> = (0..128).map(|_| byte()).collect();
+        let js = [3u32, 0, 19, u32::MAX, 7, 7, 12, 1];
+        // SAFETY: AVX2 is enabled at compile time; every row named is inside `b`.
+        let got = unsafe {
+            let wide: [__m256i; 8] = std::array::from_fn(|k| {
+                _mm256_cvtepu8_epi16(_mm_loadu_si128(a[16 * k..].as_ptr().cast()))
+            });
+            let mut out = [0i32; 8];
+            _mm256_storeu_si256(out.as_mut_ptr().cast(), dots8(&wide, &b, &js));
+            out
+        };
+        for (k, &j) in js.iter().enumerate() {
+            let j = if j == u32::MAX { 0 } else { j as usize };
+            assert_eq!(
+                got[k] as u32,
+                dot_u8(&a, &b[j * 128..(j + 1) * 128]),
+                "lane {k}"
+            );
         }
     }
 }
