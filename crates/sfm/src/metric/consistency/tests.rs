@@ -178,3 +178,62 @@ fn weighted_median_follows_the_weights() {
         20.0
     );
 }
+
+#[test]
+fn a_pair_is_held_by_points_a_third_view_sees_where_they_reproject() {
+    let (input, mut rec) = scene();
+    let graph = CorrespondenceGraph::build(&input, 8);
+    let opts = SfmOptions::default();
+    let ctx = Context::new(&input, &graph, &opts);
+    let pair = input
+        .pairs
+        .iter()
+        .max_by_key(|p| p.matches.len())
+        .expect("a pair");
+    let (a, b) = (input.images[pair.a].id, input.images[pair.b].id);
+    let held = |rec: &MetricReconstruction| {
+        held_by_structure(&ctx, rec, pair, (&rec.views[&a], &rec.views[&b]))
+    };
+    assert!(held(&rec), "the true model holds its pairs");
+    // Turned by 12°, view b no longer reprojects the points onto its matches.
+    let mut turned = rec.clone();
+    let turn = UnitQuaternion::from_axis_angle(&Vector3::y_axis(), 12f64.to_radians());
+    let v = turned.views.get_mut(&b).expect("view b");
+    v.cam_from_world = nalgebra::Isometry3::from_parts(
+        (turn * v.cam_from_world.translation.vector).into(),
+        turn * v.cam_from_world.rotation,
+    );
+    assert!(!held(&turned));
+    // Points seen by the two views alone (two-view tracks) hold nothing beyond the pair.
+    for p in rec.points.values_mut() {
+        if p.track.elements.iter().any(|e| e.image_id == a)
+            && p.track.elements.iter().any(|e| e.image_id == b)
+        {
+            p.track
+                .elements
+                .retain(|e| e.image_id == a || e.image_id == b);
+        }
+    }
+    assert!(!held(&rec));
+}
+
+#[test]
+fn held_pairs_are_allowed_only_inside_the_largest_piece_they_join() {
+    let d = |held| Disagreement {
+        deg: 20.0,
+        allowed_deg: 5.0,
+        held,
+    };
+    // Views 0-3 joined by held pairs; 4 and 5 hold each other but not the rest (a group mirrored
+    // together); pair 3-4 is not held.
+    let pairs = vec![
+        (0, 1, d(true), 100.0),
+        (1, 2, d(true), 100.0),
+        (2, 3, d(true), 100.0),
+        (3, 4, d(false), 100.0),
+        (4, 5, d(true), 100.0),
+    ];
+    let out = exempt_held(pairs);
+    let allowed: Vec<f64> = out.iter().map(|x| x.2.allowed_deg).collect();
+    assert_eq!(allowed, vec![20.0, 20.0, 20.0, 5.0, 5.0]);
+}
