@@ -237,3 +237,40 @@ fn held_pairs_are_allowed_only_inside_the_largest_piece_they_join() {
     let allowed: Vec<f64> = out.iter().map(|x| x.2.allowed_deg).collect();
     assert_eq!(allowed, vec![20.0, 20.0, 20.0, 5.0, 5.0]);
 }
+
+#[test]
+fn a_view_whose_planar_pairs_the_structure_holds_is_confirmed() {
+    let (mut input, rec) = scene();
+    // View 3's pairs with every view but 2 are planar (no F to compare a rotation with).
+    for p in &mut input.pairs {
+        let (a, b) = (p.a.min(p.b), p.a.max(p.b));
+        if (a == 3 || b == 3) && (a, b) != (2, 3) {
+            p.configuration = TwoViewConfiguration::Planar;
+            p.f = None;
+        }
+    }
+    let graph = CorrespondenceGraph::build(&input, 8);
+    let opts = SfmOptions::default();
+    let ctx = Context::new(&input, &graph, &opts);
+    // View 2 out: the model's points, seen by third views, still hold view 3's planar pairs.
+    assert!(unconfirmed(&ctx, &rec, &BTreeSet::from([2])).is_empty());
+    // Points seen by view 3 and one other view only hold nothing beyond the pair.
+    let mut thin = rec.clone();
+    let id3 = input.images[3].id;
+    for p in thin.points.values_mut() {
+        if let Some(other) = p
+            .track
+            .elements
+            .iter()
+            .find(|e| e.image_id != id3)
+            .map(|e| e.image_id)
+        {
+            if p.track.elements.iter().any(|e| e.image_id == id3) {
+                p.track
+                    .elements
+                    .retain(|e| e.image_id == id3 || e.image_id == other);
+            }
+        }
+    }
+    assert!(unconfirmed(&ctx, &thin, &BTreeSet::from([2])).contains(&3));
+}
