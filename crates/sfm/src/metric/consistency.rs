@@ -101,8 +101,8 @@ impl ConsistencyReport {
     }
 }
 
-/// The registered views of `rec` that no usable pair (general, enough inliers, or one whose matches
-/// the model's structure holds: [`held_by_structure`]) ties to the rest of the model once the views of `removed` are gone, and that were registered beside them: the kept
+/// The registered views of `rec` that no usable pair (general, enough inliers) ties to the rest of
+/// the model once the views of `removed` are gone, and that were registered beside them: the kept
 /// views joined by usable pairs fall into pieces, and every piece but the largest that has a
 /// verified pair with a removed view is unconfirmed. Such views were placed beside misplaced views,
 /// often through their points, and nothing confirms them once those are gone.
@@ -147,19 +147,7 @@ pub(crate) fn unconfirmed(
         let usable = p.configuration == TwoViewConfiguration::General
             && p.matches.len() >= MIN_PAIR_INLIERS
             && p.f.is_some();
-        // A pair the model's structure holds confirms, whatever its configuration (a plane's
-        // pairs too: the hemisphere's seed 3 named four right views whose planar and
-        // rotation-only pairs with kept views had 25–203 of their matches held through a third
-        // view).
-        let both = kept[p.a] && kept[p.b];
-        let held = || {
-            let (ia, ib) = (&ctx.input.images[p.a].id, &ctx.input.images[p.b].id);
-            match (rec.views.get(ia), rec.views.get(ib)) {
-                (Some(va), Some(vb)) => held_by_structure(ctx, rec, p, (va, vb)),
-                _ => false,
-            }
-        };
-        if both && (usable || held()) {
+        if usable && kept[p.a] && kept[p.b] {
             let (ra, rb) = (root(&mut parent, p.a), root(&mut parent, p.b));
             parent[ra.max(rb)] = ra.min(rb);
         }
