@@ -20,10 +20,11 @@
 //! A pair's two-view rotation is not always the better witness: under a long lens it is fixed
 //! only along some axes, and wrong matches within its epipolar tolerance can move it by degrees to
 //! tens of degrees. Where the model's points hold most of the pair's matches (reprojecting onto
-//! both) and enough of them are seen by a third view as well, the model's relative pose is
-//! confirmed by more than two views, and the pair allows what it shows ([`held_by_structure`],
-//! [`exempt_held`]): only inside the largest piece that such pairs join, since a group of views
-//! misplaced together holds its own pairs through one another.
+//! both), most of those off its dominant plane too, and enough of them are seen by a third view as
+//! well, the model's relative pose is confirmed by more than two views, and the pair allows what it
+//! shows ([`held_by_structure`], [`exempt_held`]): only inside the largest piece that agreeing or
+//! held pairs join, since a group of views misplaced together holds its own pairs through one
+//! another.
 //!
 //! What is done with a flagged view is the pipeline's (`pipeline/model.rs`): the model is built
 //! again without it, the view registered into the sound model by calibrated resection and judged
@@ -267,70 +268,13 @@ fn pair_disagreement(
     let cos = (((r * model.matrix().transpose()).trace() - 1.0) / 2.0).clamp(-1.0, 1.0);
     let deg = cos.acos().to_degrees();
     let sigma_deg = sigma.map_or(f64::INFINITY, f64::to_degrees);
+    let allowed_deg = MAX_DISAGREEMENT_DEG.hypot(SIGMAS * sigma_deg);
     deg.is_finite().then(|| Disagreement {
         deg,
-        allowed_deg: MAX_DISAGREEMENT_DEG.hypot(SIGMAS * sigma_deg),
-        held: held_by_structure(ctx, rec, pair, (va, vb)),
+        allowed_deg,
+        // Only a pair that disagrees needs the structure's word.
+        held: deg > allowed_deg && held_by_structure(ctx, rec, pair, (va, vb)),
     })
-}
-
-/// Whether the model's structure holds the pair's matches: most of its inliers are observations
-/// of one model point in both views that reprojects onto both (within the model's outlier
-/// threshold), and at least `min_resection_inliers` of them (what placing a
-/// view by resection needs) are of points that a third registered view sees as well.
-///
-/// A two-view rotation can be far off where the model's is right: under a long lens the pair's
-/// Sampson cost is nearly flat along a turn traded against a sideways step, and a few wrong
-/// matches (repeated texture within the epipolar tolerance) move its minimum along that valley.
-/// On a synthetic hemisphere at an 11° field of view, a pair of 182 inliers put the relative
-/// rotation 10.3° from the truth (σ 1.4°: the curvature is real, the bias is the wrong matches'),
-/// and pairs of 30–43 inliers 70–120° (the two-view reversal of a near-affine camera); the views,
-/// 0.1° from the truth and held by 110–154 points seen by two other views, were taken out.
-/// dinoSparseRing lost two views within 0.3° and 1.9° of the truth the same way (its pairs 23°
-/// off). In each, the model's points held 73–93 % of the pairs' inliers and 18–102 of them
-/// through a third view, whose geometry (three views of one rigid structure) the two-view
-/// reversal does not survive. The misplaced views of the same hemispheres had none of their pairs'
-/// inliers held through a third view (0 of 186 and 320 for a view 71° off, registered on other
-/// matches; 0 of 117 for one 153° off, whose 58 shared matches were two-view points, which any
-/// relative pose consistent with the pair explains).
-fn held_by_structure(
-    ctx: &Context,
-    rec: &MetricReconstruction,
-    pair: &crate::input::SfmPair,
-    (va, vb): (&handheld_core::View, &handheld_core::View),
-) -> bool {
-    let (mut shared, mut third) = (0usize, 0usize);
-    for &(i, j) in &pair.matches {
-        let (Some(oa), Some(ob)) = (
-            va.observations.get(i as usize),
-            vb.observations.get(j as usize),
-        ) else {
-            continue;
-        };
-        let (Some(pa), Some(pb)) = (oa.point_id, ob.point_id) else {
-            continue;
-        };
-        let Some(p) = rec.points.get(&pa).filter(|_| pa == pb) else {
-            continue;
-        };
-        // Held: the point reprojects onto both matches under the model's poses.
-        let fits = |id, o: &handheld_core::Observation| {
-            rec.project(id, &p.xyz)
-                .is_some_and(|px| (px - o.xy).norm() <= ctx.opts.metric_max_error_px)
-        };
-        if !(fits(va.id, oa) && fits(vb.id, ob)) {
-            continue;
-        }
-        shared += 1;
-        if p.track
-            .elements
-            .iter()
-            .any(|e| e.image_id != va.id && e.image_id != vb.id)
-        {
-            third += 1;
-        }
-    }
-    2 * shared >= pair.matches.len() && third >= ctx.opts.min_resection_inliers
 }
 
 /// Inliers of a pair used for the cheirality test and the covariance.
@@ -458,55 +402,6 @@ pub(crate) fn inconsistent_views(ctx: &Context, rec: &MetricReconstruction) -> J
     }
 }
 
-/// The pairs with those that the model's structure holds ([`held_by_structure`]) between views of
-/// the largest piece that such pairs join allowing what they show: there the model's relative
-/// pose, confirmed through third views, stands against the pair's two-view estimate. A piece apart
-/// from the largest gets no such allowance: a group of views misplaced together (a synthetic
-/// hemisphere at 11°, seed 0: five neighbouring views mirrored 153° about the dominant plane)
-/// holds its own pairs through one another, while its pairs with the rest of the model are not
-/// held (1 shared match of 178) and disagree.
-fn exempt_held(
-    mut pairs: Vec<(usize, usize, Disagreement, f64)>,
-) -> Vec<(usize, usize, Disagreement, f64)> {
-    let mut parent: BTreeMap<usize, usize> = BTreeMap::new();
-    fn root(parent: &mut BTreeMap<usize, usize>, i: usize) -> usize {
-        let mut r = i;
-        while let Some(&p) = parent.get(&r) {
-            if p == r {
-                break;
-            }
-            r = p;
-        }
-        parent.insert(i, r);
-        r
-    }
-    for &(a, b, d, _) in &pairs {
-        parent.entry(a).or_insert(a);
-        parent.entry(b).or_insert(b);
-        if d.held {
-            let (ra, rb) = (root(&mut parent, a), root(&mut parent, b));
-            parent.insert(ra.max(rb), ra.min(rb));
-        }
-    }
-    let views: Vec<usize> = parent.keys().copied().collect();
-    let mut size: BTreeMap<usize, usize> = BTreeMap::new();
-    for &v in &views {
-        *size.entry(root(&mut parent, v)).or_default() += 1;
-    }
-    // The largest piece (the first of equals).
-    let main = size
-        .iter()
-        .max_by(|x, y| x.1.cmp(y.1).then(y.0.cmp(x.0)))
-        .map(|(r, _)| *r);
-    for (a, b, d, _) in &mut pairs {
-        let inside = Some(root(&mut parent, *a)) == main && Some(root(&mut parent, *b)) == main;
-        if d.held && inside {
-            d.allowed_deg = d.allowed_deg.max(d.deg);
-        }
-    }
-    pairs
-}
-
 /// Views whose pose disagrees with their verified pairs (`judged` by [`inconsistent_views`] on
 /// `rec`) are taken out of the
 /// model, recorded in `failures`, and the model is adjusted again without them (intrinsics
@@ -570,6 +465,9 @@ pub(crate) fn take_out(
         }
     }
 }
+
+mod held;
+use held::{exempt_held, held_by_structure};
 
 #[cfg(test)]
 mod tests;
