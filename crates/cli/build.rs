@@ -17,6 +17,7 @@ fn main() {
         ("has_iclnuim", Need::Dataset("iclnuim-5")),
         ("has_herzjesu", Need::Dataset("herzjesu-P8")),
         ("has_temple", Need::Dataset("templeSparseRing")),
+        ("has_dino", Need::Dataset("dinoSparseRing")),
         ("has_teddy", Need::Dataset("stereo-teddy")),
         ("has_et", Need::Dataset("bundler-ET")),
     ]);

@@ -1,7 +1,8 @@
 //! Real data, scored by the shared evaluation tool: `handheld reconstruct` up to the sparse model
-//! on iclnuim-5 (5 frames of ICL-NUIM, 640×480), herzjesu-P8 and templeSparseRing without its 4th
-//! view, then `../shared/tools/eval_sfm.py` against each data set's ground-truth poses:
-//! registration, pairwise relative-pose AUC, rotation and focal error, and the principal point.
+//! on iclnuim-5 (5 frames of ICL-NUIM, 640×480), herzjesu-P8, templeSparseRing without its 4th
+//! view and dinoSparseRing, then `../shared/tools/eval_sfm.py` against each data set's
+//! ground-truth poses: registration, pairwise relative-pose AUC, rotation and focal error, and the
+//! principal point.
 //! Each test is ignored (and says what it needs) when the data set, the script, python3 or numpy is
 //! missing, and fails naming it on CI (`CI` set; see `crates/testkit/src/needs.rs`).
 
@@ -195,6 +196,29 @@ fn focal(ws: &Path) -> f64 {
         .find(|l| !l.starts_with('#') && !l.trim().is_empty())
         .unwrap();
     line.split_whitespace().nth(4).unwrap().parse().unwrap()
+}
+
+/// dinoSparseRing (a turntable under a long lens, f ≈ 3 300 px, little texture): the pairs'
+/// two-view rotations are off by 20° and more where the model's points, seen by third views, hold
+/// their matches, and such pairs must not take right views out (two views within 2° of the truth
+/// were taken out before the thirty-ninth session, 6 kept of 16). The largest model keeps at least
+/// 8 views, every one within 3° of the truth (its worst, dinoSR0014, is 1.9° off; a misplaced
+/// view is 10° or more), and the focal length within 1 %.
+#[test]
+#[cfg_attr(
+    not(all(has_dino, has_eval_sfm, has_numpy)),
+    ignore = "needs ../shared/datasets/dinoSparseRing, ../shared/tools/eval_sfm.py and python3 + numpy (missing)"
+)]
+fn dino_views_held_by_the_structure_are_kept() {
+    let (data, eval) = (dataset("dinoSparseRing"), need_eval_sfm());
+    let ws = reconstruct_sparse(&data.join("images"));
+    let v = eval_sfm(&eval, &ws.path().join("sparse"), &data);
+    let registered = v["registered"].as_u64().unwrap_or(0);
+    assert!(registered >= 8, "{registered} views registered: {v}");
+    let max = v["rot_err_deg_max"].as_f64().unwrap_or(f64::INFINITY);
+    assert!(max < 3.0, "a view {max}° from the truth: {v}");
+    let focal = v["focal_err_pct_median"].as_f64().unwrap_or(f64::INFINITY);
+    assert!(focal < 1.0, "focal error {focal} %: {v}");
 }
 
 /// `../shared/tools/eval_sfm.py`, checked with python3 + numpy before any work is done; a panic
