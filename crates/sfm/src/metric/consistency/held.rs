@@ -77,10 +77,11 @@ pub(super) fn held_by_structure(
 
 /// Which of the pair's inliers lie off its dominant plane: farther than `thr` (pixels, symmetric
 /// transfer) from the homography that explains most of them (RANSAC, H&Z §4.7); every one when
-/// no homography explains a fifth. Points on one plane admit two poses of a view under a long lens
-/// (the plane's tilt either way): on the hemisphere (shuffled, seed 2) a view 43° off held 145 and
-/// 151 of its two planar pairs' 179 and 175 matches, 127–128 through a third view. Only the
-/// matches off the plane tell the two poses apart.
+/// no homography explains a fifth. Points on one plane fix a view's pose only weakly under a long
+/// lens (two poses, the plane tilted either way, and a shallow valley between): on the hemisphere
+/// (shuffled, seed 2) a view 43° off held 145 and 151 of its two planar pairs' 179 and 175
+/// matches, 127–128 through a third view, and none off the plane. Only matches off the plane
+/// weigh against such a pose.
 fn off_plane(ctx: &Context, pair: &crate::input::SfmPair, thr: f64) -> Vec<bool> {
     use handheld_robust::{Estimator, HomographyEstimator, Match2d2d, Msac, RansacOptions};
     let (ia, ib) = (&ctx.input.images[pair.a], &ctx.input.images[pair.b]);
