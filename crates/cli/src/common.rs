@@ -90,7 +90,9 @@ pub struct InputArgs {
     /// Matching: `exhaustive`, `sequential` (each image with its --window successors),
     /// `retrieval` (each image with its --neighbours most similar images, whatever the file
     /// order), or `auto` (exhaustive up to 40 photos; sequential for video; for more photos, the
-    /// window over the order their content gives, plus the --neighbours most similar images).
+    /// window over the order their content gives, plus the --neighbours most similar images). With
+    /// retrieval and auto's larger photo sets, an image that verified fewer pairs than --window is
+    /// then matched with every other image.
     #[arg(long, default_value = choice_name(&defaults().matches.pairs), value_parser = choice::<PairMode>)]
     pub pairs: PairMode,
     /// Matching: neighbours on each side for sequential matching.

@@ -28,7 +28,9 @@
 //! - `retrieval.rs`: VLAD image retrieval for pair selection, with a vocabulary trained in content order, and the
 //!   spectral seriation that recovers a capture order from the images (`--pairs retrieval`, and the default pairs of
 //!   photo sets over 40 images);
-//! - `close_views.rs`: extra pairs for cameras that return (§3.2).
+//! - `close_views.rs`: extra pairs for cameras that return (§3.2);
+//! - `second_round.rs`: the second round of pairs for selectively matched photo sets (every pair of an image
+//!   whose first round verified few).
 
 pub mod close_views;
 pub mod detector;
@@ -46,6 +48,7 @@ mod nearest;
 pub mod quantized;
 pub mod refine;
 pub mod retrieval;
+pub mod second_round;
 pub mod sift;
 pub mod verify;
 pub mod video;

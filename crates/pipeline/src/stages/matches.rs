@@ -10,6 +10,7 @@ use std::path::Path;
 use handheld_features::close_views::{propose_close_views, CloseViewOptions};
 use handheld_features::matching::{exhaustive_pairs, sequential_pairs};
 use handheld_features::retrieval::{retrieval_pairs, unordered_pairs, RetrievalOptions};
+use handheld_features::second_round::weak_image_pairs;
 use handheld_features::verify::{verify_pairs, PairVerificationOptions, VerifiedPair};
 use handheld_features::video::{keyframe_pairs, VideoTrackingOptions};
 use handheld_features::Features;
@@ -35,6 +36,9 @@ pub struct MatchesStageOptions {
     pub close_views: bool,
     /// Retrieval: the most similar images each image is matched with.
     pub retrieval: RetrievalOptions,
+    /// With retrieval or the unordered photo pairs: after the first round, an image that verified
+    /// fewer pairs than `window` is matched with every other image ([`weak_image_pairs`]).
+    pub second_round: bool,
     /// Putative matching, guided matching and two-view verification (Table 1).
     pub verification: PairVerificationOptions,
 }
@@ -46,6 +50,7 @@ impl Default for MatchesStageOptions {
             window: 8,
             close_views: true,
             retrieval: RetrievalOptions::default(),
+            second_round: true,
             verification: PairVerificationOptions::default(),
         }
     }
@@ -97,6 +102,12 @@ pub struct MatchesSummary {
     pub verified_general: usize,
     pub verified_planar_or_rotation: usize,
     pub inliers_per_verified_pair_median: Option<usize>,
+    /// Pairs of the second round (the images that verified few pairs, with every other image),
+    /// and how many of them verified; both included above.
+    #[serde(default)]
+    pub second_round_pairs: usize,
+    #[serde(default)]
+    pub second_round_verified: usize,
 }
 
 /// The matches stage.
@@ -225,15 +236,46 @@ impl Stage for Matches {
                 None => verified.extend(computed.by_ref().take(pairs.len())),
             }
         }
-        finish(
+        // The second round runs here, on the first round's result (not in work units).
+        let mut extra = Vec::new();
+        if opts.second_round
+            && matches!(
+                opts.pairs.plan(ingest.kind, n),
+                PairPlan::Unordered | PairPlan::Retrieval
+            )
+        {
+            let links: Vec<(usize, usize)> = verified
+                .iter()
+                .filter(|v| v.geometry.configuration != TwoViewConfiguration::TooFewInliers)
+                .map(|v| (v.i, v.j))
+                .collect();
+            extra = weak_image_pairs(n, &links, &plan.pairs, opts.window);
+        }
+        let more = verify_pairs(&features, &extra, &opts.verification, ctx.progress);
+        let found = more
+            .iter()
+            .filter(|v| v.geometry.configuration != TwoViewConfiguration::TooFewInliers)
+            .count();
+        if !extra.is_empty() {
+            tracing::info!(
+                "second round: {} more pairs (every image that verified fewer than {} pairs, with every other image), {found} verified",
+                extra.len(),
+                opts.window
+            );
+        }
+        verified.extend(more);
+        let mut produced = finish(
             dir,
             &ingest,
             &features,
             &verified,
-            plan.pairs.len(),
+            plan.pairs.len() + extra.len(),
             plan.proposed,
             opts,
-        )
+        )?;
+        produced.summary.second_round_pairs = extra.len();
+        produced.summary.second_round_verified = found;
+        Ok(produced)
     }
 }
 
@@ -386,6 +428,8 @@ fn finish(
                 })
                 .count(),
             inliers_per_verified_pair_median: inl.get(inl.len() / 2).copied(),
+            second_round_pairs: 0,
+            second_round_verified: 0,
         },
     ))
 }
