@@ -148,21 +148,19 @@ pub(crate) fn build_all(
     let mut refined = 0;
     progress.start("calibrated incremental candidate", starts.len() as u64);
     let mut next = 0;
+    let mut agreed = false;
     loop {
         if next == starts.len() {
             // The starts are done (or two agreed). When the best model ended far from every
             // start, it was grown under a focal length that its own adjustment then moved by more
             // than the starts are apart (a long lens, 5.2 times the image side, from starts of
             // 0.8–2 times it: every model came out depth-reversed, at 3.6–4.6 times). It is built
-            // again from the focal length it found, as a start of its own. Agreeing starts are
-            // no exception: on the same hemisphere (seed 0) with every pair matched, the starts
-            // at 639 and 512 px both ended at 4 590 px with 40 views, 38 % long; built again from
-            // there, 47 views at 3 340 px (0.5 %), and all 48 views within 1° of the truth.
+            // again from the focal length it found, as a start of its own ([`refined_start`]).
             sort_best_first(ctx, &mut sound, tried);
             let best = sound
                 .first()
                 .and_then(|b| guard::focal_lengths(&b.rec).first().copied());
-            match refined_start(best, &started, refined) {
+            match refined_start(best, &started, agreed, refined) {
                 Some(f) => {
                     refined += 1;
                     started.push(f);
@@ -191,7 +189,7 @@ pub(crate) fn build_all(
                 );
                 tried.push(b.record.clone());
                 if b.record.sound {
-                    let agreed = sound.iter().any(|o: &Built| agree(o, &b));
+                    agreed = sound.iter().any(|o: &Built| agree(o, &b));
                     sound.push(b);
                     // Two starts from different focal lengths that end at the same one, with the
                     // same views: the other starts would end there too. Whether the images
@@ -225,13 +223,23 @@ const MAX_REFINED: usize = 2;
 
 /// The focal length to build the calibrated model again from ([`build_all`]): the best sound
 /// model's (`best`), when fewer than [`MAX_REFINED`] were built this way and it is more than
-/// [`SAME_FOCAL`] from every start so far (`started`).
-fn refined_start(best: Option<f64>, started: &[f64], refined: usize) -> Option<f64> {
+/// [`SAME_FOCAL`] from every start so far (`started`). When the last model built `agreed` with
+/// another, only if every start lies on one side of it: two starts from below can end at the same
+/// wrong focal length (the hemisphere of [`build_all`], seed 0, with every pair matched: 639 and
+/// 512 px both ended at 4 590 px with 40 views, 38 % long; built again from there, 3 340 px,
+/// 0.5 %, and all 48 views within 1° of the truth), while starts on both sides that meet between
+/// them bracket it (the 189-frame corridor: 650 and 512 px both at 577 px, the truth 576 px).
+fn refined_start(best: Option<f64>, started: &[f64], agreed: bool, refined: usize) -> Option<f64> {
+    let one_side = |f: f64| {
+        started.iter().all(|&s| f > s * (1.0 + SAME_FOCAL))
+            || started.iter().all(|&s| f < s / (1.0 + SAME_FOCAL))
+    };
     best.filter(|&f| {
         refined < MAX_REFINED
             && f.is_finite()
             && f > 0.0
             && started.iter().all(|&s| (f / s - 1.0).abs() > SAME_FOCAL)
+            && (!agreed || one_side(f))
     })
 }
 
@@ -514,11 +522,23 @@ mod tests {
     fn a_model_that_ended_far_from_every_start_is_built_again_from_where_it_ended() {
         // The narrow-lens hemisphere: starts 915, 512, 768, 1280 px, the best model at 3 627 px.
         let started = [915.0, 512.0, 768.0, 1280.0];
-        assert_eq!(refined_start(Some(3627.0), &started, 0), Some(3627.0));
+        assert_eq!(
+            refined_start(Some(3627.0), &started, false, 0),
+            Some(3627.0)
+        );
+        // Two starts that agreed far above every start: built again all the same.
+        assert_eq!(refined_start(Some(3627.0), &started, true, 0), Some(3627.0));
         // Near a start already built, or twice already: no more.
-        assert_eq!(refined_start(Some(1350.0), &started, 0), None);
-        assert_eq!(refined_start(Some(3627.0), &started, MAX_REFINED), None);
-        assert_eq!(refined_start(None, &started, 0), None);
-        assert_eq!(refined_start(Some(f64::NAN), &started, 0), None);
+        assert_eq!(refined_start(Some(1350.0), &started, false, 0), None);
+        assert_eq!(
+            refined_start(Some(3627.0), &started, false, MAX_REFINED),
+            None
+        );
+        assert_eq!(refined_start(None, &started, false, 0), None);
+        assert_eq!(refined_start(Some(f64::NAN), &started, false, 0), None);
+        // The corridor: starts 650, 512, 768, 1 280 px, two agreed at 577 px, between them.
+        let corridor = [650.0, 512.0, 768.0, 1280.0];
+        assert_eq!(refined_start(Some(577.0), &corridor, true, 0), None);
+        assert_eq!(refined_start(Some(577.0), &corridor, false, 0), Some(577.0));
     }
 }
