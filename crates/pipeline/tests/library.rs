@@ -244,6 +244,51 @@ fn out_of_range_options_are_named() {
 }
 
 #[test]
+fn a_second_round_matches_the_images_the_first_left_weakly_verified() {
+    // One most-similar image each: the first round verifies at most a couple of pairs per image,
+    // fewer than the window, so every image is matched with every other one in the second round.
+    let dir = tempfile::tempdir().expect("temp dir");
+    let seq = scene(dir.path());
+    let n = seq.images.len();
+    let mut options = PipelineOptions::default();
+    options.matches.pairs = handheld_pipeline::policy::PairMode::Retrieval;
+    options.matches.retrieval.neighbours = 1;
+    let run = |options: &PipelineOptions, ws: &str| {
+        let ws_path = dir.path().join(ws);
+        handheld_pipeline::reconstruct(
+            &dir.path().join("images"),
+            &ws_path,
+            options,
+            Some(stage::MATCHES),
+            false,
+            &NoProgress,
+        )
+        .expect("matches");
+        let s: handheld_pipeline::stages::matches::MatchesSummary = Workspace::open(&ws_path)
+            .expect("workspace")
+            .summary(stage::MATCHES)
+            .expect("summary parses")
+            .expect("matches ran");
+        s
+    };
+    let with = run(&options, "with");
+    assert_eq!(with.pairs, n * (n - 1) / 2, "{with:?}");
+    assert!(
+        with.second_round_pairs > 0 && with.second_round_verified > 0,
+        "{with:?}"
+    );
+    options.matches.second_round = false;
+    let without = run(&options, "without");
+    assert_eq!(without.second_round_pairs, 0);
+    assert_eq!(without.pairs + with.second_round_pairs, with.pairs);
+    // The sweep's frames all overlap: the second round verifies pairs the first never tried.
+    let verified = |s: &handheld_pipeline::stages::matches::MatchesSummary| {
+        s.verified_general + s.verified_planar_or_rotation
+    };
+    assert!(verified(&with) > verified(&without), "{with:?} {without:?}");
+}
+
+#[test]
 fn options_round_trip_through_json() {
     let o = PipelineOptions::default();
     let text = serde_json::to_string(&o).expect("serialise");
