@@ -14,14 +14,25 @@
 //! found 194 more pairs on the same hemisphere, none of them between the two rings, and 372 on
 //! kitti-seq1, where they only added time.
 
-/// Every pair not yet `tried` that has an image with fewer than `min_verified` pairs in `verified`
-/// among the `n` images, as `(lower, higher)`, sorted, without duplicates.
+/// The second round's pairs, and how many weak images it left out for its budget.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct SecondRound {
+    /// `(lower, higher)`, sorted, without duplicates.
+    pub pairs: Vec<(usize, usize)>,
+    /// Images with fewer than the minimum of verified pairs whose rows did not fit the budget.
+    pub left_out: usize,
+}
+
+/// Every pair not yet `tried` of the images (of `n`) with fewer than `min_verified` pairs in
+/// `verified`, the fewest verified first, whole rows only while they fit within `budget` pairs: a
+/// walk whose every photo overlaps only a few others would otherwise be matched exhaustively.
 pub fn weak_image_pairs(
     n: usize,
     verified: &[(usize, usize)],
     tried: &[(usize, usize)],
     min_verified: usize,
-) -> Vec<(usize, usize)> {
+    budget: usize,
+) -> SecondRound {
     let mut count = vec![0usize; n];
     for &(i, j) in verified {
         if i < n && j < n && i != j {
@@ -29,19 +40,25 @@ pub fn weak_image_pairs(
             count[j] += 1;
         }
     }
-    let done: std::collections::HashSet<(usize, usize)> =
+    let mut done: std::collections::HashSet<(usize, usize)> =
         tried.iter().map(|&(a, b)| (a.min(b), a.max(b))).collect();
-    let mut out: Vec<(usize, usize)> = (0..n)
-        .filter(|&a| count[a] < min_verified)
-        .flat_map(|a| {
-            (0..n)
-                .filter(move |&b| b != a)
-                .map(move |b| (a.min(b), a.max(b)))
-        })
-        .filter(|k| !done.contains(k))
-        .collect();
-    out.sort_unstable();
-    out.dedup();
+    let mut weak: Vec<usize> = (0..n).filter(|&a| count[a] < min_verified).collect();
+    weak.sort_by_key(|&a| (count[a], a));
+    let mut out = SecondRound::default();
+    for (k, &a) in weak.iter().enumerate() {
+        let row: Vec<(usize, usize)> = (0..n)
+            .filter(|&b| b != a)
+            .map(|b| (a.min(b), a.max(b)))
+            .filter(|p| !done.contains(p))
+            .collect();
+        if out.pairs.len() + row.len() > budget {
+            out.left_out = weak.len() - k;
+            break;
+        }
+        done.extend(row.iter().copied());
+        out.pairs.extend(row);
+    }
+    out.pairs.sort_unstable();
     out
 }
 
@@ -55,9 +72,17 @@ mod tests {
         // verified pairs needed, 3 and 4 are weak: their rows, without the pairs already tried.
         let verified = [(0, 1), (1, 2), (0, 2), (2, 3)];
         let tried = [(0, 1), (1, 2), (0, 2), (2, 3), (3, 4), (0, 4)];
-        let p = weak_image_pairs(5, &verified, &tried, 2);
-        assert_eq!(p, vec![(0, 3), (1, 3), (1, 4), (2, 4)]);
+        let p = weak_image_pairs(5, &verified, &tried, 2, usize::MAX);
+        assert_eq!(p.pairs, vec![(0, 3), (1, 3), (1, 4), (2, 4)]);
+        assert_eq!(p.left_out, 0);
         // Nothing is weak with no minimum.
-        assert!(weak_image_pairs(5, &verified, &tried, 0).is_empty());
+        assert!(weak_image_pairs(5, &verified, &tried, 0, usize::MAX)
+            .pairs
+            .is_empty());
+        // Within a budget of three pairs: the weakest image's row (4: 1–4, 2–4) fits, 3's does
+        // not.
+        let p = weak_image_pairs(5, &verified, &tried, 2, 3);
+        assert_eq!(p.pairs, vec![(1, 4), (2, 4)]);
+        assert_eq!(p.left_out, 1);
     }
 }

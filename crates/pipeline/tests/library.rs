@@ -246,7 +246,8 @@ fn out_of_range_options_are_named() {
 #[test]
 fn a_second_round_matches_the_images_the_first_left_weakly_verified() {
     // One most-similar image each: the first round verifies at most a couple of pairs per image,
-    // fewer than the window, so every image is matched with every other one in the second round.
+    // fewer than the window, so the weakest images are matched with every other one in the second
+    // round, up to as many pairs as the first round had, or one image's row.
     let dir = tempfile::tempdir().expect("temp dir");
     let seq = scene(dir.path());
     let n = seq.images.len();
@@ -272,7 +273,7 @@ fn a_second_round_matches_the_images_the_first_left_weakly_verified() {
         s
     };
     let with = run(&options, "with");
-    assert_eq!(with.pairs, n * (n - 1) / 2, "{with:?}");
+    assert!(with.pairs <= n * (n - 1) / 2, "{with:?}");
     assert!(
         with.second_round_pairs > 0 && with.second_round_verified > 0,
         "{with:?}"
@@ -281,6 +282,10 @@ fn a_second_round_matches_the_images_the_first_left_weakly_verified() {
     let without = run(&options, "without");
     assert_eq!(without.second_round_pairs, 0);
     assert_eq!(without.pairs + with.second_round_pairs, with.pairs);
+    assert!(
+        with.second_round_pairs <= without.pairs.max(n - 1),
+        "{with:?} {without:?}"
+    );
     // The sweep's frames all overlap: the second round verifies pairs the first never tried.
     let verified = |s: &handheld_pipeline::stages::matches::MatchesSummary| {
         s.verified_general + s.verified_planar_or_rotation

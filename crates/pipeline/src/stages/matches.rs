@@ -249,7 +249,18 @@ impl Stage for Matches {
                 .filter(|v| v.geometry.configuration != TwoViewConfiguration::TooFewInliers)
                 .map(|v| (v.i, v.j))
                 .collect();
-            extra = weak_image_pairs(n, &links, &plan.pairs, opts.window);
+            // At most as many pairs as the first round (matching costs at most twice as much), but
+            // always room for one whole row.
+            let budget = plan.pairs.len().max(n.saturating_sub(1));
+            let round = weak_image_pairs(n, &links, &plan.pairs, opts.window, budget);
+            if round.left_out > 0 {
+                tracing::info!(
+                    "second round: {} image(s) that verified fewer than {} pairs were not matched with every other image (the round stops at as many pairs as the first, or one image's row)",
+                    round.left_out,
+                    opts.window
+                );
+            }
+            extra = round.pairs;
         }
         let more = verify_pairs(&features, &extra, &opts.verification, ctx.progress);
         let found = more
@@ -258,7 +269,7 @@ impl Stage for Matches {
             .count();
         if !extra.is_empty() {
             tracing::info!(
-                "second round: {} more pairs (every image that verified fewer than {} pairs, with every other image), {found} verified",
+                "second round: {} more pairs (images that verified fewer than {} pairs, each with every other image), {found} verified",
                 extra.len(),
                 opts.window
             );
