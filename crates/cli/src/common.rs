@@ -87,12 +87,10 @@ pub struct InputArgs {
     /// Features (KLT): live tracks kept per frame by re-detection.
     #[arg(long, default_value_t = defaults().features.klt_features, value_parser = clap::builder::TypedValueParser::map(clap::value_parser!(u64).range(16..=100_000), |v| v as usize))]
     pub klt_features: usize,
-    /// Matching: `exhaustive`, `sequential` (each image with its --window successors),
-    /// `retrieval` (each image with its --neighbours most similar images, whatever the file
-    /// order), or `auto` (exhaustive up to 40 photos; sequential for video; for more photos, the
-    /// window over the order their content gives, plus the --neighbours most similar images). With
-    /// retrieval and auto's larger photo sets, an image that verified fewer pairs than --window is
-    /// then matched with every other image.
+    /// Matching: `exhaustive`, `sequential` (each image with its --window successors), `retrieval`
+    /// (its --neighbours most similar images, whatever the file order), or `auto` (exhaustive up to
+    /// 40 photos; sequential for video; else the window over the content order plus retrieval).
+    /// Retrieval and auto's larger sets then match weakly verified images with every other image.
     #[arg(long, default_value = choice_name(&defaults().matches.pairs), value_parser = choice::<PairMode>)]
     pub pairs: PairMode,
     /// Matching: neighbours on each side for sequential matching.

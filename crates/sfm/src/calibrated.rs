@@ -145,10 +145,10 @@ pub(crate) fn build_all(
     let mut sound: Vec<Built> = Vec::new();
     let mut starts = starts(ctx, allowed);
     let mut started: Vec<f64> = starts.iter().map(|s| s.focal_px).collect();
+    let mut agreed = false;
     let mut refined = 0;
     progress.start("calibrated incremental candidate", starts.len() as u64);
     let mut next = 0;
-    let mut agreed = false;
     loop {
         if next == starts.len() {
             // The starts are done (or two agreed). When the best model ended far from every

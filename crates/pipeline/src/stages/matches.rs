@@ -15,7 +15,7 @@ use handheld_features::verify::{verify_pairs, PairVerificationOptions, VerifiedP
 use handheld_features::video::{keyframe_pairs, VideoTrackingOptions};
 use handheld_features::Features;
 use handheld_io::database::{Database, StoredTwoViewGeometry, TwoViewConfig};
-use handheld_io::ingest::IngestResult;
+use handheld_io::ingest::{IngestResult, InputKind};
 use handheld_robust::TwoViewConfiguration;
 use serde::{Deserialize, Serialize};
 
@@ -237,31 +237,7 @@ impl Stage for Matches {
             }
         }
         // The second round runs here, on the first round's result (not in work units).
-        let mut extra = Vec::new();
-        if opts.second_round
-            && matches!(
-                opts.pairs.plan(ingest.kind, n),
-                PairPlan::Unordered | PairPlan::Retrieval
-            )
-        {
-            let links: Vec<(usize, usize)> = verified
-                .iter()
-                .filter(|v| v.geometry.configuration != TwoViewConfiguration::TooFewInliers)
-                .map(|v| (v.i, v.j))
-                .collect();
-            // At most as many pairs as the first round (matching costs at most twice as much), but
-            // always room for one whole row.
-            let budget = plan.pairs.len().max(n.saturating_sub(1));
-            let round = weak_image_pairs(n, &links, &plan.pairs, opts.window, budget);
-            if round.left_out > 0 {
-                tracing::info!(
-                    "second round: {} image(s) that verified fewer than {} pairs were not matched with every other image (the round stops at as many pairs as the first, or one image's row)",
-                    round.left_out,
-                    opts.window
-                );
-            }
-            extra = round.pairs;
-        }
+        let extra = self.second_round(ingest.kind, n, &plan, &verified);
         let more = verify_pairs(&features, &extra, &opts.verification, ctx.progress);
         let found = more
             .iter()
@@ -303,6 +279,42 @@ struct PairList {
 }
 
 impl Matches {
+    /// The second round's pairs ([`weak_image_pairs`]) after the first round `verified` the
+    /// `plan`: only for retrieval and auto's larger photo sets, at most as many pairs as the first
+    /// round (matching costs at most twice as much) but always room for one whole row.
+    fn second_round(
+        &self,
+        kind: InputKind,
+        n: usize,
+        plan: &PairList,
+        verified: &[VerifiedPair],
+    ) -> Vec<(usize, usize)> {
+        let opts = &self.options;
+        if !opts.second_round
+            || !matches!(
+                opts.pairs.plan(kind, n),
+                PairPlan::Unordered | PairPlan::Retrieval
+            )
+        {
+            return Vec::new();
+        }
+        let links: Vec<(usize, usize)> = verified
+            .iter()
+            .filter(|v| v.geometry.configuration != TwoViewConfiguration::TooFewInliers)
+            .map(|v| (v.i, v.j))
+            .collect();
+        let budget = plan.pairs.len().max(n.saturating_sub(1));
+        let round = weak_image_pairs(n, &links, &plan.pairs, opts.window, budget);
+        if round.left_out > 0 {
+            tracing::info!(
+                "second round: {} image(s) that verified fewer than {} pairs were not matched with every other image (the round stops at as many pairs as the first, or one image's row)",
+                round.left_out,
+                opts.window
+            );
+        }
+        round.pairs
+    }
+
     /// The pairs to verify ([`PairMode`]): a pure function of the options and the features.
     fn pair_list(&self, ingest: &IngestResult, features: &[Features]) -> Result<PairList> {
         let opts = &self.options;
