@@ -114,7 +114,8 @@ pub struct DemoArgs {
     #[arg(long)]
     pub augment: bool,
     /// The scene: `objects` (boxes on a ground), `wall` (a phone orbiting an object on a patterned
-    /// wall) or `corridor` (an indoor walk: plain walls, a tiled floor, two quick turns).
+    /// wall), `wallpaper` (the wall papered with one repeated motif) or `corridor` (an indoor walk:
+    /// plain walls, a tiled floor, two quick turns).
     #[arg(long, default_value = choice_name(&demo_defaults().scene), value_parser = choice::<handheld_eval::DemoScene>)]
     pub scene: handheld_eval::DemoScene,
     /// Field of view across the longer image side, degrees (a phone: 65–70); default: the focal

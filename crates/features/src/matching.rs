@@ -37,9 +37,11 @@ use crate::quantized;
 
 mod coarse;
 mod prepared;
+mod twins;
 use coarse::coarse_to_fine;
 pub use prepared::{prepare, Prepared};
 use prepared::{prepare_with, Layout};
+pub use twins::{distinct, TwinCache, Twins, SAME_PLACE_PX};
 
 /// A correspondence between descriptor `i` of the first set and descriptor `j` of the second.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]

@@ -256,8 +256,17 @@ pub fn keyframe_pairs(
         .filter_map(|&(a, b)| {
             let shared = tracks.shared(a, b);
             progress.inc(1);
-            (shared.len() >= opts.min_shared_tracks)
-                .then(|| verify_pair(a, b, &tracks.features(a), &tracks.features(b), shared, &v))
+            (shared.len() >= opts.min_shared_tracks).then(|| {
+                verify_pair(
+                    a,
+                    b,
+                    &tracks.features(a),
+                    &tracks.features(b),
+                    shared,
+                    &v,
+                    None,
+                )
+            })
         })
         .collect();
     progress.finish();

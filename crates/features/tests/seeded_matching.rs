@@ -103,6 +103,9 @@ fn repeated_guided_matching_adds_correct_matches_from_a_weak_start() {
         let opts = PairVerificationOptions {
             seed_features: Some(64),
             guided_rounds: rounds,
+            // The rounds alone: with the twin test the first round already finds 3 225 of the
+            // pair's matches right of 3 290, and leaves the later ones nothing to add.
+            twin_test: false,
             ..Default::default()
         };
         let v = match_and_verify(0, 1, f1, f2, &opts);

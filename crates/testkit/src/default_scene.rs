@@ -131,4 +131,11 @@ impl Scene {
         ];
         Self::new(prims).unwrap_or_else(|e| panic!("wall scene is invalid: {e}"))
     }
+
+    /// [`Scene::wall_scene`] with the wall papered: a motif about 0.3 m square repeated in a
+    /// half-drop ([`crate::Finish::Wallpaper`]), so that most of every frame is a repeated pattern.
+    pub fn wallpaper_scene(seed: u64) -> Self {
+        let period = 0.24 + 0.12 * ChaCha8Rng::seed_from_u64(seed ^ 0x3A11_0001).random::<f64>();
+        Self::wall_scene(seed).with_finish(0, crate::finish::Finish::Wallpaper { period })
+    }
 }

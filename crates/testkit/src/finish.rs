@@ -20,6 +20,10 @@ pub enum Finish {
     /// Square tiles of side `size` metres, each a nearly uniform shade (a faint copy of the
     /// texture), separated by dark grout lines 1 cm wide: a repeated pattern.
     Tiles { size: f64 },
+    /// Printed wallpaper: one motif of the block texture, `period` metres square, repeated on a
+    /// lattice whose every other row is shifted by half a period (a half-drop match). Every corner
+    /// has copies a period away that look the same: the ambiguity a real pattern gives a matcher.
+    Wallpaper { period: f64 },
 }
 
 impl Finish {
@@ -43,6 +47,17 @@ impl Finish {
                 let shade = faint(t.albedo(&centre), 0.6, 0.08);
                 let grain = faint(t.blocks(uv), 0.0, 0.05);
                 [0, 1, 2].map(|c| (shade[c] + grain[c]).clamp(0.0, 1.0))
+            }
+            Finish::Wallpaper { period } => {
+                let p = period.max(0.02);
+                let row = (uv.y / p).floor();
+                let shift = if row.rem_euclid(2.0) == 1.0 {
+                    0.5 * p
+                } else {
+                    0.0
+                };
+                let motif = Vector2::new((uv.x + shift).rem_euclid(p), uv.y - row * p);
+                t.blocks(&motif)
             }
         }
     }

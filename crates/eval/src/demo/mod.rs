@@ -50,6 +50,9 @@ pub enum DemoScene {
     /// A phone's capture: a patterned wall filling most of every frame (a dominant plane) with an
     /// object mounted on it, orbited at 1.7 m (the path is always this orbit).
     Wall,
+    /// The wall papered with a repeated motif (a half-drop pattern about 0.3 m across): most of
+    /// every frame is a pattern whose corners each have look-alikes a period away.
+    Wallpaper,
     /// An indoor walk: a U-shaped corridor with plain walls and a tiled floor, walked with two
     /// quick turns (the path is always this walk; about 14.7 m).
     Corridor,

@@ -23,7 +23,7 @@ pub const GROUND_TRUTH_DIR: &str = "ground_truth";
 pub fn sequence_options(o: &DemoOptions) -> SequenceOptions {
     let n = o.frames as usize;
     let path = match (o.scene, o.path) {
-        (DemoScene::Wall, _) => PathOptions::wall_orbit(n),
+        (DemoScene::Wall | DemoScene::Wallpaper, _) => PathOptions::wall_orbit(n),
         (DemoScene::Corridor, _) => PathOptions::corridor_walk(n),
         (_, CameraPath::Orbit) => PathOptions::orbit(n),
         (_, CameraPath::Walk) => PathOptions::walk_through(n),
@@ -61,6 +61,7 @@ pub fn scene(o: &DemoOptions) -> handheld_testkit::Scene {
         }
         (DemoScene::Objects, _) => handheld_testkit::Scene::default_scene(o.seed),
         (DemoScene::Wall, _) => handheld_testkit::Scene::wall_scene(o.seed),
+        (DemoScene::Wallpaper, _) => handheld_testkit::Scene::wallpaper_scene(o.seed),
         (DemoScene::Corridor, _) => handheld_testkit::Scene::corridor_scene(o.seed),
     }
 }

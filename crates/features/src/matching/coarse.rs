@@ -26,40 +26,7 @@ pub(super) fn coarse_to_fine(
         .map(|blk| {
             let i0 = blk * ROW_BLOCK;
             let rows = ROW_BLOCK.min(n - i0);
-            let mut lanes = vec![RowLanes2::NONE; rows];
-            if let (Layout::Vnni { rows: Some(g), .. }, Layout::Vnni { packed, .. }) =
-                (xa.layout(), xb.layout())
-            {
-                let sums = xa.q().1;
-                for j0 in (0..m).step_by(COL_BLOCK) {
-                    let cols = COL_BLOCK.min(m - j0);
-                    quantized::scan_lanes2_grouped(
-                        g,
-                        (i0, rows),
-                        sums,
-                        packed,
-                        j0,
-                        cols,
-                        &xb.norms[j0..j0 + cols],
-                        &mut lanes,
-                    );
-                }
-            } else {
-                let mut scorer = Scorer::new(xa, xb, i0, rows);
-                for j0 in (0..m).step_by(COL_BLOCK) {
-                    let cols = COL_BLOCK.min(m - j0);
-                    let block = Block {
-                        s: scorer.scores(j0, cols),
-                        rows,
-                        cols,
-                        i0,
-                        j0,
-                        na: &xa.norms[i0..i0 + rows],
-                        nb: &xb.norms[j0..j0 + cols],
-                    };
-                    scan_lanes2(&block, &mut lanes);
-                }
-            }
+            let lanes = candidate_lanes(xa, xb, i0, rows);
             let mut best = vec![Best2::NONE; rows];
             let mut col_best = vec![(f32::NEG_INFINITY, u32::MAX); if mutual { m } else { 0 }];
             let ranking = Ranking {
@@ -96,6 +63,52 @@ pub(super) fn coarse_to_fine(
             (best, col_best)
         })
         .collect()
+}
+
+/// The coarse pass for rows `i0..i0 + rows` of the coarse codes `xa` against every column of
+/// `xb`: each row's 32 candidates (two per lane of 16 columns).
+pub(super) fn candidate_lanes(
+    xa: &Prepared,
+    xb: &Prepared,
+    i0: usize,
+    rows: usize,
+) -> Vec<RowLanes2> {
+    let m = xb.n;
+    let mut lanes = vec![RowLanes2::NONE; rows];
+    if let (Layout::Vnni { rows: Some(g), .. }, Layout::Vnni { packed, .. }) =
+        (xa.layout(), xb.layout())
+    {
+        let sums = xa.q().1;
+        for j0 in (0..m).step_by(COL_BLOCK) {
+            let cols = COL_BLOCK.min(m - j0);
+            quantized::scan_lanes2_grouped(
+                g,
+                (i0, rows),
+                sums,
+                packed,
+                j0,
+                cols,
+                &xb.norms[j0..j0 + cols],
+                &mut lanes,
+            );
+        }
+    } else {
+        let mut scorer = Scorer::new(xa, xb, i0, rows);
+        for j0 in (0..m).step_by(COL_BLOCK) {
+            let cols = COL_BLOCK.min(m - j0);
+            let block = Block {
+                s: scorer.scores(j0, cols),
+                rows,
+                cols,
+                i0,
+                j0,
+                na: &xa.norms[i0..i0 + rows],
+                nb: &xb.norms[j0..j0 + cols],
+            };
+            scan_lanes2(&block, &mut lanes);
+        }
+    }
+    lanes
 }
 
 /// The fine pass of coarse-to-fine matching over one row block: every row's candidates

@@ -8,10 +8,12 @@ use std::collections::HashMap;
 use std::path::Path;
 
 use handheld_features::close_views::{propose_close_views, CloseViewOptions};
-use handheld_features::matching::{exhaustive_pairs, sequential_pairs};
+use handheld_features::matching::{exhaustive_pairs, sequential_pairs, TwinCache};
 use handheld_features::retrieval::{retrieval_pairs, unordered_pairs, RetrievalOptions};
 use handheld_features::second_round::weak_image_pairs;
-use handheld_features::verify::{verify_pairs, PairVerificationOptions, VerifiedPair};
+use handheld_features::verify::{
+    verify_pairs, verify_pairs_with, PairVerificationOptions, VerifiedPair,
+};
 use handheld_features::video::{keyframe_pairs, VideoTrackingOptions};
 use handheld_features::Features;
 use handheld_io::database::{Database, StoredTwoViewGeometry, TwoViewConfig};
@@ -227,8 +229,16 @@ impl Stage for Matches {
             .filter(|(_, b)| b.is_none())
             .flat_map(|(p, _)| p.iter().copied())
             .collect();
-        let mut computed =
-            verify_pairs(&features, &missing, &opts.verification, ctx.progress).into_iter();
+        // Each image's twin distances, computed once for both rounds.
+        let twins = TwinCache::new(n);
+        let mut computed = verify_pairs_with(
+            &features,
+            &missing,
+            &opts.verification,
+            &twins,
+            ctx.progress,
+        )
+        .into_iter();
         let mut verified = Vec::with_capacity(plan.pairs.len());
         for (pairs, block) in plan.pairs.chunks(PAIRS_PER_UNIT).zip(blocks) {
             match block {
@@ -238,7 +248,7 @@ impl Stage for Matches {
         }
         // The second round runs here, on the first round's result (not in work units).
         let extra = self.second_round(ingest.kind, n, &plan, &verified);
-        let more = verify_pairs(&features, &extra, &opts.verification, ctx.progress);
+        let more = verify_pairs_with(&features, &extra, &opts.verification, &twins, ctx.progress);
         let found = more
             .iter()
             .filter(|v| v.geometry.configuration != TwoViewConfiguration::TooFewInliers)
