@@ -276,10 +276,12 @@ fn the_sideways_walk_finds_the_focal_length() {
 }
 
 /// A phone held upright (portrait 360×640, 68° across the long side, k1 = 0.06) orbiting an object
-/// mounted on a patterned wall that fills most of every frame (issue #37). The stratified upgrade
-/// fails here (every candidate's metric adjustment removed 52–100 % of its observations, even with
-/// the exact calibration given); the calibrated incremental candidate must give every frame, the
-/// focal length within 2 % and the rotations within 0.2°.
+/// mounted on a patterned wall that fills most of every frame (issue #37): every frame, the focal
+/// length within 2 % and the rotations within 0.2°. Before the twin test (forty-first session,
+/// `matching/twins.rs`) the stratified upgrade failed here (every candidate's metric adjustment
+/// removed 52–100 % of its observations, even with the exact calibration given) and the
+/// calibrated incremental candidate built the model; without the matches between look-alike
+/// corners of the wall the self-calibrated frame holds (0.1 % of its observations removed).
 #[test]
 fn a_phone_orbit_before_a_wall_with_distortion_is_right() {
     phone_is_right(&["--k1", "0.06"]);
@@ -333,7 +335,7 @@ fn phone_is_right(extra: &[&str]) {
         rot <= 0.2,
         "{extra:?}: rotations {rot:.3}° off at the median: {s}"
     );
-    // Every candidate says what it cost, the calibrated incremental starts included.
+    // Every candidate that ran says what it cost.
     let summary: serde_json::Value = serde_json::from_str(
         &std::fs::read_to_string(out.join("workspace/sparse/summary.json")).unwrap(),
     )
@@ -341,17 +343,8 @@ fn phone_is_right(extra: &[&str]) {
     let candidates = summary["self_calibration"]["candidates"]
         .as_array()
         .unwrap();
-    let calibrated: Vec<_> = candidates
-        .iter()
-        .filter(|c| {
-            c["source"]
-                .as_str()
-                .unwrap_or("")
-                .starts_with("calibrated incremental")
-        })
-        .collect();
-    assert!(!calibrated.is_empty(), "{candidates:?}");
-    for c in calibrated {
+    assert!(!candidates.is_empty());
+    for c in candidates.iter().filter(|c| c["tried"] == true) {
         assert!(c["seconds"].as_f64().is_some_and(|t| t > 0.0), "{c}");
     }
 }
