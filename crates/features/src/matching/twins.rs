@@ -92,14 +92,25 @@ impl Twins {
     }
 }
 
-/// Euclidean distance of two descriptors.
+/// Euclidean distance of two descriptors, summed in eight independent lanes so that the compiler
+/// vectorises it (a sequential float sum cannot be reordered).
 #[inline]
 pub fn distance(a: &[f32], b: &[f32]) -> f32 {
-    a.iter()
-        .zip(b)
+    let mut acc = [0f32; 8];
+    let (ca, cb) = (a.chunks_exact(8), b.chunks_exact(8));
+    let tail: f32 = ca
+        .remainder()
+        .iter()
+        .zip(cb.remainder())
         .map(|(x, y)| (x - y) * (x - y))
-        .sum::<f32>()
-        .sqrt()
+        .sum();
+    for (x, y) in ca.zip(cb) {
+        for k in 0..8 {
+            let d = x[k] - y[k];
+            acc[k] += d * d;
+        }
+    }
+    (acc.iter().sum::<f32>() + tail).sqrt()
 }
 
 /// Whether the match of keypoint `a` of `f1` with keypoint `b` of `f2` passes the ratio test
