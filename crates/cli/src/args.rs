@@ -113,9 +113,8 @@ pub struct DemoArgs {
     /// projection against the exact cameras (use with --video).
     #[arg(long)]
     pub augment: bool,
-    /// The scene: `objects` (boxes on a ground), `wall` (a phone orbiting an object on a patterned
-    /// wall), `wallpaper` (the wall papered with one repeated motif) or `corridor` (an indoor walk:
-    /// plain walls, a tiled floor, two quick turns).
+    /// The scene: `objects` (boxes on a ground), `wall` (a phone orbiting an object on a wall),
+    /// `wallpaper` (that wall with a repeated motif) or `corridor` (an indoor walk: plain walls, tiles).
     #[arg(long, default_value = choice_name(&demo_defaults().scene), value_parser = choice::<handheld_eval::DemoScene>)]
     pub scene: handheld_eval::DemoScene,
     /// Field of view across the longer image side, degrees (a phone: 65–70); default: the focal

@@ -16,7 +16,7 @@ pub(crate) fn point(f: &Features, k: u32) -> Vector2<f64> {
 }
 
 /// Euclidean distance, summed in eight independent lanes so the compiler can vectorise it.
-fn dist(a: &[f32], b: &[f32]) -> f32 {
+pub(crate) fn dist(a: &[f32], b: &[f32]) -> f32 {
     let mut acc = [0f32; 8];
     let (ca, cb) = (a.chunks_exact(8), b.chunks_exact(8));
     let tail: f32 = ca

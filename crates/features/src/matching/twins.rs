@@ -32,6 +32,7 @@ use rayon::prelude::*;
 use super::coarse::candidate_lanes;
 use super::{prepare, COARSE_MIN_COLUMNS, ROW_BLOCK};
 use crate::detector::Features;
+use crate::guided::dist as distance;
 
 /// Keypoints nearer than this (pixels) are the same image structure: not twins.
 pub const SAME_PLACE_PX: f32 = 4.0;
@@ -90,27 +91,6 @@ impl Twins {
         }
         Self { nearest: best }
     }
-}
-
-/// Euclidean distance of two descriptors, summed in eight independent lanes so that the compiler
-/// vectorises it (a sequential float sum cannot be reordered).
-#[inline]
-pub fn distance(a: &[f32], b: &[f32]) -> f32 {
-    let mut acc = [0f32; 8];
-    let (ca, cb) = (a.chunks_exact(8), b.chunks_exact(8));
-    let tail: f32 = ca
-        .remainder()
-        .iter()
-        .zip(cb.remainder())
-        .map(|(x, y)| (x - y) * (x - y))
-        .sum();
-    for (x, y) in ca.zip(cb) {
-        for k in 0..8 {
-            let d = x[k] - y[k];
-            acc[k] += d * d;
-        }
-    }
-    (acc.iter().sum::<f32>() + tail).sqrt()
 }
 
 /// Whether the match of keypoint `a` of `f1` with keypoint `b` of `f2` passes the ratio test
