@@ -107,13 +107,21 @@ pub fn guided_matches(
     let mut cand = Vec::new();
     let mut best: Vec<(f32, u32, u32)> = Vec::new();
     // Visit the keypoints in the order of their epipolar lines across image 2, so consecutive
-    // queries read the same cells and descriptors (cache locality; the result does not depend on
-    // the order).
+    // queries read the same cells and descriptors (cache locality; the matches do not depend on
+    // the order, the order of equally near ones does). Lines through an epipole inside the
+    // image ([`Radial`]) go by their direction: they all cross the middle row near the epipole,
+    // so ordered there they came in no order at all, and the radial rings look for each query's
+    // wedges from where the last one's were.
     let mut order: Vec<(bool, f64, u32)> = (0..f1.keypoints.len() as u32)
         .filter(|&a| !used1[a as usize])
         .map(|a| {
             let x1 = point(f1, a);
             let l = f * Vector3::new(x1.x, x1.y, 1.0);
+            if radial.is_some() {
+                let t = (-l.x).atan2(l.y);
+                let t = if t < 0.0 { t + std::f64::consts::PI } else { t };
+                return (false, if t.is_finite() { t } else { 0.0 }, a);
+            }
             let steep = l.x.abs() >= l.y.abs();
             let key = if steep {
                 -(l.y * grid.mid.1 + l.z) / l.x
