@@ -19,6 +19,15 @@ pub trait Estimator {
     /// (pixels for the two-view estimators). Must be non-negative; `f64::INFINITY` is allowed.
     fn residual(&self, model: &Self::Model, s: &Self::Sample) -> f64;
 
+    /// [`Self::residual`] of every sample in turn, handed to `each`. An estimator whose residual
+    /// shares work across samples (a homography's inverse) does that work once here; the values
+    /// are the same.
+    fn residuals<F: FnMut(f64)>(&self, model: &Self::Model, samples: &[Self::Sample], mut each: F) {
+        for s in samples {
+            each(self.residual(model, s));
+        }
+    }
+
     /// Non-minimal estimate from (usually many more than `SAMPLE_SIZE`) inliers, used by local
     /// optimisation; `model` is the current hypothesis, a starting point for iterative refits.
     /// `None` when the refit fails (too few or degenerate samples).

@@ -71,13 +71,12 @@ fn evaluate<E: Estimator, C: Consensus>(
 ) -> (f64, usize) {
     let mut score = 0.0;
     let mut support = 0;
-    for s in samples {
-        let r = estimator.residual(model, s);
+    estimator.residuals(model, samples, |r| {
         if r <= t {
             support += 1;
             score += consensus.score(r, t);
         }
-    }
+    });
     (score, support)
 }
 
@@ -216,10 +215,9 @@ where
     if best.support < min_support {
         return Ok(report);
     }
-    report.inlier_mask = samples
-        .iter()
-        .map(|s| estimator.residual(&best.model, s) <= t)
-        .collect();
+    let mut mask = Vec::with_capacity(samples.len());
+    estimator.residuals(&best.model, samples, |r| mask.push(r <= t));
+    report.inlier_mask = mask;
     report.success = true;
     report.model = Some(best.model);
     Ok(report)
@@ -246,10 +244,13 @@ fn local_optimization<E: Estimator, C: Consensus, S: Sampler>(
     let p = E::SAMPLE_SIZE;
     let start = best.model.clone();
     let mut best = iterate_refits(estimator, consensus, samples, start, best, opts, report);
+    let mut keep = Vec::with_capacity(samples.len());
+    estimator.residuals(&best.model, samples, |r| keep.push(r <= opts.max_error));
     let inliers: Vec<E::Sample> = samples
         .iter()
-        .filter(|s| estimator.residual(&best.model, s) <= opts.max_error)
-        .cloned()
+        .zip(&keep)
+        .filter(|(_, &k)| k)
+        .map(|(s, _)| s.clone())
         .collect();
     let k = (inliers.len() / 2).clamp(p + 1, 4 * p);
     if inliers.len() <= k {
@@ -297,11 +298,7 @@ fn iterate_refits<E: Estimator, C: Consensus>(
     let mut previous_mask: Vec<bool> = Vec::new();
     for _ in 0..opts.lo_iterations {
         mask.clear();
-        mask.extend(
-            samples
-                .iter()
-                .map(|s| estimator.residual(&current, s) <= lo_t),
-        );
+        estimator.residuals(&current, samples, |r| mask.push(r <= lo_t));
         if mask == previous_mask {
             break;
         }

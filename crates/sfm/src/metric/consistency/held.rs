@@ -98,10 +98,11 @@ fn off_plane(ctx: &Context, pair: &crate::input::SfmPair, thr: f64) -> Vec<bool>
     let mut sampler = handheld_robust::UniformSampler::new(opts.seed);
     match handheld_robust::run(&HomographyEstimator, &Msac, &mut sampler, &m, &opts) {
         Ok(rep) if rep.success => match rep.model {
-            Some(h) => m
-                .iter()
-                .map(|x| HomographyEstimator.residual(&h, x) > thr)
-                .collect(),
+            Some(h) => {
+                let mut off = Vec::with_capacity(m.len());
+                HomographyEstimator.residuals(&h, &m, |r| off.push(r > thr));
+                off
+            }
             None => vec![true; m.len()],
         },
         _ => vec![true; m.len()],
