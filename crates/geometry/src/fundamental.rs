@@ -4,10 +4,12 @@
 //! unit Frobenius norm, sign unspecified.
 
 use handheld_core::ProjectiveCamera;
-use nalgebra::{DMatrix, Matrix3, Matrix3x4, SMatrix, Vector2, Vector3, Vector4};
+use nalgebra::{DMatrix, Matrix3, Matrix3x4, Vector2, Vector3, Vector4};
 
 use crate::error::{check_pair_lengths, GeometryError, Result};
-use crate::linalg::{full_right_svd, null_space_short, row_to_matrix3};
+use crate::linalg::{
+    full_right_svd, normal_equations_null_vector, null_space_short, row_to_matrix3,
+};
 use crate::normalize::hartley_normalization;
 use crate::poly::real_roots_cubic;
 use crate::skew::skew;
@@ -40,46 +42,12 @@ fn design_matrix(x1: &[Vector2<f64>], x2: &[Vector2<f64>]) -> DMatrix<f64> {
     })
 }
 
-/// Relative size (of a singular value of the design matrix, so its square for an eigenvalue of the
-/// normal matrix) below which the normal equations cannot tell the null space from roundoff, and
-/// the SVD of the design matrix decides instead.
-const NORMAL_RANK_TOL: f64 = 1e-6;
-
-/// The least-squares null vector of the design matrix `A` (read row-major as `F̂`) as the eigenvector
-/// of the smallest eigenvalue of `AᵀA` (9 × 9, accumulated row by row without forming `A`): the
-/// same vector as the SVD's last right singular vector (H&Z §A5.3), and on Hartley-normalised
-/// points (entries of order 1) squaring the condition number costs nothing that matters in double
-/// precision. 45 multiply-adds a match instead of a Householder bidiagonalisation of the `n × 9`
-/// matrix, which was 5 % of kitti-seq1's matching stage (issue #34). `None` when the second-smallest
-/// eigenvalue is within roundoff of zero (a null space of two or more dimensions, or nearly so):
-/// the SVD path then decides, as before.
-fn normal_equations_null_vector(x1: &[Vector2<f64>], x2: &[Vector2<f64>]) -> Option<Matrix3<f64>> {
-    let mut m = SMatrix::<f64, 9, 9>::zeros();
-    for (a, b) in x1.iter().zip(x2) {
-        let r = design_row(a, b);
-        for i in 0..9 {
-            for j in i..9 {
-                m[(i, j)] += r[i] * r[j];
-            }
-        }
-    }
-    for i in 0..9 {
-        for j in 0..i {
-            m[(i, j)] = m[(j, i)];
-        }
-    }
-    if m.iter().any(|v| !v.is_finite()) {
-        return None;
-    }
-    let eig = m.symmetric_eigen();
-    let mut order: [usize; 9] = std::array::from_fn(|i| i);
-    order.sort_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]));
-    let largest = eig.eigenvalues[order[8]];
-    let second = eig.eigenvalues[order[1]].max(0.0);
-    if largest.is_nan() || largest <= 0.0 || second <= NORMAL_RANK_TOL * NORMAL_RANK_TOL * largest {
-        return None;
-    }
-    let v = eig.eigenvectors.column(order[0]);
+/// The least-squares null vector of the 8-point design matrix, read row-major as `F̂`, from the
+/// normal equations ([`normal_equations_null_vector`]): 45 multiply-adds a match instead of a
+/// Householder bidiagonalisation of the `n × 9` matrix, which was 5 % of kitti-seq1's matching
+/// stage (issue #34). `None` where the SVD must decide.
+fn normal_equations_fit(x1: &[Vector2<f64>], x2: &[Vector2<f64>]) -> Option<Matrix3<f64>> {
+    let v = normal_equations_null_vector(x1.iter().zip(x2).map(|(a, b)| design_row(a, b)))?;
     Some(Matrix3::from_fn(|i, j| v[3 * i + j]))
 }
 
@@ -115,7 +83,7 @@ fn unit(f: Matrix3<f64>) -> Result<Matrix3<f64>> {
 pub fn fundamental_8point(x1: &[Vector2<f64>], x2: &[Vector2<f64>]) -> Result<Matrix3<f64>> {
     check_pair_lengths(x1, x2, 8)?;
     let (n1, n2) = (hartley_normalization(x1)?, hartley_normalization(x2)?);
-    if let Some(f_hat) = normal_equations_null_vector(&n1.points, &n2.points) {
+    if let Some(f_hat) = normal_equations_fit(&n1.points, &n2.points) {
         return unit(n2.t.transpose() * enforce_rank2(&f_hat) * n1.t);
     }
     let (sv, v_t) =

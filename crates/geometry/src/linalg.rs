@@ -25,6 +25,47 @@ pub(crate) fn full_right_svd(a: DMatrix<f64>) -> Option<(Vec<f64>, DMatrix<f64>)
     Some((sv, v_t))
 }
 
+/// Relative size (of a singular value of the design matrix, so its square for an eigenvalue of the
+/// normal matrix) below which the normal equations cannot tell the null space from roundoff, and
+/// the SVD of the design matrix decides instead.
+const NORMAL_RANK_TOL: f64 = 1e-6;
+
+/// The least-squares null vector of a design matrix `A` with 9 columns, given by its rows, as the
+/// eigenvector of the smallest eigenvalue of `AᵀA` (9 × 9, accumulated row by row without forming
+/// `A`): the same vector as the SVD's last right singular vector (H&Z §A5.3), and on
+/// Hartley-normalised points (entries of order 1) squaring the condition number costs nothing
+/// that matters in double precision. `None` when the second-smallest eigenvalue is within roundoff
+/// of zero (a null space of two or more dimensions, or nearly so): the caller's SVD then decides.
+pub(crate) fn normal_equations_null_vector(
+    rows: impl IntoIterator<Item = [f64; 9]>,
+) -> Option<SVector<f64, 9>> {
+    let mut m = nalgebra::SMatrix::<f64, 9, 9>::zeros();
+    for r in rows {
+        for i in 0..9 {
+            for j in i..9 {
+                m[(i, j)] += r[i] * r[j];
+            }
+        }
+    }
+    for i in 0..9 {
+        for j in 0..i {
+            m[(i, j)] = m[(j, i)];
+        }
+    }
+    if m.iter().any(|v| !v.is_finite()) {
+        return None;
+    }
+    let eig = m.symmetric_eigen();
+    let mut order: [usize; 9] = std::array::from_fn(|i| i);
+    order.sort_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]));
+    let largest = eig.eigenvalues[order[8]];
+    let second = eig.eigenvalues[order[1]].max(0.0);
+    if largest.is_nan() || largest <= 0.0 || second <= NORMAL_RANK_TOL * NORMAL_RANK_TOL * largest {
+        return None;
+    }
+    Some(eig.eigenvectors.column(order[0]).into_owned())
+}
+
 /// Row `r` of `Vᵀ` (a 9-vector) read row-major into a 3×3 matrix.
 pub(crate) fn row_to_matrix3(v_t: &DMatrix<f64>, r: usize) -> Matrix3<f64> {
     Matrix3::from_fn(|i, j| v_t[(r, 3 * i + j)])
