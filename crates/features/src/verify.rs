@@ -567,16 +567,7 @@ pub fn verify_pairs_with(
     let keys: Vec<u64> = features.par_iter().map(content_key).collect();
     let twins = opts.twin_test.then_some(twins);
     if let Some(c) = twins {
-        // Every image of a pair, each once and side by side: found on first use inside the pairs'
-        // loop, an image's twins kept the threads that wanted them waiting.
-        let mut wanted: Vec<usize> = pairs.iter().flat_map(|&(i, j)| [i, j]).collect();
-        wanted.sort_unstable();
-        wanted.dedup();
-        wanted.par_iter().for_each(|&i| {
-            if let Some(f) = features.get(i) {
-                c.get(i, f);
-            }
-        });
+        c.fill(features, pairs);
     }
     let cache = opts
         .seed_features

@@ -130,6 +130,20 @@ impl TwinCache {
     pub fn get(&self, image: usize, f: &Features) -> Option<&Twins> {
         Some(self.0.get(image)?.get_or_init(|| Twins::of(f)))
     }
+
+    /// The twins of every image of `pairs` (features `features`), each once and side by side:
+    /// found on first use inside the pairs' loop, an image's twins kept the threads that wanted
+    /// them waiting.
+    pub fn fill(&self, features: &[Features], pairs: &[(usize, usize)]) {
+        let mut wanted: Vec<usize> = pairs.iter().flat_map(|&(i, j)| [i, j]).collect();
+        wanted.sort_unstable();
+        wanted.dedup();
+        wanted.par_iter().for_each(|&i| {
+            if let Some(f) = features.get(i) {
+                self.get(i, f);
+            }
+        });
+    }
 }
 
 #[cfg(test)]
