@@ -21,7 +21,7 @@ use crate::metric::register_pair::register_from_partner;
 use crate::metric::resect::register_one;
 
 /// Smallest triangulation angle of a new two-view point.
-const MIN_ANGLE_DEG: f64 = 1.5;
+pub(crate) const MIN_ANGLE_DEG: f64 = 1.5;
 
 /// Registers the `allowed` images that have enough 2D–3D matches into `rec`, most-matched first,
 /// until none is left that succeeds. Returns the newly registered image indices; `failures` gets a
