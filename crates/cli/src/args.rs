@@ -129,6 +129,12 @@ pub struct DemoArgs {
     /// phone's bit rate is about 23.
     #[arg(long)]
     pub crf: Option<u8>,
+    /// Rolling shutter: first to last row's read-out, in frame intervals (a phone: 0.5–0.9 at 30 fps).
+    #[arg(long, default_value_t = 0.0)]
+    pub rolling_shutter: f64,
+    /// Exposure time in frame intervals: motion blur.
+    #[arg(long, default_value_t = 0.0)]
+    pub exposure: f64,
     /// Stop after this stage and what it needs (e.g. `sparse`); the stages not run are not scored.
     #[arg(long)]
     pub until: Option<String>,

@@ -23,6 +23,8 @@ pub fn run(a: &DemoArgs, g: &GlobalArgs, bars: &Bars) -> Result<()> {
         fov_deg: a.fov,
         k1: a.k1,
         crf: a.crf,
+        rolling_shutter: a.rolling_shutter,
+        exposure: a.exposure,
         until: a.until.clone(),
     };
     let r = handheld_eval::run_demo(&o, bars)?;

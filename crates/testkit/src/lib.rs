@@ -31,6 +31,7 @@ pub mod render;
 pub mod ring;
 pub mod scene;
 pub mod sequence;
+pub mod shutter;
 pub mod street;
 pub mod street_scene;
 pub mod texture;
@@ -49,5 +50,6 @@ pub use render::{
 };
 pub use ring::{ring_set, RingOptions, RingSet};
 pub use scene::{FaceRect, Finish, Hit, Landmark, Primitive, Scene};
+pub use shutter::{FrameMotion, Shutter};
 pub use street::{street_set, StreetOptions, StreetPair, StreetSet};
 pub use texture::{FaceTexture, LANDMARK_HALF_SQUARE, LANDMARK_RADIUS};

@@ -27,13 +27,14 @@ use handheld_core::{
     PointId, PosedCamera, TrackElement, TriMesh, View,
 };
 use image::RgbImage;
-use nalgebra::{Point3, Vector2, Vector3};
+use nalgebra::{Point3, Rotation3, Vector2, Vector3};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 
 use crate::scene::{Hit, Landmark, Scene};
 pub use crate::sequence::SequenceOptions;
+use crate::shutter::FrameMotion;
 use crate::texture::LANDMARK_DARK;
 use crate::util::{gaussian, hash_words};
 
@@ -207,16 +208,20 @@ pub fn render_frame(
         scene,
         view,
         &RayTable::new(&view.camera, samples_per_axis),
+        None,
         noise_sigma,
         noise_seed,
     )
 }
 
-/// [`render_frame`] with a precomputed [`RayTable`] (recomputed here if it does not match `camera`).
+/// [`render_frame`] with a precomputed [`RayTable`] (recomputed here if it does not match `camera`),
+/// each ray cast from its own time's pose when `motion` is given (a rolling shutter and motion
+/// blur: [`crate::shutter`]; `view`'s pose is then the depth map's).
 pub fn render_frame_with_rays(
     scene: &Scene,
     view: &PosedCamera,
     rays: &RayTable,
+    motion: Option<&FrameMotion>,
     noise_sigma: f64,
     noise_seed: u64,
 ) -> (RgbImage, FloatMap) {
@@ -227,6 +232,7 @@ pub fn render_frame_with_rays(
             scene,
             view,
             &RayTable::new(camera, rays.samples_per_axis as u32),
+            motion,
             noise_sigma,
             noise_seed,
         );
@@ -244,6 +250,24 @@ pub fn render_frame_with_rays(
     let centre_idx = (n % 2 == 1).then_some((n / 2) * n + n / 2);
     let world_from_cam = cam_from_world.rotation.inverse().to_rotation_matrix();
     let origin = center_of(cam_from_world);
+    let moving = motion.filter(|m| !m.shutter.is_global());
+    // The pose of each sample of padded row `yy`: its sub-row's read-out time, and an exposure
+    // slot that a stride coprime to the sample count spreads over the pixel's sub-samples.
+    let poses_of_row = |yy: usize| -> Vec<(Rotation3<f64>, Point3<f64>)> {
+        match moving {
+            None => vec![(world_from_cam, origin); nn],
+            Some(m) => (0..nn)
+                .map(|s| {
+                    let y = yy as f64 - 1.0 + offsets[s / n];
+                    let pose = m.pose_at(m.shutter.time(y, h, (s * 257) % nn, nn));
+                    (
+                        pose.rotation.inverse().to_rotation_matrix(),
+                        center_of(&pose),
+                    )
+                })
+                .collect(),
+        }
+    };
     let light = light_dir();
     // Pass 1: per padded row, cast the rays and filter each sub-row horizontally.
     let filtered: Vec<(Vec<[f32; 3]>, Vec<f32>)> = (0..h + 2)
@@ -252,14 +276,16 @@ pub fn render_frame_with_rays(
             let mut sub = vec![[0f32; 3]; n * w];
             let mut depth = vec![0f32; w];
             let inner_row = yy >= 1 && yy <= h;
+            let poses = poses_of_row(yy);
             for xx in 0..w + 2 {
                 let base = (yy * (w + 2) + xx) * nn;
-                for s in 0..nn {
+                for (s, (rotation, centre)) in poses.iter().enumerate() {
                     let nrm = rays.normalized[base + s];
-                    let dir = world_from_cam * Vector3::new(nrm.x, nrm.y, 1.0);
-                    let (c, t) = radiance(scene, &origin, &dir, &light);
+                    let dir = rotation * Vector3::new(nrm.x, nrm.y, 1.0);
+                    let (c, t) = radiance(scene, centre, &dir, &light);
                     let (i, j) = (s % n, s / n);
-                    if inner_row && centre_idx == Some(s) && xx >= 1 && xx <= w {
+                    if inner_row && centre_idx == Some(s) && xx >= 1 && xx <= w && moving.is_none()
+                    {
                         depth[xx - 1] = t as f32;
                     }
                     // Target pixels xx−1, xx, xx+1 in padded coordinates → image x = target − 1.
@@ -280,7 +306,7 @@ pub fn render_frame_with_rays(
                     }
                 }
             }
-            if inner_row && centre_idx.is_none() {
+            if inner_row && (centre_idx.is_none() || moving.is_some()) {
                 for (x, d) in depth.iter_mut().enumerate() {
                     let (o, dir) = pixel_ray(view, Vector2::new(x as f64, (yy - 1) as f64));
                     *d = scene.intersect(&o, &dir).map_or(0.0, |hit| hit.t as f32);
@@ -474,6 +500,7 @@ pub fn render_sequence_with_scene(
     let mut images = Vec::with_capacity(frames.len());
     let mut depths = Vec::with_capacity(frames.len());
     let mut table: Option<(Intrinsics, RayTable)> = None;
+    let poses: Vec<_> = frames.iter().map(|f| f.cam_from_world).collect();
     for (i, view) in frames.iter().enumerate() {
         let cam = &view.camera;
         let stale = match &table {
@@ -486,10 +513,12 @@ pub fn render_sequence_with_scene(
         let Some((_, rays)) = table.as_ref() else {
             continue;
         };
+        let motion = FrameMotion::of(&poses, i, opts.shutter);
         let (img, depth) = render_frame_with_rays(
             &scene,
             view,
             rays,
+            motion.as_ref(),
             opts.image_noise_sigma,
             hash_words(&[opts.seed, 0x1A6E, i as u64]),
         );

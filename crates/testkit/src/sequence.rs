@@ -5,6 +5,7 @@ use handheld_core::Intrinsics;
 use nalgebra::Vector2;
 
 use crate::path::PathOptions;
+use crate::shutter::Shutter;
 use crate::util::hash_words;
 
 /// Options of [`crate::render::render_sequence`].
@@ -30,6 +31,8 @@ pub struct SequenceOptions {
     pub image_noise_sigma: f64,
     /// Latitude rings per sphere in the ground-truth mesh.
     pub mesh_resolution: usize,
+    /// Rolling read-out and exposure time ([`crate::shutter`]); the default is a global shutter.
+    pub shutter: Shutter,
 }
 
 impl Default for SequenceOptions {
@@ -47,6 +50,7 @@ impl Default for SequenceOptions {
             samples_per_axis: 3,
             image_noise_sigma: 1.0,
             mesh_resolution: 32,
+            shutter: Shutter::default(),
         }
     }
 }
@@ -104,6 +108,7 @@ impl SequenceOptions {
         if !(self.image_noise_sigma >= 0.0 && self.image_noise_sigma.is_finite()) {
             return Err("image_noise_sigma must be finite and non-negative".into());
         }
+        self.shutter.validate()?;
         let path = self.effective_path();
         path.validate()?;
         let (a, b) = path.zoom.unwrap_or((1.0, 1.0));

@@ -96,6 +96,12 @@ pub struct DemoOptions {
     /// x264 constant rate factor of the video (0–51); `None`: 12, visually lossless. A phone's
     /// bit rate is about 23.
     pub crf: Option<u8>,
+    /// Rolling shutter: the time from the first row's exposure to the last's, in frame intervals,
+    /// in [0, 1] (a phone reads out in 0.5–0.9 of a 30 fps frame; a video of every k-th frame has
+    /// 1/k of that). Default 0: a global shutter.
+    pub rolling_shutter: f64,
+    /// Exposure time of each row, in frame intervals, in [0, 1]: motion blur. Default 0.
+    pub exposure: f64,
     /// Stop after this stage (and what it needs), as `handheld reconstruct --until`; the stages
     /// not run are reported as not scored. `None`: the whole graph.
     pub until: Option<String>,
@@ -118,6 +124,8 @@ impl Default for DemoOptions {
             fov_deg: None,
             k1: None,
             crf: None,
+            rolling_shutter: 0.0,
+            exposure: 0.0,
             until: None,
         }
     }
@@ -164,6 +172,17 @@ impl DemoOptions {
         if let Some(c) = self.crf {
             if c > 51 {
                 return Err(EvalError::option("--crf", format!("{c} is not in 0..=51")));
+            }
+        }
+        for (option, v) in [
+            ("--rolling-shutter", self.rolling_shutter),
+            ("--exposure", self.exposure),
+        ] {
+            if !(0.0..=1.0).contains(&v) {
+                return Err(EvalError::option(
+                    option,
+                    format!("{v} is not in [0, 1] frame intervals"),
+                ));
             }
         }
         sequence_options(self)

@@ -8,6 +8,7 @@ use handheld_io::atomic::write_bytes_atomic;
 use handheld_io::ingest::write_png;
 use handheld_testkit::path::PathOptions;
 use handheld_testkit::render::{SequenceOptions, SyntheticSequence};
+use handheld_testkit::Shutter;
 use serde::{Deserialize, Serialize};
 
 use super::{CameraPath, DemoOptions, DemoScene};
@@ -49,6 +50,10 @@ pub fn sequence_options(o: &DemoOptions) -> SequenceOptions {
             .map(|fov| f64::from(o.width.max(o.height)) / 2.0 / (fov.to_radians() / 2.0).tan()),
         k1,
         k2,
+        shutter: Shutter {
+            readout: o.rolling_shutter,
+            exposure: o.exposure,
+        },
         ..defaults
     }
 }
@@ -84,6 +89,10 @@ pub struct DemoStamp {
     pub fov_deg: Option<f64>,
     #[serde(default)]
     pub k1: Option<f64>,
+    #[serde(default)]
+    pub rolling_shutter: f64,
+    #[serde(default)]
+    pub exposure: f64,
 }
 
 impl DemoStamp {
@@ -100,6 +109,8 @@ impl DemoStamp {
             scene: o.scene,
             fov_deg: o.fov_deg,
             k1: o.k1,
+            rolling_shutter: o.rolling_shutter,
+            exposure: o.exposure,
         }
     }
 
