@@ -31,6 +31,7 @@ fn point_cost(p: &Problem, obs: &[u32], x: &[f64; 4], loss: &RobustLoss) -> f64 
             &p.groups[p.camera_group[cam]],
             x,
             p.obs_xy[o],
+            &p.motion(o),
         );
         let w = p.obs_weight(o);
         let s = (r[0] * r[0] + r[1] * r[1]) * w * w;
@@ -90,6 +91,7 @@ fn refine_point(
                 &q.groups[q.camera_group[cam]],
                 &x,
                 q.obs_xy[o],
+                &q.motion(o),
                 &mut jpose,
                 &mut jintr,
                 &mut jp,

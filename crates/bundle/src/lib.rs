@@ -42,8 +42,8 @@ mod structure;
 pub use covariance::{metric_uncertainty, MetricUncertainty, PointUncertainty};
 pub use loss::RobustLoss;
 pub use metric::{
-    bundle_adjust_metric, observation_sigma, GaussianPrior, IntrinsicParam, IntrinsicsMask,
-    MetricBundleConfig,
+    bundle_adjust_metric, bundle_adjust_metric_rolling, observation_sigma, GaussianPrior,
+    IntrinsicParam, IntrinsicsMask, MetricBundleConfig, RollingShutter,
 };
 pub use options::{BundleError, BundleOptions, BundleSummary, LinearSolverKind, Termination};
 pub use problem::{CameraModel, Problem};

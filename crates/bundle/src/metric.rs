@@ -13,7 +13,8 @@ pub use crate::problem::GaussianPrior;
 use crate::problem::{CameraModel, Problem};
 use crate::residual::NUM_INTRINSICS;
 
-/// One intrinsic parameter, in the order of the metric residual (`[f, aspect, skew, u₀, v₀, k1, k2]`).
+/// One intrinsic parameter, in the order of the metric residual (`[f, aspect, skew, u₀, v₀, k1, k2,
+/// ρx, ρy]`; the last two: the rolling shutter's read-out, [`RollingShutter`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
 pub enum IntrinsicParam {
     F,
@@ -23,6 +24,8 @@ pub enum IntrinsicParam {
     Ppy,
     K1,
     K2,
+    ReadoutX,
+    ReadoutY,
 }
 
 impl IntrinsicParam {
@@ -84,6 +87,8 @@ impl IntrinsicsMask {
             self.principal_point,
             self.k1,
             self.k2,
+            false,
+            false,
         ]
     }
 }
@@ -115,6 +120,23 @@ pub struct MetricBundleConfig {
     /// Standard deviation (pixels) of each keypoint of a view, indexed like `View::observations`.
     /// Views without an entry, and keypoints past its end, have σ = 1. Default none.
     pub keypoint_sigma: BTreeMap<ImageId, Arc<[f64]>>,
+    /// A rolling-shutter camera ([`crate::residual`]'s notes) for the views with a velocity. Default
+    /// none: a global shutter.
+    pub rolling_shutter: Option<RollingShutter>,
+}
+
+/// The rolling shutter of a video's frames: each frame's velocity, held, and each group's read-out
+/// `[ρx, ρy]` (frame intervals across the image along x and y), refined under a prior.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct RollingShutter {
+    /// `[ω, ν]` per frame interval in the camera frame: the pose at time `τ` is
+    /// `(exp([τω]×) R, t + τ ν)`. Views without one are taken as still.
+    pub velocity: BTreeMap<ImageId, [f64; 6]>,
+    /// The start (and, after [`bundle_adjust_metric`], the adjusted) read-out of each group;
+    /// groups without one start at 0.
+    pub readout: BTreeMap<CameraId, [f64; 2]>,
+    /// Refine the read-out (else hold it), under a zero-mean prior of this σ (frame intervals).
+    pub refine_sigma: Option<f64>,
 }
 
 impl Default for MetricBundleConfig {
@@ -126,6 +148,7 @@ impl Default for MetricBundleConfig {
             constant_views: BTreeSet::new(),
             fix_first_view: true,
             keypoint_sigma: BTreeMap::new(),
+            rolling_shutter: None,
         }
     }
 }
@@ -146,22 +169,32 @@ pub(crate) fn metric_problem(
     let cameras: Vec<CameraId> = rec.cameras.keys().copied().collect();
     let group_of: BTreeMap<CameraId, usize> =
         cameras.iter().enumerate().map(|(i, c)| (*c, i)).collect();
+    let rs = config.rolling_shutter.as_ref();
     for (id, cam) in &rec.cameras {
         let k = &cam.intrinsics;
+        let [rx, ry] = rs
+            .and_then(|r| r.readout.get(id))
+            .copied()
+            .unwrap_or([0.0; 2]);
         p.groups
-            .push([k.f, k.aspect, k.skew, k.pp.x, k.pp.y, k.k1, k.k2]);
-        p.group_free.push(
-            config
-                .intrinsics
-                .get(id)
-                .copied()
-                .unwrap_or(config.refine)
-                .to_array(),
-        );
+            .push([k.f, k.aspect, k.skew, k.pp.x, k.pp.y, k.k1, k.k2, rx, ry]);
+        let mut free = config
+            .intrinsics
+            .get(id)
+            .copied()
+            .unwrap_or(config.refine)
+            .to_array();
         let mut pri = [None; NUM_INTRINSICS];
         for (param, prior) in config.priors.get(id).map(|v| v.as_slice()).unwrap_or(&[]) {
             pri[param.index()] = Some(*prior);
         }
+        if let Some(sigma) = rs.and_then(|r| r.refine_sigma) {
+            for param in [IntrinsicParam::ReadoutX, IntrinsicParam::ReadoutY] {
+                free[param.index()] = true;
+                pri[param.index()] = Some(GaussianPrior { mean: 0.0, sigma });
+            }
+        }
+        p.group_free.push(free);
         p.group_priors.push(pri);
     }
     let views: Vec<ImageId> = rec.views.keys().copied().collect();
@@ -173,6 +206,10 @@ pub(crate) fn metric_problem(
         })?;
         p.cameras.push(pose_to_block(&v.cam_from_world));
         p.camera_group.push(g);
+        if let Some(r) = rs {
+            p.camera_velocity
+                .push(r.velocity.get(&v.id).copied().unwrap_or([0.0; 6]));
+        }
         p.camera_constant
             .push(config.constant_views.contains(&v.id) || (config.fix_first_view && i == 0));
     }
@@ -201,6 +238,13 @@ pub(crate) fn metric_problem(
             p.obs_camera.push(vi as u32);
             p.obs_point.push(idx);
             p.obs_xy.push([obs.xy.x, obs.xy.y]);
+            if rs.is_some() {
+                let cam = &rec.cameras[&rec.views[&el.image_id].camera_id];
+                p.obs_basis.push([
+                    obs.xy.x / f64::from(cam.width.max(1)) - 0.5,
+                    obs.xy.y / f64::from(cam.height.max(1)) - 0.5,
+                ]);
+            }
             if !config.keypoint_sigma.is_empty() {
                 p.obs_sigma.push(observation_sigma(
                     &config.keypoint_sigma,
@@ -258,6 +302,16 @@ pub fn bundle_adjust_metric(
     config: &MetricBundleConfig,
     options: &BundleOptions,
 ) -> Result<BundleSummary, BundleError> {
+    Ok(bundle_adjust_metric_rolling(rec, config, options)?.0)
+}
+
+/// [`bundle_adjust_metric`], also returning each group's adjusted rolling-shutter read-out
+/// `[ρx, ρy]` (zero without [`MetricBundleConfig::rolling_shutter`]).
+pub fn bundle_adjust_metric_rolling(
+    rec: &mut MetricReconstruction,
+    config: &MetricBundleConfig,
+    options: &BundleOptions,
+) -> Result<(BundleSummary, BTreeMap<CameraId, [f64; 2]>), BundleError> {
     let (mut p, index) = metric_problem(rec, config)?;
     let summary = crate::solve(&mut p, options)?;
     for (i, id) in index.views.iter().enumerate() {
@@ -287,5 +341,11 @@ pub fn bundle_adjust_metric(
             pt.error = err[i].0 / err[i].1.max(1) as f64;
         }
     }
-    Ok(summary)
+    let readout = index
+        .cameras
+        .iter()
+        .zip(&p.groups)
+        .map(|(id, g)| (*id, [g[7], g[8]]))
+        .collect();
+    Ok((summary, readout))
 }

@@ -7,7 +7,7 @@ use rayon::prelude::*;
 
 use crate::loss::RobustLoss;
 use crate::options::BundleError;
-use crate::residual::{metric_residual, projective_residual, NUM_INTRINSICS};
+use crate::residual::{metric_residual, projective_residual, Motion, NUM_INTRINSICS};
 
 /// Which residual function the cameras use.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -51,6 +51,11 @@ pub struct Problem {
     /// are divided by it before the robust loss, so the cost is the Mahalanobis distance of an
     /// isotropic measurement model (eq. 21 with per-observation weights).
     pub obs_sigma: Vec<f64>,
+    /// Metric, rolling shutter: each camera's velocity `[ω, ν]` per frame interval (camera frame;
+    /// [`crate::residual`]); empty means a global shutter, and then `obs_basis` is unused.
+    pub camera_velocity: Vec<[f64; 6]>,
+    /// Metric, rolling shutter: each observation's read-out basis `[u/w − ½, v/h − ½]`.
+    pub obs_basis: Vec<[f64; 2]>,
 }
 
 impl Problem {
@@ -69,6 +74,8 @@ impl Problem {
             obs_point: Vec::new(),
             obs_xy: Vec::new(),
             obs_sigma: Vec::new(),
+            camera_velocity: Vec::new(),
+            obs_basis: Vec::new(),
         }
     }
 
@@ -92,6 +99,15 @@ impl Problem {
             return bad(format!(
                 "{} observation sigmas for {no} observations",
                 self.obs_sigma.len()
+            ));
+        }
+        if !self.camera_velocity.is_empty()
+            && (self.camera_velocity.len() != nc || self.obs_basis.len() != no)
+        {
+            return bad(format!(
+                "{} camera velocities and {} read-out bases for {nc} cameras and {no} observations",
+                self.camera_velocity.len(),
+                self.obs_basis.len()
             ));
         }
         if let Some(o) = self
@@ -159,8 +175,21 @@ impl Problem {
                 &self.groups[self.camera_group[c]],
                 x,
                 self.obs_xy[o],
+                &self.motion(o),
             ),
             CameraModel::Projective => projective_residual(&self.cameras[c], x, self.obs_xy[o]),
+        }
+    }
+
+    /// Observation `o`'s rolling-shutter motion (a still camera without velocities).
+    #[inline]
+    pub fn motion(&self, o: usize) -> Motion {
+        match self.camera_velocity.get(self.obs_camera[o] as usize) {
+            Some(&velocity) => Motion {
+                velocity,
+                basis: self.obs_basis[o],
+            },
+            None => Motion::default(),
         }
     }
 

@@ -4,7 +4,15 @@
 //! - **Metric** (§3.4, eqs. 2–3): `X_c = R X + t`, `x = X_c.xy / X_c.z`, `x_d = (1 + k1ρ² + k2ρ⁴) x`,
 //!   `u = f x_d + s y_d + u₀`, `v = r f y_d + v₀`. The rotation is updated on the left,
 //!   `R ← exp([δ]×) R` (local angle-axis), the translation, point and intrinsics additively.
-//!   Intrinsics are ordered `[f, aspect, skew, u₀, v₀, k1, k2]`.
+//!   Intrinsics are ordered `[f, aspect, skew, u₀, v₀, k1, k2, ρx, ρy]`.
+//! - **Rolling shutter** (a phone's video; Hedborg et al., *Rolling shutter bundle adjustment*, CVPR
+//!   2012, with Klingner et al.'s velocity from the neighbouring frames, ICCV 2013): an
+//!   observation at pixel `(u, v)` of an image `w × h` was read out `τ = ρx (u/w − ½) + ρy (v/h − ½)`
+//!   frame intervals after the image centre, when the camera had moved on by `τ` times its velocity
+//!   `(ω, ν)` (per frame interval, in the camera frame): `X_c = (I + τ[ω]×) R X + t + τ ν`, to first
+//!   order in `τ ω`. The velocity is a constant of the adjustment ([`Motion`]); `ρx, ρy` (the
+//!   group's read-out across the image, along each axis) are intrinsics. Without a velocity the
+//!   model is the global-shutter one.
 //! - **Projective** (§3.3, eq. 1): `m = P X`, pixel `= m.xy / m.z`. `P` (12-vector) and `X` (4-vector)
 //!   live on unit spheres; the local update is `v ← (v + B δ)/‖·‖` with `B` the orthonormal tangent
 //!   basis given by a Householder reflection (as Ceres' `SphereManifold`).
@@ -15,7 +23,27 @@
 use nalgebra::{Matrix3, Vector3};
 
 /// Number of intrinsic parameters of the metric model.
-pub const NUM_INTRINSICS: usize = 7;
+pub const NUM_INTRINSICS: usize = 9;
+
+/// An observation's rolling-shutter motion (module notes): its camera's velocity `[ω, ν]` per frame
+/// interval and its read-out basis `[u/w − ½, v/h − ½]`. The default is a still camera.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Motion {
+    pub velocity: [f64; 6],
+    pub basis: [f64; 2],
+}
+
+impl Motion {
+    /// The read-out time `τ` of the observation under intrinsics `intr`, and `X_c`'s velocity
+    /// `ω × R X + ν` at `rx = R X`.
+    #[inline]
+    fn at(&self, intr: &[f64; NUM_INTRINSICS], rx: &Vector3<f64>) -> (f64, Vector3<f64>) {
+        let v = &self.velocity;
+        let w = Vector3::new(v[0], v[1], v[2]);
+        let tau = intr[7] * self.basis[0] + intr[8] * self.basis[1];
+        (tau, w.cross(rx) + Vector3::new(v[3], v[4], v[5]))
+    }
+}
 
 /// Metric camera block: rotation `R` row-major (9 values) then translation `t` (`cam_from_world`).
 pub type PoseBlock = [f64; 12];
@@ -34,8 +62,11 @@ pub fn metric_residual(
     intr: &[f64; NUM_INTRINSICS],
     x: &[f64; 4],
     obs: [f64; 2],
+    motion: &Motion,
 ) -> [f64; 2] {
-    let xc = rot(cam) * Vector3::new(x[0], x[1], x[2]) + Vector3::new(cam[9], cam[10], cam[11]);
+    let rx = rot(cam) * Vector3::new(x[0], x[1], x[2]);
+    let (tau, moving) = motion.at(intr, &rx);
+    let xc = rx + Vector3::new(cam[9], cam[10], cam[11]) + tau * moving;
     let (nx, ny) = (xc.x / xc.z, xc.y / xc.z);
     let r2 = nx * nx + ny * ny;
     let d = 1.0 + intr[5] * r2 + intr[6] * r2 * r2;
@@ -47,20 +78,26 @@ pub fn metric_residual(
 }
 
 /// Residual of the metric model and its Jacobians: `jpose` w.r.t. (local rotation δ, t), `jintr` w.r.t.
-/// the 7 intrinsics and `jpt` w.r.t. the point.
+/// the intrinsics and `jpt` w.r.t. the point (the velocity held: module notes).
 #[inline]
+#[allow(clippy::too_many_arguments)] // the innermost kernel: its outputs are written in place
 pub fn metric_jacobian(
     cam: &PoseBlock,
     intr: &[f64; NUM_INTRINSICS],
     x: &[f64; 4],
     obs: [f64; 2],
+    motion: &Motion,
     jpose: &mut [[f64; 2]; 6],
     jintr: &mut [[f64; 2]; NUM_INTRINSICS],
     jpt: &mut [[f64; 2]; 3],
 ) -> [f64; 2] {
     let r = rot(cam);
     let rx = r * Vector3::new(x[0], x[1], x[2]);
-    let xc = rx + Vector3::new(cam[9], cam[10], cam[11]);
+    let (tau, moving) = motion.at(intr, &rx);
+    let xc = rx + Vector3::new(cam[9], cam[10], cam[11]) + tau * moving;
+    // `(I + τ[ω]×) v` for the rotation's and the point's columns.
+    let tw = tau * Vector3::new(motion.velocity[0], motion.velocity[1], motion.velocity[2]);
+    let turn = |v: Vector3<f64>| v + tw.cross(&v);
     let iz = 1.0 / xc.z;
     let (nx, ny) = (xc.x * iz, xc.y * iz);
     let r2 = nx * nx + ny * ny;
@@ -85,20 +122,18 @@ pub fn metric_jacobian(
         [m01 * iz, m11 * iz],
         [-(m00 * nx + m01 * ny) * iz, -(m10 * nx + m11 * ny) * iz],
     ];
-    // Rotation: ∂X_c/∂δ = −[R X]×, whose column k is e_k × (R X).
-    let cross = [[0.0, -rx.z, rx.y], [rx.z, 0.0, -rx.x], [-rx.y, rx.x, 0.0]];
+    let through = |v: Vector3<f64>| {
+        [
+            jxc[0][0] * v.x + jxc[1][0] * v.y + jxc[2][0] * v.z,
+            jxc[0][1] * v.x + jxc[1][1] * v.y + jxc[2][1] * v.z,
+        ]
+    };
     for k in 0..3 {
-        let col = cross[k];
-        jpose[k] = [
-            jxc[0][0] * col[0] + jxc[1][0] * col[1] + jxc[2][0] * col[2],
-            jxc[0][1] * col[0] + jxc[1][1] * col[1] + jxc[2][1] * col[2],
-        ];
+        // Rotation: ∂X_c/∂δ = −(I + τ[ω]×)[R X]×, whose column k is (I + τ[ω]×)(e_k × R X).
+        jpose[k] = through(turn(Vector3::ith(k, 1.0).cross(&rx)));
         jpose[3 + k] = jxc[k];
-        // Point: ∂X_c/∂X = R, column k of R.
-        jpt[k] = [
-            jxc[0][0] * r[(0, k)] + jxc[1][0] * r[(1, k)] + jxc[2][0] * r[(2, k)],
-            jxc[0][1] * r[(0, k)] + jxc[1][1] * r[(1, k)] + jxc[2][1] * r[(2, k)],
-        ];
+        // Point: ∂X_c/∂X = (I + τ[ω]×) R, column k of R turned.
+        jpt[k] = through(turn(r.column(k).into_owned()));
     }
     jintr[0] = [xd, a * yd];
     jintr[1] = [0.0, f * yd];
@@ -109,6 +144,10 @@ pub fn metric_jacobian(
     let (ax, ay) = (f * nx + s * ny, fy * ny);
     jintr[5] = [ax * r2, ay * r2];
     jintr[6] = [ax * r2 * r2, ay * r2 * r2];
+    // Read-out: ∂X_c/∂ρ = basis · (ω × R X + ν).
+    let dm = through(moving);
+    jintr[7] = [dm[0] * motion.basis[0], dm[1] * motion.basis[0]];
+    jintr[8] = [dm[0] * motion.basis[1], dm[1] * motion.basis[1]];
     res
 }
 

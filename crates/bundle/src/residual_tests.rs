@@ -22,7 +22,7 @@ fn pose() -> PoseBlock {
     b
 }
 
-const INTR: [f64; 7] = [520.0, 1.05, 0.7, 320.0, 241.0, -0.12, 0.03];
+const INTR: [f64; 9] = [520.0, 1.05, 0.7, 320.0, 241.0, -0.12, 0.03, 0.0, 0.0];
 const X: [f64; 4] = [0.4, -0.3, 1.2, 1.0];
 const OBS: [f64; 2] = [300.0, 200.0];
 
@@ -55,13 +55,16 @@ fn metric_dual(params: &[D; 16], base: &PoseBlock) -> [D; 2] {
 #[test]
 fn metric_jacobian_matches_num_dual() {
     let cam = pose();
-    let (mut jpose, mut jintr, mut jpt) = ([[0.0; 2]; 6], [[0.0; 2]; 7], [[0.0; 2]; 3]);
-    let r = metric_jacobian(&cam, &INTR, &X, OBS, &mut jpose, &mut jintr, &mut jpt);
-    let r0 = metric_residual(&cam, &INTR, &X, OBS);
+    let (mut jpose, mut jintr, mut jpt) = ([[0.0; 2]; 6], [[0.0; 2]; 9], [[0.0; 2]; 3]);
+    let still = Motion::default();
+    let r = metric_jacobian(
+        &cam, &INTR, &X, OBS, &still, &mut jpose, &mut jintr, &mut jpt,
+    );
+    let r0 = metric_residual(&cam, &INTR, &X, OBS, &still);
     assert!((r[0] - r0[0]).abs() < 1e-12 && (r[1] - r0[1]).abs() < 1e-12);
     let mut analytic = Vec::new();
     analytic.extend_from_slice(&jpose);
-    analytic.extend_from_slice(&jintr);
+    analytic.extend_from_slice(&jintr[..7]);
     analytic.extend_from_slice(&jpt);
     let base: [f64; 16] = [
         0.0, 0.0, 0.0, cam[9], cam[10], cam[11], INTR[0], INTR[1], INTR[2], INTR[3], INTR[4],
@@ -96,20 +99,48 @@ fn assert_close(fd: [f64; 2], an: [f64; 2], what: &str) {
 #[test]
 fn metric_jacobian_matches_finite_differences_through_pose_plus() {
     let cam = pose();
-    let (mut jpose, mut jintr, mut jpt) = ([[0.0; 2]; 6], [[0.0; 2]; 7], [[0.0; 2]; 3]);
-    metric_jacobian(&cam, &INTR, &X, OBS, &mut jpose, &mut jintr, &mut jpt);
-    let h = 1e-6;
-    for k in 0..6 {
-        let mut d = [0.0; 6];
-        d[k] = h;
-        let rp = metric_residual(&pose_plus(&cam, &d), &INTR, &X, OBS);
-        d[k] = -h;
-        let rm = metric_residual(&pose_plus(&cam, &d), &INTR, &X, OBS);
-        assert_close(
-            [(rp[0] - rm[0]) / (2.0 * h), (rp[1] - rm[1]) / (2.0 * h)],
-            jpose[k],
-            &format!("pose {k}"),
+    // A still camera, then a rolling shutter's: the frame turning and moving during its read-out.
+    let rolling = Motion {
+        velocity: [0.02, -0.05, 0.01, 0.03, 0.01, -0.02],
+        basis: [0.31, -0.42],
+    };
+    let mut intr = INTR;
+    (intr[7], intr[8]) = (0.2, 0.7);
+    for (motion, intr) in [(Motion::default(), INTR), (rolling, intr)] {
+        let (mut jpose, mut jintr, mut jpt) = ([[0.0; 2]; 6], [[0.0; 2]; 9], [[0.0; 2]; 3]);
+        metric_jacobian(
+            &cam, &intr, &X, OBS, &motion, &mut jpose, &mut jintr, &mut jpt,
         );
+        // Central differences of the residual along one parameter, moved by ±h.
+        let h = 1e-6;
+        let central = |r: &dyn Fn(f64) -> [f64; 2]| {
+            let (rp, rm) = (r(h), r(-h));
+            [(rp[0] - rm[0]) / (2.0 * h), (rp[1] - rm[1]) / (2.0 * h)]
+        };
+        for k in 0..6 {
+            let fd = central(&|e| {
+                let mut d = [0.0; 6];
+                d[k] = e;
+                metric_residual(&pose_plus(&cam, &d), &intr, &X, OBS, &motion)
+            });
+            assert_close(fd, jpose[k], &format!("pose {k}"));
+        }
+        for k in 0..9 {
+            let fd = central(&|e| {
+                let mut i = intr;
+                i[k] += e;
+                metric_residual(&cam, &i, &X, OBS, &motion)
+            });
+            assert_close(fd, jintr[k], &format!("intrinsic {k}"));
+        }
+        for k in 0..3 {
+            let fd = central(&|e| {
+                let mut x = X;
+                x[k] += e;
+                metric_residual(&cam, &intr, &x, OBS, &motion)
+            });
+            assert_close(fd, jpt[k], &format!("point {k}"));
+        }
     }
 }
 

@@ -110,6 +110,7 @@ pub(crate) fn linearize_into(
                         &p.groups[p.camera_group[c]],
                         x,
                         p.obs_xy[o],
+                        &p.motion(o),
                         &mut jpose,
                         &mut jintr,
                         jp_out,

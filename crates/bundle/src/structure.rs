@@ -11,8 +11,8 @@ use crate::problem::{CameraModel, Problem};
 use crate::residual::NUM_INTRINSICS;
 
 pub(crate) const NONE: u32 = u32::MAX;
-/// Columns of a camera's full Jacobian: metric 6 pose + 7 intrinsics, projective 11.
-pub(crate) const MAX_FULL_COLS: usize = 13;
+/// Columns of a camera's full Jacobian: metric 6 pose + the intrinsics, projective 11.
+pub(crate) const MAX_FULL_COLS: usize = 6 + NUM_INTRINSICS;
 
 /// Compressed rows: `ptr[i]..ptr[i + 1]` indexes `idx`.
 #[derive(Clone, Debug, Default)]

@@ -13,6 +13,7 @@ use crate::context::Context;
 use crate::merge::MergeRecord;
 use crate::metric::ba::MetricBaRecord;
 use crate::metric::consistency::ConsistencyReport;
+use crate::metric::rolling::RollingShutterReport;
 use crate::metric::uncertainty::UncertaintyReport;
 use crate::projective::model::{ProjectiveBaRecord, ProjectiveModel};
 use crate::upgrade::transform::SelfCalibrationReport;
@@ -72,6 +73,9 @@ pub struct ModelSummary {
     pub uncertainty_note: Option<String>,
     /// Whether the views agree with their verified pairs, and those taken out (`metric/consistency.rs`).
     pub view_consistency: ConsistencyReport,
+    /// Video: the rolling shutter's read-out adjusted with the model (`metric/rolling.rs`).
+    #[serde(default)]
+    pub rolling_shutter: Option<RollingShutterReport>,
     /// Models merged into this one (`merge/`), in order.
     pub merged: Vec<MergeRecord>,
     pub timings_s: BTreeMap<String, f64>,
@@ -146,6 +150,7 @@ pub(crate) fn summarize(
         uncertainty,
         uncertainty_note,
         view_consistency: Default::default(),
+        rolling_shutter: None,
         merged: Vec::new(),
         timings_s,
     }

@@ -3,10 +3,9 @@
 //!
 //! A phone's CMOS sensor reads its rows one after another: row `y` of an image `h` rows high is
 //! exposed `readout · ((y + ½)/h − ½)` frame intervals after the middle row, and every row gathers
-//! light over the exposure time. The camera is taken to move at a constant velocity between
-//! neighbouring frames' poses (the rotation along the geodesic, the centre along the line; the
-//! first and the last frame continue their one segment), so each ray is cast from the pose of its
-//! own time. A frame's ground-truth pose, and its depth map, are its middle row's at mid-exposure:
+//! light over the exposure time. The camera moves smoothly through each frame's pose, along the
+//! quadratic through its neighbours' (the first and the last frame along the line to their one
+//! neighbour), so each ray is cast from the pose of its own time. A frame's ground-truth pose, and its depth map, are its middle row's at mid-exposure:
 //! the pose a global-shutter model fitted to the image comes closest to.
 
 use handheld_core::pose::{cam_from_world_from_center, center_of};
@@ -71,14 +70,29 @@ impl FrameMotion {
         })
     }
 
-    /// `cam_from_world` at `tau` frame intervals from the frame's own time.
+    /// `cam_from_world` at `tau` frame intervals from the frame's own time: along the quadratic
+    /// through the frame before's, its own and the frame after's poses (the rotation in the
+    /// tangent space at the frame's own; linear where a neighbour is missing), so that the camera's
+    /// velocity changes smoothly through the frame, as a hand-held camera's does, and equals the
+    /// central difference of its neighbours at the frame's time.
     pub fn pose_at(&self, tau: f64) -> Rigid3 {
-        let (a, b, t) = match (tau >= 0.0, self.before, self.after) {
-            (true, _, Some(next)) | (false, None, Some(next)) => (self.at, next, tau),
-            (false, Some(prev), _) | (true, Some(prev), None) => (prev, self.at, 1.0 + tau),
-            (_, None, None) => return self.at,
+        let (before, after) = match (self.before, self.after) {
+            (Some(b), Some(a)) => (b, a),
+            (Some(b), None) => return interpolate(&b, &self.at, 1.0 + tau),
+            (None, Some(a)) => return interpolate(&self.at, &a, tau),
+            (None, None) => return self.at,
         };
-        interpolate(&a, &b, t)
+        let q = self.at.rotation;
+        let (back, ahead) = (
+            (before.rotation * q.inverse()).scaled_axis(),
+            (after.rotation * q.inverse()).scaled_axis(),
+        );
+        let (c, cb, ca) = (center_of(&self.at), center_of(&before), center_of(&after));
+        // p(τ) = p₀ + τ (p₊ − p₋)/2 + τ²/2 (p₊ − 2p₀ + p₋), through p₋, p₀, p₊ at τ = −1, 0, 1.
+        let (s1, s2) = (0.5 * tau, 0.5 * tau * tau);
+        let turn = UnitQuaternion::from_scaled_axis((ahead - back) * s1 + (ahead + back) * s2);
+        let centre = c + (ca - cb) * s1 + (ca - c + (cb - c)) * s2;
+        cam_from_world_from_center(&(turn * q).inverse().to_rotation_matrix(), &centre)
     }
 }
 
@@ -122,6 +136,13 @@ mod tests {
             let angle = m.pose_at(-tau).rotation.inverse().angle();
             let expected = (0.1 * (i as f64 - tau)).abs();
             assert!((angle - expected).abs() < 1e-12, "frame {i}: {angle}");
+        }
+        // A jittered frame: the path still passes through its neighbours' poses.
+        let jittered = [pose(0.0, 0.0), pose(0.13, 0.8), pose(0.2, 2.1)];
+        let m = FrameMotion::of(&jittered, 1, shutter).unwrap();
+        for (tau, want) in [(-1.0, jittered[0]), (1.0, jittered[2])] {
+            let d = m.pose_at(tau).to_homogeneous() - want.to_homogeneous();
+            assert!(d.norm() < 1e-12, "{tau}: {d}");
         }
         assert!(Shutter::default().is_global());
         assert!(Shutter {

@@ -219,6 +219,7 @@ fn model(rec: MetricReconstruction) -> SfmModel {
         uncertainty: None,
         uncertainty_note: None,
         view_consistency: Default::default(),
+        rolling_shutter: None,
         merged: Vec::new(),
         timings_s: Default::default(),
     };

@@ -7,8 +7,8 @@
 use std::collections::{BTreeMap, BTreeSet};
 
 use handheld_bundle::{
-    bundle_adjust_metric, BundleOptions, GaussianPrior, IntrinsicParam, IntrinsicsMask,
-    MetricBundleConfig, RobustLoss,
+    bundle_adjust_metric_rolling, BundleOptions, GaussianPrior, IntrinsicParam, IntrinsicsMask,
+    MetricBundleConfig, RobustLoss, RollingShutter,
 };
 use handheld_core::{CameraId, ImageId, MetricReconstruction, PointId};
 use serde::Serialize;
@@ -71,13 +71,29 @@ pub(crate) fn filter_metric(
     max_px: f64,
     min_track: usize,
 ) -> (usize, usize) {
+    filter_metric_rolling(rec, max_px, min_track, None)
+}
+
+/// [`filter_metric`], each observation projected from its row's pose under a rolling shutter
+/// (`metric/rolling.rs`) when one is given.
+pub(crate) fn filter_metric_rolling(
+    rec: &mut MetricReconstruction,
+    max_px: f64,
+    min_track: usize,
+    rolling: Option<&RollingShutter>,
+) -> (usize, usize) {
     let mut bad_obs = Vec::new();
     for (pid, pt) in &rec.points {
         for el in &pt.track.elements {
             let ok = rec.views.get(&el.image_id).and_then(|v| {
                 let cam = rec.cameras.get(&v.camera_id)?;
-                let px = cam.project(&v.cam_from_world, &pt.xyz)?;
-                Some((px - v.observations[el.point2d_idx as usize].xy).norm() <= max_px)
+                let xy = v.observations[el.point2d_idx as usize].xy;
+                let pose = match rolling {
+                    Some(r) => crate::metric::rolling::row_pose(r, v, cam, xy),
+                    None => v.cam_from_world,
+                };
+                let px = cam.project(&pose, &pt.xyz)?;
+                Some((px - xy).norm() <= max_px)
             });
             if ok != Some(true) {
                 bad_obs.push((*pid, *el));
@@ -120,7 +136,7 @@ pub(crate) fn refine_metric(
     rec: &mut MetricReconstruction,
     estimate_aspect: bool,
 ) -> Result<Vec<MetricBaRecord>, String> {
-    adjust_metric_schedule(ctx, rec, estimate_aspect, Schedule::Full, None)
+    adjust_metric_schedule(ctx, rec, estimate_aspect, Schedule::Full, None, None)
 }
 
 /// Removed fraction at which a candidate frame's schedule stops after a step ([`adjust_candidate`]).
@@ -148,7 +164,7 @@ pub(crate) fn adjust_candidate(
     estimate_aspect: bool,
     bar: Option<f64>,
 ) -> Result<Vec<MetricBaRecord>, String> {
-    adjust_metric_schedule(ctx, rec, estimate_aspect, Schedule::Candidate, bar)
+    adjust_metric_schedule(ctx, rec, estimate_aspect, Schedule::Candidate, bar, None)
 }
 
 /// Only the last step of [`refine_metric`]: for a model that was adjusted and then extended (new
@@ -158,7 +174,25 @@ pub(crate) fn final_adjustment(
     rec: &mut MetricReconstruction,
     estimate_aspect: bool,
 ) -> Result<Vec<MetricBaRecord>, String> {
-    adjust_metric_schedule(ctx, rec, estimate_aspect, Schedule::FinalOnly, None)
+    adjust_metric_schedule(ctx, rec, estimate_aspect, Schedule::FinalOnly, None, None)
+}
+
+/// [`final_adjustment`] with a rolling-shutter camera (`metric/rolling.rs`): the frames'
+/// velocities held, the read-out refined from `rolling.readout` and written back there.
+pub(crate) fn final_adjustment_rolling(
+    ctx: &Context,
+    rec: &mut MetricReconstruction,
+    estimate_aspect: bool,
+    rolling: &mut RollingShutter,
+) -> Result<Vec<MetricBaRecord>, String> {
+    adjust_metric_schedule(
+        ctx,
+        rec,
+        estimate_aspect,
+        Schedule::FinalOnly,
+        None,
+        Some(rolling),
+    )
 }
 
 /// Which part of the schedule runs.
@@ -178,6 +212,7 @@ fn adjust_metric_schedule(
     estimate_aspect: bool,
     schedule: Schedule,
     bar: Option<f64>,
+    mut rolling: Option<&mut RollingShutter>,
 ) -> Result<Vec<MetricBaRecord>, String> {
     let only_final = schedule == Schedule::FinalOnly;
     let o = ctx.opts;
@@ -212,6 +247,7 @@ fn adjust_metric_schedule(
             refine: mask,
             priors: scaled_priors(&priors, prior_scale),
             keypoint_sigma: ctx.keypoint_sigma.clone(),
+            rolling_shutter: rolling.as_deref().cloned(),
             ..Default::default()
         };
         let bopts = BundleOptions {
@@ -229,10 +265,13 @@ fn adjust_metric_schedule(
             embedded_point_iterations: usize::from(name != "f+k1"),
             ..Default::default()
         };
-        let s = bundle_adjust_metric(rec, &config, &bopts)
+        let (s, readout) = bundle_adjust_metric_rolling(rec, &config, &bopts)
             .map_err(|e| format!("metric bundle adjustment ({name}): {e}"))?;
+        if let Some(r) = rolling.as_deref_mut() {
+            r.readout = readout;
+        }
         keep_scale(rec);
-        let (ro, rp) = filter_metric(rec, thr, o.min_track_length);
+        let (ro, rp) = filter_metric_rolling(rec, thr, o.min_track_length, rolling.as_deref());
         records.push(MetricBaRecord::of(name, &s, loss, noise, ro, rp));
         removed += ro;
         if schedule == Schedule::Candidate
@@ -258,8 +297,11 @@ fn adjust_metric_schedule(
         // principal point against the rotations) that pull is worth pixels (herzjesu-P8: 12 px
         // of principal point from 0.9 % of the observations).
         if name == "final" && ro > 0 {
-            let s = bundle_adjust_metric(rec, &config, &bopts)
+            let (s, readout) = bundle_adjust_metric_rolling(rec, &config, &bopts)
                 .map_err(|e| format!("metric bundle adjustment (survivors): {e}"))?;
+            if let Some(r) = rolling.as_deref_mut() {
+                r.readout = readout;
+            }
             keep_scale(rec);
             records.push(MetricBaRecord::of("survivors", &s, loss, noise, 0, 0));
         }

@@ -26,6 +26,8 @@
 //!   pair's rotation refined on its inliers and its uncertainty, which widens what the pair allows.
 //! - `depthless.rs`: points whose rays are parallel within their noise (no measured depth), taken
 //!   out of the finished model.
+//! - `rolling.rs`: a video's rolling shutter, its read-out adjusted with the model, each frame's
+//!   velocity from its registered neighbours.
 //! - `uncertainty.rs`: per-point and intrinsics uncertainty from the adjustment's covariance.
 
 pub mod ba;
@@ -40,4 +42,5 @@ pub mod profile;
 pub(crate) mod register;
 pub(crate) mod register_pair;
 pub(crate) mod resect;
+pub mod rolling;
 pub mod uncertainty;

@@ -14,6 +14,7 @@ use crate::metric::ba::MetricBaRecord;
 use crate::metric::consistency::{self, Judged, ViewDisagreement};
 use crate::metric::depthless::take_out_depthless;
 use crate::metric::principal_point::principal_point_test;
+use crate::metric::rolling::rolling_shutter_step;
 use crate::metric::uncertainty::uncertainty_step;
 use crate::projective::model::ProjectiveModel;
 use crate::summary::{summarize, SfmModel};
@@ -148,6 +149,11 @@ pub(crate) fn build_model(
         principal_point_test(ctx, &mut rec, &mut metric_ba, estimate_aspect, &mut report);
         record(&mut timings, "principal_point_test", t_pp);
     }
+    let t_rs = Instant::now();
+    let rolling_shutter = rolling_shutter_step(ctx, &mut rec, estimate_aspect, &mut metric_ba);
+    if rolling_shutter.is_some() {
+        record(&mut timings, "rolling_shutter", t_rs);
+    }
     focal_warnings(ctx, &rec, &mut report, estimate_aspect);
     if is_prior {
         report.used_prior_fallback = true;
@@ -173,6 +179,7 @@ pub(crate) fn build_model(
     );
     summary.view_consistency = consistency;
     summary.points_without_depth = points_without_depth;
+    summary.rolling_shutter = rolling_shutter;
     Ok(Some(SfmModel {
         reconstruction: rec,
         summary,
