@@ -266,7 +266,8 @@ pub(crate) fn metric_problem(
     ))
 }
 
-pub(crate) fn pose_to_block(pose: &handheld_core::Rigid3) -> [f64; 12] {
+/// The flat camera block of a pose (`residual::PoseBlock`: `R` row-major, then `t`).
+pub fn pose_to_block(pose: &handheld_core::Rigid3) -> [f64; 12] {
     let r = pose.rotation.to_rotation_matrix();
     let t = pose.translation.vector;
     let mut b = [0.0; 12];

@@ -10,7 +10,7 @@ use handheld_bundle::{
     bundle_adjust_metric_rolling, BundleOptions, GaussianPrior, IntrinsicParam, IntrinsicsMask,
     MetricBundleConfig, RobustLoss, RollingShutter,
 };
-use handheld_core::{CameraId, ImageId, MetricReconstruction, PointId};
+use handheld_core::{CameraId, ImageId, MetricReconstruction, PointId, TrackElement};
 use serde::Serialize;
 
 use crate::common::image_centre;
@@ -82,24 +82,10 @@ pub(crate) fn filter_metric_rolling(
     min_track: usize,
     rolling: Option<&RollingShutter>,
 ) -> (usize, usize) {
-    let mut bad_obs = Vec::new();
-    for (pid, pt) in &rec.points {
-        for el in &pt.track.elements {
-            let ok = rec.views.get(&el.image_id).and_then(|v| {
-                let cam = rec.cameras.get(&v.camera_id)?;
-                let xy = v.observations[el.point2d_idx as usize].xy;
-                let pose = match rolling {
-                    Some(r) => crate::metric::rolling::row_pose(r, v, cam, xy),
-                    None => v.cam_from_world,
-                };
-                let px = cam.project(&pose, &pt.xyz)?;
-                Some((px - xy).norm() <= max_px)
-            });
-            if ok != Some(true) {
-                bad_obs.push((*pid, *el));
-            }
-        }
-    }
+    let bad_obs: Vec<(PointId, TrackElement)> = crate::metric::rolling::residuals(rec, rolling)
+        .filter(|(_, _, e)| !e.is_some_and(|e| e <= max_px))
+        .map(|(pid, el, _)| (pid, *el))
+        .collect();
     let n_obs = bad_obs.len();
     for (pid, el) in bad_obs {
         if let Some(pt) = rec.points.get_mut(&pid) {
@@ -241,13 +227,17 @@ fn adjust_metric_schedule(
         let (loss, prior_scale, noise) = if name == "f+k1" {
             (first_step_loss(rec, o.loss_scale_px), 1.0, None)
         } else {
-            noise_scaled_loss(ctx, rec)
+            noise_scaled_loss(ctx, rec, rolling.as_deref())
         };
         let config = MetricBundleConfig {
             refine: mask,
             priors: scaled_priors(&priors, prior_scale),
             keypoint_sigma: ctx.keypoint_sigma.clone(),
-            rolling_shutter: rolling.as_deref().cloned(),
+            // The read-out's prior weighed against data of the measured noise, as the others.
+            rolling_shutter: rolling.as_deref().map(|r| RollingShutter {
+                refine_sigma: r.refine_sigma.map(|s| s * prior_scale),
+                ..r.clone()
+            }),
             ..Default::default()
         };
         let bopts = BundleOptions {

@@ -4,7 +4,9 @@
 
 use std::collections::BTreeMap;
 
-use handheld_bundle::{observation_sigma, GaussianPrior, IntrinsicParam, RobustLoss};
+use handheld_bundle::{
+    observation_sigma, GaussianPrior, IntrinsicParam, RobustLoss, RollingShutter,
+};
 use handheld_core::{CameraId, MetricReconstruction};
 
 use crate::context::Context;
@@ -26,9 +28,17 @@ pub(crate) struct Noise {
 
 /// The [`Noise`] of the adjusted model `rec`; `None` without redundant observations.
 pub(crate) fn noise_sigma(ctx: &Context, rec: &MetricReconstruction) -> Option<Noise> {
-    let mut e: Vec<f64> = rec
-        .residuals()
-        .filter_map(|(el, r)| {
+    noise_sigma_rolling(ctx, rec, None)
+}
+
+/// [`noise_sigma`], the observations projected from their rows' poses under `rolling`.
+pub(crate) fn noise_sigma_rolling(
+    ctx: &Context,
+    rec: &MetricReconstruction,
+    rolling: Option<&RollingShutter>,
+) -> Option<Noise> {
+    let mut e: Vec<f64> = crate::metric::rolling::residuals(rec, rolling)
+        .filter_map(|(_, el, r)| {
             Some(r? / observation_sigma(&ctx.keypoint_sigma, el.image_id, el.point2d_idx))
         })
         .collect();
@@ -66,12 +76,13 @@ const MIN_NOISE_SIGMA_PX: f64 = 0.01;
 pub(crate) fn noise_scaled_loss(
     ctx: &Context,
     rec: &MetricReconstruction,
+    rolling: Option<&RollingShutter>,
 ) -> (RobustLoss, f64, Option<Noise>) {
     let fixed = ctx.opts.loss_scale_px;
     if !ctx.opts.noise_scaled_loss {
         return (RobustLoss::Huber(fixed), 1.0, None);
     }
-    match noise_sigma(ctx, rec) {
+    match noise_sigma_rolling(ctx, rec, rolling) {
         Some(n) if n.residual.is_finite() && n.observation.is_finite() => {
             // The loss acts on the residuals: its scale is theirs. The priors compete with the
             // observations' information, whose noise is σ̂.

@@ -55,7 +55,7 @@ pub(crate) fn held_adjustment(
 ) -> Result<(f64, MetricReconstruction), String> {
     let Setup { full, priors, .. } = setup(ctx, rec, estimate_aspect);
     // The same loss and priors as the schedule's last adjustments.
-    let (loss, prior_scale, _) = noise_scaled_loss(ctx, rec);
+    let (loss, prior_scale, _) = noise_scaled_loss(ctx, rec, None);
     let priors = scaled_priors(&priors, prior_scale);
     // The ratios need about a per cent: the schedule's first-step tolerances do.
     let bopts = BundleOptions {

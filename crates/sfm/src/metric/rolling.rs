@@ -20,7 +20,7 @@
 use std::collections::BTreeMap;
 
 use handheld_bundle::RollingShutter;
-use handheld_core::{Camera, ImageId, MetricReconstruction, Rigid3, View};
+use handheld_core::{Camera, ImageId, MetricReconstruction, PointId, Rigid3, TrackElement, View};
 use nalgebra::{Translation3, UnitQuaternion, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
@@ -169,4 +169,113 @@ pub(crate) fn row_pose(
         Translation3::from(pose.translation.vector + Vector3::new(v[3], v[4], v[5]) * tau),
         turn * pose.rotation,
     )
+}
+
+/// Every track element's point and reprojection error (pixels; `None` behind its view or where
+/// the view, its camera or the keypoint is missing), each observation projected from its row's
+/// pose under `rolling` when one is given (`MetricReconstruction::residuals` without).
+pub(crate) fn residuals<'a>(
+    rec: &'a MetricReconstruction,
+    rolling: Option<&'a RollingShutter>,
+) -> impl Iterator<Item = (PointId, &'a TrackElement, Option<f64>)> + 'a {
+    rec.points.iter().flat_map(move |(pid, p)| {
+        p.track.elements.iter().map(move |el| {
+            let error = (|| {
+                let view = rec.views.get(&el.image_id)?;
+                let camera = rec.cameras.get(&view.camera_id)?;
+                let xy = view.observations.get(el.point2d_idx as usize)?.xy;
+                let pose = match rolling {
+                    Some(r) => row_pose(r, view, camera, xy),
+                    None => view.cam_from_world,
+                };
+                Some((camera.project(&pose, &p.xyz)? - xy).norm())
+            })();
+            (*pid, el, error)
+        })
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use handheld_bundle::residual::{metric_residual, Motion};
+    use handheld_core::pose::cam_from_world_from_center;
+    use handheld_core::{CameraId, Intrinsics};
+    use nalgebra::{Point3, Rotation3};
+
+    fn view(id: u32, angle: f64, x: f64) -> View {
+        View {
+            id: ImageId(id),
+            name: format!("frame_{id:04}.png"),
+            camera_id: CameraId(1),
+            cam_from_world: cam_from_world_from_center(
+                &Rotation3::from_axis_angle(&Vector3::y_axis(), angle),
+                &Point3::new(x, 0.1 * x * x, -4.0),
+            ),
+            observations: Vec::new(),
+            frame: None,
+        }
+    }
+
+    #[test]
+    fn a_frames_velocity_is_its_neighbours_central_difference_over_their_frame_indices() {
+        let mut rec = MetricReconstruction::default();
+        // Frames 0, 2 and 3 of a video turning 0.01 rad a frame: frame 2's neighbours are 2 and 1
+        // frames away.
+        for (id, frame) in [(0u32, 0u64), (1, 2), (2, 3)] {
+            rec.views
+                .insert(ImageId(id), view(id, 0.01 * frame as f64, 0.0));
+        }
+        let index = BTreeMap::from([(ImageId(0), 0), (ImageId(1), 2), (ImageId(2), 3)]);
+        let v = velocities(&rec, &index);
+        for id in 0..3 {
+            let w = Vector3::from_row_slice(&v[&ImageId(id)][..3]);
+            // The rotation about y of cam_from_world is the inverse of the camera's turn.
+            assert!(
+                (w - Vector3::new(0.0, -0.01, 0.0)).norm() < 1e-12,
+                "{id}: {w}"
+            );
+        }
+    }
+
+    #[test]
+    fn a_rows_pose_projects_as_the_adjustments_rolling_shutter_camera_does() {
+        let camera = Camera {
+            id: CameraId(1),
+            width: 640,
+            height: 480,
+            intrinsics: Intrinsics {
+                f: 500.0,
+                aspect: 1.0,
+                skew: 0.0,
+                pp: Vector2::new(319.5, 239.5),
+                k1: -0.05,
+                k2: 0.0,
+            },
+        };
+        let v = view(1, 0.2, 0.3);
+        let velocity = [0.01, -0.03, 0.005, 0.02, 0.0, -0.01];
+        let rolling = RollingShutter {
+            velocity: BTreeMap::from([(v.id, velocity)]),
+            readout: BTreeMap::from([(camera.id, [0.1, 0.6])]),
+            refine_sigma: None,
+        };
+        let x = Point3::new(0.4, -0.3, 1.0);
+        let k = &camera.intrinsics;
+        let intr = [k.f, k.aspect, k.skew, k.pp.x, k.pp.y, k.k1, k.k2, 0.1, 0.6];
+        let block = handheld_bundle::metric::pose_to_block(&v.cam_from_world);
+        for xy in [Vector2::new(20.0, 30.0), Vector2::new(600.0, 450.0)] {
+            let px = camera
+                .project(&row_pose(&rolling, &v, &camera, xy), &x)
+                .unwrap();
+            let motion = Motion {
+                velocity,
+                basis: [xy.x / 640.0 - 0.5, xy.y / 480.0 - 0.5],
+            };
+            let r = metric_residual(&block, &intr, &[x.x, x.y, x.z, 1.0], [xy.x, xy.y], &motion);
+            // The adjustment's rotation is first-order in τω: they agree to (τω)² f.
+            let d = (Vector2::new(r[0], r[1]) - (px - xy)).norm();
+            assert!(d < 0.01, "{xy}: {d} px");
+        }
+    }
 }
