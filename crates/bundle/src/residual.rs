@@ -39,6 +39,10 @@ impl Motion {
     #[inline]
     fn at(&self, intr: &[f64; NUM_INTRINSICS], rx: &Vector3<f64>) -> (f64, Vector3<f64>) {
         let v = &self.velocity;
+        // A still camera (every photo): nothing to add, at no cost in the innermost loop.
+        if *v == [0.0; 6] {
+            return (0.0, Vector3::zeros());
+        }
         let w = Vector3::new(v[0], v[1], v[2]);
         let tau = intr[7] * self.basis[0] + intr[8] * self.basis[1];
         (tau, w.cross(rx) + Vector3::new(v[3], v[4], v[5]))
@@ -97,7 +101,7 @@ pub fn metric_jacobian(
     let xc = rx + Vector3::new(cam[9], cam[10], cam[11]) + tau * moving;
     // `(I + τ[ω]×) v` for the rotation's and the point's columns.
     let tw = tau * Vector3::new(motion.velocity[0], motion.velocity[1], motion.velocity[2]);
-    let turn = |v: Vector3<f64>| v + tw.cross(&v);
+    let turn = |v: Vector3<f64>| if tau == 0.0 { v } else { v + tw.cross(&v) };
     let iz = 1.0 / xc.z;
     let (nx, ny) = (xc.x * iz, xc.y * iz);
     let r2 = nx * nx + ny * ny;
