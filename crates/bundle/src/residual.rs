@@ -95,13 +95,41 @@ pub fn metric_jacobian(
     jintr: &mut [[f64; 2]; NUM_INTRINSICS],
     jpt: &mut [[f64; 2]; 3],
 ) -> [f64; 2] {
+    // A still camera (every photo) gets the kernel without the rolling-shutter terms.
+    if motion.velocity == [0.0; 6] {
+        jacobian::<false>(cam, intr, x, obs, motion, jpose, jintr, jpt)
+    } else {
+        jacobian::<true>(cam, intr, x, obs, motion, jpose, jintr, jpt)
+    }
+}
+
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn jacobian<const ROLLING: bool>(
+    cam: &PoseBlock,
+    intr: &[f64; NUM_INTRINSICS],
+    x: &[f64; 4],
+    obs: [f64; 2],
+    motion: &Motion,
+    jpose: &mut [[f64; 2]; 6],
+    jintr: &mut [[f64; 2]; NUM_INTRINSICS],
+    jpt: &mut [[f64; 2]; 3],
+) -> [f64; 2] {
     let r = rot(cam);
     let rx = r * Vector3::new(x[0], x[1], x[2]);
-    let (tau, moving) = motion.at(intr, &rx);
-    let xc = rx + Vector3::new(cam[9], cam[10], cam[11]) + tau * moving;
+    let (tau, moving) = if ROLLING {
+        motion.at(intr, &rx)
+    } else {
+        (0.0, Vector3::zeros())
+    };
+    let xc = if ROLLING {
+        rx + Vector3::new(cam[9], cam[10], cam[11]) + tau * moving
+    } else {
+        rx + Vector3::new(cam[9], cam[10], cam[11])
+    };
     // `(I + τ[ω]×) v` for the rotation's and the point's columns.
     let tw = tau * Vector3::new(motion.velocity[0], motion.velocity[1], motion.velocity[2]);
-    let turn = |v: Vector3<f64>| if tau == 0.0 { v } else { v + tw.cross(&v) };
+    let turn = |v: Vector3<f64>| if ROLLING { v + tw.cross(&v) } else { v };
     let iz = 1.0 / xc.z;
     let (nx, ny) = (xc.x * iz, xc.y * iz);
     let r2 = nx * nx + ny * ny;
@@ -149,9 +177,13 @@ pub fn metric_jacobian(
     jintr[5] = [ax * r2, ay * r2];
     jintr[6] = [ax * r2 * r2, ay * r2 * r2];
     // Read-out: ∂X_c/∂ρ = basis · (ω × R X + ν).
-    let dm = through(moving);
-    jintr[7] = [dm[0] * motion.basis[0], dm[1] * motion.basis[0]];
-    jintr[8] = [dm[0] * motion.basis[1], dm[1] * motion.basis[1]];
+    if ROLLING {
+        let dm = through(moving);
+        jintr[7] = [dm[0] * motion.basis[0], dm[1] * motion.basis[0]];
+        jintr[8] = [dm[0] * motion.basis[1], dm[1] * motion.basis[1]];
+    } else {
+        (jintr[7], jintr[8]) = ([0.0; 2], [0.0; 2]);
+    }
     res
 }
 
