@@ -35,6 +35,12 @@ pub struct MetricBaRecord {
     /// The observations' noise σ̂ measured before this adjustment ([`Noise::observation`]), when
     /// the loss and the priors were scaled by it.
     pub noise_px: Option<f64>,
+    /// The robust cost `½ Σ ρ(‖r‖²)` (plus the priors') before and after the adjustment, squared
+    /// pixels of a median-σ keypoint.
+    #[serde(default)]
+    pub initial_cost: f64,
+    #[serde(default)]
+    pub final_cost: f64,
 }
 
 impl MetricBaRecord {
@@ -60,6 +66,8 @@ impl MetricBaRecord {
             seconds: s.total_seconds,
             observations_removed: removed,
             points_removed: points,
+            initial_cost: s.initial_cost,
+            final_cost: s.final_cost,
         }
     }
 }

@@ -269,6 +269,14 @@ fn pair_disagreement(
     let deg = cos.acos().to_degrees();
     let sigma_deg = sigma.map_or(f64::INFINITY, f64::to_degrees);
     let allowed_deg = MAX_DISAGREEMENT_DEG.hypot(SIGMAS * sigma_deg);
+    tracing::trace!(
+        a = %ia.name,
+        b = %ib.name,
+        deg,
+        sigma_deg,
+        allowed_deg,
+        "a pair's rotation against the model's"
+    );
     deg.is_finite().then(|| Disagreement {
         deg,
         allowed_deg,

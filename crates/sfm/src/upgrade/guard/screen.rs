@@ -258,6 +258,8 @@ mod tests {
                 points_removed: 0,
                 loss_scale_px: 1.5,
                 noise_px: None,
+                initial_cost: 0.0,
+                final_cost: 0.0,
             }])
         }
     }

@@ -80,6 +80,8 @@ fn adjusted(removed: usize, rms: f64) -> Vec<MetricBaRecord> {
         points_removed: 0,
         loss_scale_px: 1.5,
         noise_px: None,
+        initial_cost: 0.0,
+        final_cost: 0.0,
     }]
 }
 
