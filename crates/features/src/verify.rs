@@ -341,9 +341,11 @@ pub fn verify_pair(
                     0.0
                 };
                 tracing::trace!(
-                    "pair ({i}, {j}): guided round: {} -> {} inliers, lines moved {shift:.3} px",
+                    "pair ({i}, {j}): guided round: {} -> {} inliers ({} of the {} seeds), lines moved {shift:.3} px",
                     inliers.len(),
-                    kept.len()
+                    kept.len(),
+                    mask.iter().take(seeds.len()).filter(|&&k| k).count(),
+                    seeds.len()
                 );
                 inliers = kept;
                 fm = f_ref;
