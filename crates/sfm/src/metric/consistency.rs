@@ -26,6 +26,15 @@
 //! held pairs join, since a group of views misplaced together holds its own pairs through one
 //! another.
 //!
+//! A repeated texture makes wrong general pairs too, with confident rotations: on a phone-like
+//! video of a patterned wallpaper, the general pairs of a few early frames matched the motif to
+//! its copies a lattice vector away (more than half of even the RANSAC seeds a pixel or more off
+//! the true epipolar lines), and their rotations were 7–12° off with standard deviations of 0.1°;
+//! four frames, right to 0.02°, were taken out. Their rotation-only pairs with their neighbours
+//! (no usable `F`, a short baseline over which copies lie far apart) were right. Such a pair
+//! confirms the model's relative pose when the pose carries most of its matches through one plane
+//! (`rotation_only.rs`); it never counts against it.
+//!
 //! What is done with a flagged view is the pipeline's (`pipeline/model.rs`): the model is built
 //! again without it, the view registered into the sound model by calibrated resection and judged
 //! once more, and one that still disagrees is taken out ([`take_out`]). A merge is also checked
@@ -219,17 +228,17 @@ fn pair_disagreement(
     rec: &MetricReconstruction,
     pair: &crate::input::SfmPair,
 ) -> Option<Disagreement> {
-    if pair.configuration != TwoViewConfiguration::General || pair.matches.len() < MIN_PAIR_INLIERS
-    {
+    let checked = matches!(
+        pair.configuration,
+        TwoViewConfiguration::General | TwoViewConfiguration::PureRotation
+    );
+    if !checked || pair.matches.len() < MIN_PAIR_INLIERS {
         return None;
     }
-    let f = pair.f?;
     let (ia, ib) = (&ctx.input.images[pair.a], &ctx.input.images[pair.b]);
     let (va, vb) = (rec.views.get(&ia.id)?, rec.views.get(&ib.id)?);
     let ka = &rec.cameras.get(&va.camera_id)?.intrinsics;
     let kb = &rec.cameras.get(&vb.camera_id)?.intrinsics;
-    // x_bᵀ F x_a = 0 in pixels; in normalised coordinates x_bᵀ (K_bᵀ F K_a) x_a = 0.
-    let e = kb.k_matrix().transpose() * f * ka.k_matrix();
     // The cheirality test and the covariance need a sample, not every inlier.
     let step = pair.matches.len().div_ceil(SAMPLE).max(1);
     let (xa, xb): (Vec<Vector2<f64>>, Vec<Vector2<f64>>) = pair
@@ -243,13 +252,32 @@ fn pair_disagreement(
             )
         })
         .unzip();
+    let rel = vb.cam_from_world * va.cam_from_world.inverse();
+    // A match farther from its line than the model's outlier threshold is an outlier of that pose.
+    let cap = 2.0 * ctx.opts.metric_max_error_px / (ka.f + kb.f);
+    if pair.configuration == TwoViewConfiguration::PureRotation {
+        // No F: the pair can only confirm the model's relative pose (`rotation_only.rs`).
+        let (r, t) = (
+            rel.rotation.to_rotation_matrix().into_inner(),
+            rel.translation.vector,
+        );
+        let support = rotation_only::plane_support(&r, &t, &xa, &xb, cap)?;
+        tracing::trace!(a = %ia.name, b = %ib.name, support, "a rotation-only pair against the model");
+        return (support >= rotation_only::CONFIRMING_SUPPORT).then_some(Disagreement {
+            deg: 0.0,
+            allowed_deg: MAX_DISAGREEMENT_DEG,
+            held: false,
+        });
+    }
+    let f = pair.f?;
+    // x_bᵀ F x_a = 0 in pixels; in normalised coordinates x_bᵀ (K_bᵀ F K_a) x_a = 0.
+    let e = kb.k_matrix().transpose() * f * ka.k_matrix();
     let (_, r, t) = crate::projective::init::essential_pose(&e, &xa, &xb)?;
     // E = K_bᵀ F K_a is an essential matrix only up to the model's calibration error and F's
     // noise: the pose it is projected to is refined on the inliers' Sampson errors, and so is the
     // model's own relative pose; the pair's rotation is the better fit of the two
     // (`pair_rotation::best_pose`).
     let scale = pair.matches.len() as f64 / xa.len().max(1) as f64;
-    let rel = vb.cam_from_world * va.cam_from_world.inverse();
     let starts = [
         (r, t),
         (
@@ -260,8 +288,6 @@ fn pair_disagreement(
                 .unwrap_or_default(),
         ),
     ];
-    // A match farther from its line than the model's outlier threshold is an outlier of that pose.
-    let cap = 2.0 * ctx.opts.metric_max_error_px / (ka.f + kb.f);
     let (r, sigma) = pair_rotation::best_pose(&starts, &xa, &xb, scale, cap)?;
     let model =
         (vb.cam_from_world.rotation * va.cam_from_world.rotation.inverse()).to_rotation_matrix();
@@ -475,6 +501,7 @@ pub(crate) fn take_out(
 }
 
 mod held;
+mod rotation_only;
 use held::{exempt_held, held_by_structure};
 
 #[cfg(test)]
