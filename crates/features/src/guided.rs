@@ -221,6 +221,42 @@ pub fn guided_matches(
     out
 }
 
+/// Guided matching's rounds stop once the refined F moves the epipolar lines by less than this
+/// share of the search band (`guided_max_epipolar_px`) where the verified matches lie
+/// ([`line_shift`]): another round would search almost the same bands.
+pub const GUIDED_STABLE_FRACTION: f64 = 0.05;
+
+/// How far `g`'s epipolar lines lie from `f`'s, pixels: the 90th percentile, over the matches
+/// (`a` in image 1, `b` in image 2), of the change in the signed distance of `b` from the line of
+/// `a`.
+pub(crate) fn line_shift(
+    f: &Matrix3<f64>,
+    g: &Matrix3<f64>,
+    f1: &Features,
+    f2: &Features,
+    matches: &[(u32, u32)],
+) -> f64 {
+    // F is defined up to scale and sign: compare like with like.
+    let g = if f.dot(g) < 0.0 { -g } else { *g };
+    let signed = |m: &Matrix3<f64>, x1: &Vector2<f64>, x2: &Vector2<f64>| {
+        let l = m * Vector3::new(x1.x, x1.y, 1.0);
+        (l.x * x2.x + l.y * x2.y + l.z) / (l.x * l.x + l.y * l.y).sqrt()
+    };
+    let mut d: Vec<f64> = matches
+        .iter()
+        .map(|&(a, b)| {
+            let (x1, x2) = (point(f1, a), point(f2, b));
+            (signed(&g, &x1, &x2) - signed(f, &x1, &x2)).abs()
+        })
+        .filter(|v| v.is_finite())
+        .collect();
+    if d.is_empty() {
+        return f64::INFINITY;
+    }
+    let k = (d.len() * 9 / 10).min(d.len() - 1);
+    *d.select_nth_unstable_by(k, f64::total_cmp).1
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

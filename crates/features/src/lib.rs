@@ -33,6 +33,7 @@
 //!   whose first round verified few).
 
 pub mod close_views;
+pub mod copies;
 pub mod detector;
 mod epipolar_grid;
 pub mod error;

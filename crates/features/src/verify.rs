@@ -17,14 +17,14 @@ use handheld_robust::{
     estimate_two_view_geometry, refine_two_view, Match2d2d, TwoViewConfiguration, TwoViewGeometry,
     TwoViewOptions,
 };
-use nalgebra::{Matrix3, Vector2, Vector3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::detector::{Descriptors, Features};
 use crate::error::{check, FeatureError};
+use crate::guided::line_shift;
 use crate::guided::point;
-pub use crate::guided::{guided_matches, GUIDED_RIVAL_BAND_FACTOR};
+pub use crate::guided::{guided_matches, GUIDED_RIVAL_BAND_FACTOR, GUIDED_STABLE_FRACTION};
 use crate::matching::{
     distinct, match_descriptors, match_prepared, prepare, Match, MatchOptions, Prepared, TwinCache,
     Twins,
@@ -68,6 +68,10 @@ pub struct PairVerificationOptions {
     /// pass as matches. Default true.
     #[serde(default = "yes")]
     pub twin_test: bool,
+    /// Leave out a general pair whose inliers are a repeated pattern and its copy a period away
+    /// ([`crate::copies`]): its F fits both and its relative pose is wrong. Default true.
+    #[serde(default = "yes")]
+    pub repeated_pattern_test: bool,
 }
 
 fn yes() -> bool {
@@ -87,6 +91,7 @@ impl Default for PairVerificationOptions {
             guided_rounds: default_guided_rounds(),
             seed_features: Some(2048),
             twin_test: true,
+            repeated_pattern_test: true,
         }
     }
 }
@@ -132,6 +137,8 @@ pub struct VerifiedPair {
     pub inliers: Vec<(u32, u32)>,
     /// How many of the inliers came from guided matching.
     pub guided_added: usize,
+    /// Verified as general, then left out as a repeated pattern's copies ([`crate::copies`]).
+    pub repeated_pattern: bool,
 }
 
 /// A serialisable summary of a verified pair (for manifests and benches).
@@ -144,6 +151,8 @@ pub struct PairSummary {
     pub guided_added: usize,
     pub configuration: TwoViewConfiguration,
     pub view_distance_px: Option<f64>,
+    #[serde(default)]
+    pub repeated_pattern: bool,
 }
 
 impl VerifiedPair {
@@ -156,6 +165,7 @@ impl VerifiedPair {
             guided_added: self.guided_added,
             configuration: self.geometry.configuration,
             view_distance_px: self.geometry.view_distance_px,
+            repeated_pattern: self.repeated_pattern,
         }
     }
 
@@ -179,6 +189,7 @@ impl VerifiedPair {
             geometry,
             inliers: self.inliers.into_iter().map(|(a, b)| (b, a)).collect(),
             guided_added: self.guided_added,
+            repeated_pattern: self.repeated_pattern,
         }
     }
 }
@@ -203,42 +214,6 @@ pub fn content_key(f: &Features) -> u64 {
         eat(u64::from(d.to_bits()));
     }
     h
-}
-
-/// Guided matching's rounds stop once the refined F moves the epipolar lines by less than this
-/// share of the search band (`guided_max_epipolar_px`) where the verified matches lie
-/// ([`line_shift`]): another round would search almost the same bands.
-pub const GUIDED_STABLE_FRACTION: f64 = 0.05;
-
-/// How far `g`'s epipolar lines lie from `f`'s, pixels: the 90th percentile, over the matches
-/// (`a` in image 1, `b` in image 2), of the change in the signed distance of `b` from the line of
-/// `a`.
-fn line_shift(
-    f: &Matrix3<f64>,
-    g: &Matrix3<f64>,
-    f1: &Features,
-    f2: &Features,
-    matches: &[(u32, u32)],
-) -> f64 {
-    // F is defined up to scale and sign: compare like with like.
-    let g = if f.dot(g) < 0.0 { -g } else { *g };
-    let signed = |m: &Matrix3<f64>, x1: &Vector2<f64>, x2: &Vector2<f64>| {
-        let l = m * Vector3::new(x1.x, x1.y, 1.0);
-        (l.x * x2.x + l.y * x2.y + l.z) / (l.x * l.x + l.y * l.y).sqrt()
-    };
-    let mut d: Vec<f64> = matches
-        .iter()
-        .map(|&(a, b)| {
-            let (x1, x2) = (point(f1, a), point(f2, b));
-            (signed(&g, &x1, &x2) - signed(f, &x1, &x2)).abs()
-        })
-        .filter(|v| v.is_finite())
-        .collect();
-    if d.is_empty() {
-        return f64::INFINITY;
-    }
-    let k = (d.len() * 9 / 10).min(d.len() - 1);
-    *d.select_nth_unstable_by(k, f64::total_cmp).1
 }
 
 /// The ratio of the twin test ([`distinct`]): a match must be nearer than every look-alike in
@@ -281,6 +256,7 @@ pub fn verify_pair(
                 geometry: TwoViewGeometry::too_few(0),
                 inliers: Vec::new(),
                 guided_added: 0,
+                repeated_pattern: false,
             };
         }
     };
@@ -366,6 +342,9 @@ pub fn verify_pair(
             );
         }
     }
+    let repeated_pattern = opts.repeated_pattern_test
+        && geometry.configuration == TwoViewConfiguration::General
+        && crate::copies::set_aside(i, j, f1, f2, &mut geometry, &mut inliers, &opts.two_view);
     VerifiedPair {
         i,
         j,
@@ -373,6 +352,7 @@ pub fn verify_pair(
         geometry,
         inliers,
         guided_added,
+        repeated_pattern,
     }
 }
 

@@ -110,6 +110,10 @@ pub struct MatchesSummary {
     pub second_round_pairs: usize,
     #[serde(default)]
     pub second_round_verified: usize,
+    /// Pairs verified as general and then left out: their inliers were a repeated pattern and its
+    /// copy ([`handheld_features::copies`]).
+    #[serde(default)]
+    pub repeated_pattern_pairs: usize,
 }
 
 /// The matches stage.
@@ -463,6 +467,7 @@ fn finish(
             inliers_per_verified_pair_median: inl.get(inl.len() / 2).copied(),
             second_round_pairs: 0,
             second_round_verified: 0,
+            repeated_pattern_pairs: verified.iter().filter(|v| v.repeated_pattern).count(),
         },
     ))
 }
