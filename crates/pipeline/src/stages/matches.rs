@@ -325,19 +325,11 @@ impl Matches {
         round.pairs
     }
 
-    /// The verification options for this input: the repeated-pattern test
-    /// (`handheld_features::copies`) only where the pairs are not sequential. Sequential pairs
-    /// (a video's frames, or photos matched in their order) hold each view's neighbours, and a
-    /// wider pair whose copies the test finds still carries right wall matches that the model
-    /// needs: on the wallpaper video (`handheld demo --scene wallpaper --width 720 --height 1280
-    /// --fov 66 --k1 0.05 --frames 40 --video --crf 23 --seed 7`) the test left out 63 of its 190
-    /// general pairs (22–54 % of their inliers copies) and two frames went from 0.015° to
-    /// 1.2–1.9° off. The same 40 frames as photos, matched exhaustively, need it (33/40 views, up
-    /// to 6.6° off, without it; 40/40 within 0.035° with it).
+    /// The verification options for this input ([`PairPlan::tests_repeated_patterns`]).
     fn verification(&self, ingest: &IngestResult) -> PairVerificationOptions {
         let plan = self.options.pairs.plan(ingest.kind, ingest.images.len());
         let mut v = self.options.verification.clone();
-        v.repeated_pattern_test &= plan != PairPlan::Sequential;
+        v.repeated_pattern_test &= plan.tests_repeated_patterns();
         v
     }
 
