@@ -37,6 +37,7 @@ use handheld_robust::{
 use nalgebra::{Matrix3, Vector2, Vector3};
 
 use crate::detector::Features;
+use crate::epipolar_grid::Layout;
 use crate::guided::{dist, point};
 
 /// Homographies fitted to a pair's inliers, one after the other on what the earlier ones left.
@@ -80,8 +81,7 @@ struct Cells {
     cell: f64,
     cols: usize,
     rows: usize,
-    start: Vec<u32>,
-    index: Vec<u32>,
+    layout: Layout,
 }
 
 impl Cells {
@@ -94,33 +94,18 @@ impl Cells {
             .clamp(REACH_PX, 64.0);
         let cols = (w / cell) as usize + 1;
         let rows = (h / cell) as usize + 1;
-        let at = |k: &crate::detector::Keypoint| {
+        let layout = Layout::new(f, cols * rows, |k| {
             let (cx, cy) = (
                 (k.x.max(0.0) as f64 / cell) as usize,
                 (k.y.max(0.0) as f64 / cell) as usize,
             );
-            cy.min(rows - 1) * cols + cx.min(cols - 1)
-        };
-        let mut start = vec![0u32; cols * rows + 1];
-        for k in &f.keypoints {
-            start[at(k) + 1] += 1;
-        }
-        for c in 0..cols * rows {
-            start[c + 1] += start[c];
-        }
-        let mut fill = start.clone();
-        let mut index = vec![0u32; f.keypoints.len()];
-        for (i, k) in f.keypoints.iter().enumerate() {
-            let c = at(k);
-            index[fill[c] as usize] = i as u32;
-            fill[c] += 1;
-        }
+            Some(cy.min(rows - 1) * cols + cx.min(cols - 1))
+        });
         Self {
             cell,
             cols,
             rows,
-            start,
-            index,
+            layout,
         }
     }
 
@@ -137,12 +122,13 @@ impl Cells {
         for y in cy.saturating_sub(1)..(cy + 2).min(self.rows) {
             for x in cx.saturating_sub(1)..(cx + 2).min(self.cols) {
                 let c = y * self.cols + x;
-                for &k in &self.index[self.start[c] as usize..self.start[c + 1] as usize] {
-                    let xk = point(f, k);
+                let l = &self.layout;
+                for s in l.start[c] as usize..l.start[c + 1] as usize {
+                    let xk = Vector2::new(l.xy[s][0], l.xy[s][1]);
                     if (xk - p).norm() > REACH_PX || (xk - xa).norm() <= MIN_SHIFT_PX / 4.0 {
                         continue;
                     }
-                    let k = k as usize;
+                    let k = l.index[s] as usize;
                     if dist(da, &f.descriptors.data[k * dim..(k + 1) * dim]) <= tau {
                         return true;
                     }
@@ -270,6 +256,11 @@ pub fn repeated_pattern(
         .iter()
         .map(|&(a, b)| Match2d2d::new(point(f1, a), point(f2, b)))
         .collect();
+    // Most pairs of a real scene have fewer than two planes: nothing else is computed for them.
+    let hs = planes(&m, threshold_px, ransac);
+    if hs.len() < 2 {
+        return None;
+    }
     let mut d: Vec<f32> = inliers
         .iter()
         .map(|&(a, b)| {
@@ -283,10 +274,6 @@ pub fn repeated_pattern(
     let mid = d.len() / 2;
     let tau = DISTANCE_FACTOR * *d.select_nth_unstable_by(mid, f32::total_cmp).1;
     let cells = Cells::new(f1);
-    let hs = planes(&m, threshold_px, ransac);
-    if hs.len() < 2 {
-        return None;
-    }
     let step = f1.keypoints.len().div_ceil(SAMPLE).max(1);
     let mut best: Option<Copies> = None;
     for p in 0..hs.len() {

@@ -30,15 +30,15 @@ fn extent(f: &Features) -> (f64, f64) {
 }
 
 /// One layout of the grid: the keypoints of cell `c` are `index[start[c]..start[c + 1]]`.
-struct Layout {
-    start: Vec<u32>,
-    index: Vec<u32>,
+pub(crate) struct Layout {
+    pub(crate) start: Vec<u32>,
+    pub(crate) index: Vec<u32>,
     /// The position of `index[k]`, in the same order (the band test reads them in sequence).
-    xy: Vec<[f64; 2]>,
+    pub(crate) xy: Vec<[f64; 2]>,
 }
 
 impl Layout {
-    fn new(
+    pub(crate) fn new(
         f: &Features,
         cells: usize,
         cell_of: impl Fn(&crate::detector::Keypoint) -> Option<usize>,
